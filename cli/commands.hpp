@@ -1,0 +1,13 @@
+// Each command file registers its subcommands on the CLI11 app; main.cpp calls them all.
+// A command reports failure by throwing (std::exception): main prints "clothdb: error: <what>"
+// and exits 1. Messages name the file and field that is wrong.
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+namespace clothdb::cli {
+
+void register_bench_solvers(CLI::App& bench);  // cmd_bench_solvers.cpp
+void register_scene_commands(CLI::App& app);   // cmd_scene.cpp: `clothdb scene run|list`
+
+}  // namespace clothdb::cli

@@ -1,0 +1,29 @@
+// clothdb: the command-line tool for precomputed secondary cloth.
+#include <cstdio>
+#include <exception>
+
+#include "commands.hpp"
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "clothdb: precomputed secondary cloth. Simulates a garment offline over a character's "
+      "motion graph, stores it in one SQLite database, and plays it back."};
+  app.require_subcommand(1);
+  app.set_help_all_flag("--help-all", "Show help for every subcommand");
+
+  CLI::App* bench = app.add_subcommand("bench", "Benchmarks (speed against error)");
+  bench->require_subcommand(1);
+
+  clothdb::cli::register_bench_solvers(*bench);
+  clothdb::cli::register_scene_commands(app);
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "clothdb: error: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}

@@ -1,0 +1,240 @@
+// The hard cases of the core issue, built from procedural sheets. Every scene is small by default
+// (a few hundred vertices) so tests run fast; benchmarks pass a larger resolution.
+#include "scenes/hard_cases.hpp"
+
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+
+namespace clothdb {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+// A 1 m x 1 m sheet hanging in the XY plane, top edge at y = 1, pinned at its two top corners.
+ClothScene hanging_sheet(const std::string& name, int resolution, const Material& material) {
+  const int n = resolution > 0 ? resolution : 21;
+  ClothMesh mesh = make_quad_grid(n, n, 1.0, 1.0);
+  std::vector<int> pins{grid_index(mesh, 0, n - 1), grid_index(mesh, n - 1, n - 1)};
+  ClothScene scene;
+  scene.name = name;
+  scene.model = make_model(std::move(mesh), material, pins);
+  // Air drag at 2/s of the fabric's mass (c / density): the swinging modes, which the
+  // stiffness-proportional damping barely touches, settle within the scene's length.
+  scene.env.air_drag = 2.0 * material.density;
+  scene.env.collision_margin = material.thickness;
+  scene.initial = rest_state(scene.model);
+  scene.frames = 90;
+  return scene;
+}
+
+ClothScene sphere_drape(int resolution) {
+  const int n = resolution > 0 ? resolution : 21;
+  ClothMesh mesh = make_quad_grid(n, n, 1.0, 1.0);
+  // Lay the sheet horizontally (XY -> XZ), centred over a sphere of radius 0.3 at the origin.
+  Eigen::Matrix3d lay;
+  lay << 1, 0, 0, 0, 0, 1, 0, -1, 0;
+  transform_mesh(mesh, lay, Vec3(-0.5, 0.35, 0.5));
+  ClothScene scene;
+  scene.name = "sphere-drape";
+  scene.description = "free sheet falling onto a sphere: contact, friction, penetration";
+  Material m;
+  scene.model = make_model(std::move(mesh), m, {});
+  SphereCollider sphere;
+  sphere.radius = 0.3;
+  scene.env.spheres.push_back(sphere);
+  scene.env.air_drag = 2.0 * m.density;
+  scene.env.collision_margin = m.thickness;
+  scene.initial = rest_state(scene.model);
+  scene.frames = 60;
+  return scene;
+}
+
+ClothScene swung_sheet(int resolution) {
+  const int n = resolution > 0 ? resolution : 21;
+  ClothMesh mesh = make_quad_grid(n, n, 1.0, 1.0);
+  std::vector<int> pins;
+  for (int c = 0; c < n; ++c) pins.push_back(grid_index(mesh, c, n - 1));
+  ClothScene scene;
+  scene.name = "swung-sheet";
+  scene.description = "sheet pinned along its top edge, swung sideways at up to 5 m/s";
+  Material m;
+  scene.model = make_model(std::move(mesh), m, pins);
+  scene.env.air_drag = 2.0 * m.density;
+  scene.env.collision_margin = m.thickness;
+  scene.initial = rest_state(scene.model);
+  scene.frames = 60;
+  const Eigen::Matrix3Xd pin_rest = kinematic_positions(scene.model, scene.model.mesh.rest);
+  // x(t) = A sin(w t) along z (out of the sheet's plane), peak speed A w = 5 m/s at 2 Hz.
+  const double w = 2.0 * kPi * 2.0, amplitude = 5.0 / w;
+  scene.kinematic_path = [pin_rest, w, amplitude](double t) {
+    Eigen::Matrix3Xd p = pin_rest;
+    p.row(2).array() += amplitude * std::sin(w * t);
+    return p;
+  };
+  return scene;
+}
+
+ClothScene slivers(int resolution) {
+  const int n = resolution > 0 ? resolution : 21;
+  ClothMesh mesh = make_quad_grid(n, n, 1.0, 1.0);
+  // Collapse one row onto the row below (1e-5 of the spacing apart) and squeeze one column onto
+  // its neighbour: a band of near-zero-area triangles and a band of slivers.
+  const double dy = 1.0 / (n - 1);
+  for (int c = 0; c < n; ++c) {
+    mesh.rest(1, grid_index(mesh, c, n / 2)) = mesh.rest(1, grid_index(mesh, c, n / 2 - 1)) + 1e-5 * dy;
+  }
+  for (int r = 0; r < n; ++r) {
+    mesh.rest(0, grid_index(mesh, n / 3, r)) = mesh.rest(0, grid_index(mesh, n / 3 - 1, r)) + 0.02 * dy;
+  }
+  std::vector<int> pins{grid_index(mesh, 0, n - 1), grid_index(mesh, n - 1, n - 1)};
+  ClothScene scene;
+  scene.name = "slivers";
+  scene.description = "hanging sheet with near-zero-area and sliver triangles";
+  Material m;
+  scene.model = make_model(std::move(mesh), m, pins);
+  scene.env.air_drag = 2.0 * m.density;
+  scene.env.collision_margin = m.thickness;
+  scene.initial = rest_state(scene.model);
+  scene.frames = 60;
+  return scene;
+}
+
+ClothScene stretched_start(int resolution) {
+  const int n = resolution > 0 ? resolution : 21;
+  ClothMesh mesh = make_quad_grid(n, n, 1.0, 1.0);
+  const int top_middle = grid_index(mesh, n / 2, n - 1);
+  ClothScene scene;
+  scene.name = "stretched-start";
+  scene.description = "sheet hung from its top middle, starting stretched to 150 %";
+  Material m;
+  scene.model = make_model(std::move(mesh), m, {top_middle});
+  scene.env.air_drag = 2.0 * m.density;
+  scene.env.collision_margin = m.thickness;
+  scene.initial = rest_state(scene.model);
+  const Vec3 anchor = scene.model.mesh.rest.col(top_middle);
+  scene.initial.x = ((scene.model.mesh.rest.colwise() - anchor) * 1.5).colwise() + anchor;
+  scene.frames = 60;
+  return scene;
+}
+
+ClothScene cantilever(int resolution) {
+  // A plate 0.2 m long (x) and 0.04 m wide (z), clamped along x = 0 by two columns of nodes so the
+  // clamp carries a moment, loaded by its own weight. Poisson 0 so the strip's rigidity per unit
+  // width is exactly D = E t^3 / 12 and Euler-Bernoulli gives the tip deflection q L^4 / (8 D).
+  const int columns = resolution > 0 ? resolution : 21;
+  const int rows = std::max(3, columns / 5 + 1);
+  ClothMesh mesh = make_quad_grid(columns, rows, 0.2, 0.04);
+  Eigen::Matrix3d lay;
+  lay << 1, 0, 0, 0, 0, 1, 0, -1, 0;
+  transform_mesh(mesh, lay, Vec3(0, 0, 0.02));
+  std::vector<int> clamp;
+  for (int r = 0; r < rows; ++r) {
+    clamp.push_back(grid_index(mesh, 0, r));
+    clamp.push_back(grid_index(mesh, 1, r));
+  }
+  Material m;
+  m.youngs_modulus = 1.0e7;
+  m.thickness = 1.0e-3;
+  m.poisson = 0.0;
+  m.bending_stiffness = -1.0;  // plate value E t^3 / 12
+  m.damping = 0.01;
+  ClothScene scene;
+  scene.name = "cantilever";
+  scene.description = "plate clamped along one edge, bending under its own weight";
+  scene.model = make_model(std::move(mesh), m, clamp);
+  scene.env.air_drag = 20.0 * m.density;
+  scene.env.collision_margin = m.thickness;
+  scene.initial = rest_state(scene.model);
+  scene.frames = 120;
+  return scene;
+}
+
+}  // namespace
+
+std::vector<std::string> hard_case_names() {
+  return {"hanging-sheet", "sphere-drape",       "swung-sheet", "stiff-large-step",
+          "slivers",       "stretched-start",    "light-stiff-fabric", "cantilever"};
+}
+
+ClothScene make_hard_case(const std::string& name, int resolution) {
+  if (name == "hanging-sheet") {
+    ClothScene s = hanging_sheet(name, resolution, Material{});
+    s.description = "1 m sheet hanging from two corners";
+    return s;
+  }
+  if (name == "stiff-large-step") {
+    Material m;
+    m.youngs_modulus *= 10.0;
+    ClothScene s = hanging_sheet(name, resolution, m);
+    s.description = "hanging sheet with E x10, meant for one step per frame (1/30 s, no substeps)";
+    return s;
+  }
+  if (name == "light-stiff-fabric") {
+    Material m;
+    m.density = 0.15;
+    m.youngs_modulus = 4.0e8;  // E t = 2e5 N/m: a stiff, light fabric (high stiffness/mass ratio)
+    ClothScene s = hanging_sheet(name, resolution, m);
+    s.description = "light fabric (0.15 kg/m^2) with high stiffness (E t = 2e5 N/m)";
+    return s;
+  }
+  if (name == "sphere-drape") return sphere_drape(resolution);
+  if (name == "swung-sheet") return swung_sheet(resolution);
+  if (name == "slivers") return slivers(resolution);
+  if (name == "stretched-start") return stretched_start(resolution);
+  if (name == "cantilever") return cantilever(resolution);
+  std::string known;
+  for (const auto& n : hard_case_names()) known += (known.empty() ? "" : ", ") + n;
+  throw std::invalid_argument("unknown scene '" + name + "' (known: " + known + ")");
+}
+
+ClothScene make_large_sheet(int vertices) {
+  const int side = std::max(2, static_cast<int>(std::lround(std::sqrt(static_cast<double>(vertices)))));
+  ClothScene s = hanging_sheet("large-sheet", side, Material{});
+  s.description = "hanging sheet of " + std::to_string(side * side) + " vertices";
+  return s;
+}
+
+RunResult run_scene(const ClothScene& scene, Solver& solver, int frames, bool keep_frames) {
+  if (frames <= 0) frames = scene.frames;
+  RunResult result;
+  ClothState state = scene.initial;
+  Environment env = scene.env;
+  StepInputs inputs;
+  inputs.env = &env;
+  const Vec3 g = env.gravity;
+  const double energy0 = kinetic_energy(scene.model, state.v) + gravity_potential(scene.model, state.x, g);
+  auto record = [&](const StepReport* report) {
+    FrameMetrics m;
+    m.max_strain = max_edge_strain(scene.model, state.x);
+    m.max_penetration = max_penetration(state.x, scene.model.inv_mass, env);
+    m.mean_penetration = mean_penetration(state.x, scene.model.inv_mass, env);
+    m.kinetic_energy = kinetic_energy(scene.model, state.v);
+    m.total_energy = m.kinetic_energy + gravity_potential(scene.model, state.x, g) - energy0;
+    if (report) {
+      m.step_halvings = report->step_halvings;
+      m.stable = report->stable;
+    }
+    result.metrics.push_back(m);
+    if (keep_frames) result.frames.push_back(state.x);
+  };
+  record(nullptr);
+  for (int f = 1; f <= frames; ++f) {
+    const double t0 = (f - 1) * scene.frame_dt, t1 = f * scene.frame_dt;
+    if (scene.collider_path) scene.collider_path(t0, t1, env);
+    if (scene.kinematic_path) inputs.kinematic_targets = scene.kinematic_path(t1);
+    const auto start = std::chrono::steady_clock::now();
+    const StepReport report = solver.step(state, scene.frame_dt, inputs);
+    result.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    if (!report.stable) {
+      result.stable = false;
+      result.message = "frame " + std::to_string(f) + ": " + report.message;
+      break;
+    }
+    record(&report);
+  }
+  return result;
+}
+
+}  // namespace clothdb

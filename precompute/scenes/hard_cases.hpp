@@ -1,0 +1,61 @@
+// The shared hard cloth scenes, used by tests and by `clothdb bench solvers` alike.
+#pragma once
+
+#include <Eigen/Core>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "cloth/collision.hpp"
+#include "cloth/model.hpp"
+#include "solvers/solver.hpp"
+
+namespace clothdb {
+
+struct ClothScene {
+  std::string name;
+  std::string description;
+  ClothModel model;
+  Environment env;
+  ClothState initial;
+  double frame_dt = 1.0 / 30.0;  // output rate
+  int frames = 60;               // default length
+  // Positions of model.kinematic at time t (3 x kinematic.size()); empty function: pins stay.
+  std::function<Eigen::Matrix3Xd(double t)> kinematic_path;
+  // Moves colliders to time t (sets start/end poses for the step ending at t); empty: static.
+  std::function<void(double t_start, double t_end, Environment& env)> collider_path;
+};
+
+// Names: "hanging-sheet", "sphere-drape", "swung-sheet", "stiff-large-step", "slivers",
+// "stretched-start", "light-stiff-fabric", "cantilever". `resolution` is the nodes per side
+// (0 = the scene's default, small enough for tests).
+std::vector<std::string> hard_case_names();
+ClothScene make_hard_case(const std::string& name, int resolution = 0);
+// A hanging sheet with about `vertices` vertices (for the 10,000-vertex benchmark).
+ClothScene make_large_sheet(int vertices);
+
+// Per-frame diagnostics of a run.
+struct FrameMetrics {
+  double max_strain = 0;       // max (l - l0) / l0 over edges
+  double max_penetration = 0;  // m
+  double mean_penetration = 0; // m
+  double kinetic_energy = 0;   // J
+  double total_energy = 0;     // kinetic + gravity potential (relative to the start), J
+  int step_halvings = 0;
+  bool stable = true;
+};
+
+struct RunResult {
+  std::vector<Eigen::Matrix3Xd> frames;  // positions per output frame (frame 0 = initial)
+  std::vector<FrameMetrics> metrics;     // one per frame
+  bool stable = true;                    // false if any step blew up (the run stops there)
+  std::string message;                   // the first instability message
+  double seconds = 0;                    // wall time spent in solver steps
+};
+
+// Runs `scene` for `frames` output frames (0 = scene.frames) with `solver`, one solver step per
+// output frame (the solver sub-steps internally). Stops at the first unstable step.
+RunResult run_scene(const ClothScene& scene, Solver& solver, int frames = 0,
+                    bool keep_frames = true);
+
+}  // namespace clothdb

@@ -1,0 +1,99 @@
+// One solver interface, four implementations: mass-spring (Provot 1995, seed 001), PBD (Mueller
+// 2007, seed 000 Algorithm 1), XPBD (Macklin 2016), implicit Newton on discrete elastic plates /
+// shells energies (seed 004 Algorithm 1; Baraff & Witkin 1998). One step: state, dt -> state.
+#pragma once
+
+#include <Eigen/Core>
+#include <memory>
+#include <string>
+
+#include "cloth/collision.hpp"
+#include "cloth/model.hpp"
+
+namespace clothdb {
+
+struct ClothState {
+  Eigen::Matrix3Xd x;  // positions, m
+  Eigen::Matrix3Xd v;  // velocities, m/s
+};
+
+// The state at rest positions with zero velocity.
+ClothState rest_state(const ClothModel& model);
+
+enum class SolverKind { MassSpring, Pbd, Xpbd, Newton };
+const char* solver_name(SolverKind kind);  // "mass-spring", "pbd", "xpbd", "newton"
+// Parses a name as above; throws std::invalid_argument naming the accepted values.
+SolverKind parse_solver_kind(const std::string& name);
+
+enum class LinearSolverKind { SimplicialLDLT, Cholmod, ConjugateGradient };
+const char* linear_solver_name(LinearSolverKind kind);  // "ldlt", "cholmod", "pcg"
+LinearSolverKind parse_linear_solver_kind(const std::string& name);
+
+struct SolverSettings {
+  int substeps = 1;     // sub-steps per step (all solvers)
+  int iterations = 10;  // constraint iterations per sub-step (PBD, XPBD)
+  // PBD constraint stiffness in [0, 1] (Mueller 2007); negative: derived from the material so that
+  // PBD approximates the same cloth (see pbd.cpp).
+  double pbd_stretch_stiffness = 1.0;
+  double pbd_bend_stiffness = -1.0;
+  // Provot's critical deformation rate for the mass-spring solver (0.1 = 10 %).
+  double provot_critical_rate = 0.1;
+  // Newton: stop when the free-DOF force residual's infinity norm is below
+  // newton_tolerance * (max vertex weight m g), or after newton_max_iterations (then halve dt).
+  double newton_tolerance = 1e-6;
+  int newton_max_iterations = 25;
+  int newton_max_halvings = 6;
+  LinearSolverKind linear_solver = LinearSolverKind::SimplicialLDLT;
+  int threads = 1;  // OpenMP threads; results are identical whatever this is
+};
+
+struct StepInputs {
+  const Environment* env = nullptr;  // required
+  // Positions of model.kinematic vertices at the end of the step (3 x kinematic.size()); empty
+  // means the kinematic vertices stay where they are. Solvers interpolate linearly in sub-steps.
+  Eigen::Matrix3Xd kinematic_targets;
+};
+
+struct StepReport {
+  bool stable = true;       // false: the step blew up (NaN/Inf or runaway); state was restored
+  int step_halvings = 0;    // Newton: how many times the step was halved to recover
+  int iterations = 0;       // Newton iterations or constraint iterations actually run
+  double residual = 0.0;    // Newton: final force residual (N); others: 0
+  std::string message;      // why it was unstable or halved, for the user
+};
+
+class Solver {
+ public:
+  virtual ~Solver() = default;
+  // Advances `state` by dt. On instability returns stable=false and leaves `state` as it was.
+  virtual StepReport step(ClothState& state, double dt, const StepInputs& inputs) = 0;
+  // Solver name and its settings, e.g. "xpbd substeps=20 iterations=1".
+  virtual std::string describe() const = 0;
+};
+
+std::unique_ptr<Solver> make_solver(SolverKind kind, const ClothModel& model,
+                                    const SolverSettings& settings);
+
+// Individual factories (each in its own .cpp).
+std::unique_ptr<Solver> make_mass_spring_solver(const ClothModel& model, const SolverSettings& s);
+std::unique_ptr<Solver> make_pbd_solver(const ClothModel& model, const SolverSettings& s);
+std::unique_ptr<Solver> make_xpbd_solver(const ClothModel& model, const SolverSettings& s);
+std::unique_ptr<Solver> make_newton_solver(const ClothModel& model, const SolverSettings& s);
+
+// Shared helpers (solver_common.cpp).
+// True if every entry of x and v is finite and no speed exceeds max_speed (m/s).
+bool state_is_sane(const ClothState& state, double max_speed = 200.0);
+// Sets kinematic vertices to the targets interpolated at fraction s in [0,1] between `start`
+// (their positions at the step start, 3 x k) and inputs.kinematic_targets; velocities of kinematic
+// vertices are set to (target - start) / dt.
+void place_kinematic(const ClothModel& model, const Eigen::Matrix3Xd& start,
+                     const StepInputs& inputs, double s, double dt, ClothState& state);
+// Gathers the current positions of the kinematic vertices (3 x k).
+Eigen::Matrix3Xd kinematic_positions(const ClothModel& model, const Eigen::Matrix3Xd& x);
+
+// Diagnostics used by tests and benchmarks.
+double max_edge_strain(const ClothModel& model, const Eigen::Matrix3Xd& x);  // max (l - l0)/l0
+double kinetic_energy(const ClothModel& model, const Eigen::Matrix3Xd& v);   // J, free vertices
+double gravity_potential(const ClothModel& model, const Eigen::Matrix3Xd& x, const Vec3& g);
+
+}  // namespace clothdb
