@@ -22,7 +22,7 @@ TEST(Mesh, QuadGridCounts) {
 
 TEST(Mesh, EquilateralSheetIsEquilateral) {
   const double edge = 0.05;
-  const ClothMesh m = make_equilateral_sheet(22, 22, edge);  // seed 004's 529-node grid is 23x23
+  const ClothMesh m = make_equilateral_sheet(22, 22, edge);
   EXPECT_EQ(m.vertex_count(), 22 * 22);
   for (const auto& e : m.edges) {
     EXPECT_NEAR((m.rest.col(e[0]) - m.rest.col(e[1])).norm(), edge, 1e-12);
@@ -167,6 +167,7 @@ TEST(Scenes, EveryHardCaseBuilds) {
   EXPECT_GT(max_edge_strain(make_hard_case("stretched-start").model,
                             make_hard_case("stretched-start").initial.x), 0.49);
   EXPECT_EQ(make_large_sheet(10000).model.vertex_count(), 10000);
+  EXPECT_EQ(make_seed004_grid().model.vertex_count(), 529);
 }
 
 TEST(Scenes, SwungSheetPinsReachFiveMetresPerSecond) {

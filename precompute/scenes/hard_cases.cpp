@@ -196,6 +196,21 @@ ClothScene make_large_sheet(int vertices) {
   return s;
 }
 
+ClothScene make_seed004_grid() {
+  ClothMesh mesh = make_equilateral_sheet(23, 23, 1.0 / 22.0);
+  std::vector<int> pins{grid_index(mesh, 0, 22), grid_index(mesh, 22, 22)};
+  Material m;
+  ClothScene scene;
+  scene.name = "seed004-529";
+  scene.description = "seed 004's 529-node equilateral grid hanging from two corners";
+  scene.model = make_model(std::move(mesh), m, pins);
+  scene.env.air_drag = 2.0 * m.density;
+  scene.env.collision_margin = m.thickness;
+  scene.initial = rest_state(scene.model);
+  scene.frames = 60;
+  return scene;
+}
+
 RunResult run_scene(const ClothScene& scene, Solver& solver, int frames, bool keep_frames) {
   if (frames <= 0) frames = scene.frames;
   RunResult result;

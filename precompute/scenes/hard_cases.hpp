@@ -33,6 +33,9 @@ std::vector<std::string> hard_case_names();
 ClothScene make_hard_case(const std::string& name, int resolution = 0);
 // A hanging sheet with about `vertices` vertices (for the 10,000-vertex benchmark).
 ClothScene make_large_sheet(int vertices);
+// Seed 004's grid: an equilateral-triangle sheet of 23 x 23 = 529 nodes (side 22 edges, 1 m),
+// hanging from its two top corners; the Newton solver's speed target is measured on it.
+ClothScene make_seed004_grid();
 
 // Per-frame diagnostics of a run.
 struct FrameMetrics {

@@ -1,0 +1,47 @@
+// Small helpers shared by the command files.
+#pragma once
+
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "solvers/solver.hpp"
+
+namespace clothdb::cli {
+
+inline std::vector<std::string> split_list(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream in(s);
+  std::string item;
+  while (std::getline(in, item, ','))
+    if (!item.empty()) out.push_back(item);
+  return out;
+}
+
+// Options that pick a solver and its settings, shared by every command that simulates.
+struct SolverOptions {
+  std::string solver = "xpbd";
+  std::string linear_solver = "ldlt";
+  SolverSettings settings;
+  void add_to(CLI::App& cmd) {
+    cmd.add_option("--solver", solver, "mass-spring | pbd | xpbd | newton")->capture_default_str();
+    cmd.add_option("--substeps", settings.substeps, "Sub-steps per frame")->capture_default_str()
+        ->check(CLI::PositiveNumber);
+    cmd.add_option("--iterations", settings.iterations, "Constraint iterations per sub-step (PBD, XPBD)")
+        ->capture_default_str()->check(CLI::PositiveNumber);
+    cmd.add_option("--tolerance", settings.newton_tolerance, "Newton force tolerance (relative to max m g)")
+        ->capture_default_str();
+    cmd.add_option("--linear-solver", linear_solver, "Newton's linear solver: ldlt | cholmod | pcg")
+        ->capture_default_str();
+    cmd.add_option("--threads", settings.threads, "OpenMP threads")->capture_default_str()
+        ->check(CLI::PositiveNumber);
+  }
+  SolverKind kind() const { return parse_solver_kind(solver); }
+  SolverSettings resolved() const {
+    SolverSettings s = settings;
+    s.linear_solver = parse_linear_solver_kind(linear_solver);
+    return s;
+  }
+};
+
+}  // namespace clothdb::cli

@@ -1,0 +1,63 @@
+// `clothdb bench solvers`: speed against error for the four solvers (core issue).
+#include <chrono>
+#include <cstdio>
+#include <memory>
+
+#include "bench/solver_bench.hpp"
+#include "cli_util.hpp"
+#include "commands.hpp"
+#include "report/output.hpp"
+
+namespace clothdb::cli {
+
+void register_bench_solvers(CLI::App& bench) {
+  struct Args {
+    std::string scenes, solvers, threads = "1", out = "out/bench-solvers";
+    SolverBenchOptions options;
+  };
+  auto args = std::make_shared<Args>();
+  CLI::App* cmd = bench.add_subcommand(
+      "solvers",
+      "Runs every solver over a range of settings on the hard-case scenes and a large sheet, "
+      "measures each against a reference (Newton, 8 sub-steps, tolerance 1e-9), and writes "
+      "solvers.csv, solvers.json, solvers.md and one SVG plot per scene (error against time, "
+      "Pareto front dashed).");
+  cmd->add_option("--scenes", args->scenes,
+                  "Comma-separated scenes (default: all hard cases, seed004-529, large-sheet)");
+  cmd->add_option("--solvers", args->solvers, "Comma-separated solvers (default: all four)");
+  cmd->add_option("--frames", args->options.frames, "Frames per run at 30 fps")
+      ->capture_default_str()->check(CLI::PositiveNumber);
+  cmd->add_option("--resolution", args->options.resolution,
+                  "Nodes per side of the hard-case sheets (0: scene default)")->capture_default_str();
+  cmd->add_option("--large-vertices", args->options.large_vertices,
+                  "Vertices of the large-sheet scene")->capture_default_str();
+  cmd->add_option("--threads", args->threads, "Comma-separated thread counts, e.g. 1,2")
+      ->capture_default_str();
+  cmd->add_flag("--quick", args->options.quick, "Two settings per solver instead of the full sweep");
+  cmd->add_option("--out", args->out, "Output directory")->capture_default_str();
+  cmd->callback([args] {
+    SolverBenchOptions options = args->options;
+    options.scenes = split_list(args->scenes);
+    options.solvers = split_list(args->solvers);
+    options.threads.clear();
+    for (const auto& t : split_list(args->threads)) options.threads.push_back(std::stoi(t));
+    for (const auto& s : options.solvers) parse_solver_kind(s);  // fail before any work
+    make_directories(args->out);
+    const auto start = std::chrono::steady_clock::now();
+    const auto rows = run_solver_bench(options, [&](const std::string& line) {
+      const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      std::fprintf(stderr, "[%6.1fs] %s\n", s, line.c_str());
+    });
+    write_file_atomic(args->out + "/solvers.csv", bench_rows_csv(rows));
+    write_file_atomic(args->out + "/solvers.json", bench_rows_json(rows));
+    write_file_atomic(args->out + "/solvers.md", bench_rows_markdown(rows));
+    std::vector<std::string> scenes;
+    for (const auto& r : rows)
+      if (std::find(scenes.begin(), scenes.end(), r.scene) == scenes.end()) scenes.push_back(r.scene);
+    for (const auto& s : scenes) write_file_atomic(args->out + "/" + s + ".svg", render_svg(bench_plot(rows, s)));
+    std::printf("%s", bench_rows_markdown(rows).c_str());
+    std::printf("\nwrote %s/solvers.{csv,json,md} and %zu SVG plots\n", args->out.c_str(), scenes.size());
+  });
+}
+
+}  // namespace clothdb::cli

@@ -1,0 +1,241 @@
+#include "bench/solver_bench.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+namespace clothdb {
+
+namespace {
+
+BenchConfig config(SolverKind kind, int substeps, int iterations, double tolerance = 1e-6,
+                   LinearSolverKind linear = LinearSolverKind::SimplicialLDLT) {
+  BenchConfig c{kind, SolverSettings{}, ""};
+  c.settings.substeps = substeps;
+  c.settings.iterations = iterations;
+  c.settings.newton_tolerance = tolerance;
+  c.settings.linear_solver = linear;
+  char buf[96];
+  switch (kind) {
+    case SolverKind::MassSpring: std::snprintf(buf, sizeof buf, "substeps=%d", substeps); break;
+    case SolverKind::Pbd:
+    case SolverKind::Xpbd:
+      std::snprintf(buf, sizeof buf, "substeps=%d iterations=%d", substeps, iterations);
+      break;
+    case SolverKind::Newton:
+      std::snprintf(buf, sizeof buf, "%s substeps=%d tol=%.0e", linear_solver_name(linear),
+                    substeps, tolerance);
+      break;
+  }
+  c.label = buf;
+  return c;
+}
+
+std::string csv_field(const std::string& s) {
+  if (s.find_first_of(",\"\n") == std::string::npos) return s;
+  std::string out = "\"";
+  for (char c : s) out += (c == '"') ? std::string("\"\"") : std::string(1, c);
+  return out + "\"";
+}
+
+}  // namespace
+
+std::vector<BenchConfig> bench_configs(SolverKind kind, bool quick) {
+  using L = LinearSolverKind;
+  switch (kind) {
+    case SolverKind::MassSpring:
+      // Explicit: stable only below ~2 sqrt(m/k); the sweep crosses that limit on purpose.
+      if (quick) return {config(kind, 50, 1), config(kind, 200, 1)};
+      return {config(kind, 25, 1), config(kind, 50, 1), config(kind, 100, 1), config(kind, 200, 1),
+              config(kind, 400, 1)};
+    case SolverKind::Pbd:
+      if (quick) return {config(kind, 1, 10), config(kind, 4, 20)};
+      return {config(kind, 1, 10), config(kind, 1, 50), config(kind, 4, 10), config(kind, 4, 20),
+              config(kind, 10, 20)};
+    case SolverKind::Xpbd:
+      if (quick) return {config(kind, 1, 20), config(kind, 20, 1)};
+      return {config(kind, 1, 10), config(kind, 1, 50), config(kind, 5, 4),
+              config(kind, 10, 1), config(kind, 20, 1), config(kind, 40, 1), config(kind, 80, 1)};
+    case SolverKind::Newton:
+      if (quick) return {config(kind, 1, 0, 1e-4), config(kind, 1, 0, 1e-6, L::ConjugateGradient)};
+      return {config(kind, 1, 0, 1e-3), config(kind, 1, 0, 1e-5), config(kind, 2, 0, 1e-5),
+              config(kind, 4, 0, 1e-5), config(kind, 1, 0, 1e-5, L::Cholmod),
+              config(kind, 1, 0, 1e-5, L::ConjugateGradient)};
+  }
+  return {};
+}
+
+BenchConfig reference_config() {
+  return config(SolverKind::Newton, 8, 0, 1e-9, LinearSolverKind::SimplicialLDLT);
+}
+
+ClothScene make_bench_scene(const std::string& name, const SolverBenchOptions& options) {
+  if (name == "large-sheet") return make_large_sheet(options.large_vertices);
+  if (name == "seed004-529") return make_seed004_grid();
+  return make_hard_case(name, options.resolution);
+}
+
+std::vector<BenchRow> run_solver_bench(const SolverBenchOptions& options,
+                                       const std::function<void(const std::string&)>& progress) {
+  std::vector<std::string> scenes = options.scenes;
+  if (scenes.empty()) {
+    scenes = hard_case_names();
+    scenes.push_back("seed004-529");
+    scenes.push_back("large-sheet");
+  }
+  std::vector<SolverKind> kinds;
+  if (options.solvers.empty()) {
+    kinds = {SolverKind::MassSpring, SolverKind::Pbd, SolverKind::Xpbd, SolverKind::Newton};
+  } else {
+    for (const auto& s : options.solvers) kinds.push_back(parse_solver_kind(s));
+  }
+  std::vector<BenchRow> rows;
+  for (const auto& scene_name : scenes) {
+    const ClothScene scene = make_bench_scene(scene_name, options);
+    const int frames = options.frames > 0 ? options.frames : scene.frames;
+    const BenchConfig ref_config = reference_config();
+    auto ref_solver = make_solver(ref_config.kind, scene.model, ref_config.settings);
+    const RunResult reference = run_scene(scene, *ref_solver, frames, true);
+    if (progress) {
+      progress(scene_name + ": reference " + ref_config.label +
+               (reference.stable ? "" : " (unstable: " + reference.message + ")"));
+    }
+    for (SolverKind kind : kinds) {
+      for (const BenchConfig& base : bench_configs(kind, options.quick)) {
+        for (int threads : options.threads) {
+          BenchConfig c = base;
+          c.settings.threads = threads;
+          auto solver = make_solver(c.kind, scene.model, c.settings);
+          const RunResult run = run_scene(scene, *solver, frames, true);
+          BenchRow row;
+          row.scene = scene_name;
+          row.vertices = scene.model.vertex_count();
+          row.solver = solver_name(kind);
+          row.settings = c.label;
+          row.threads = threads;
+          row.frames = static_cast<int>(run.metrics.size()) - 1;
+          row.ms_per_frame = row.frames > 0 ? 1e3 * run.seconds / row.frames : NAN;
+          row.stable = run.stable;
+          row.message = run.message;
+          double sum2 = 0, worst = 0;
+          long count = 0;
+          const size_t compared = std::min(run.frames.size(), reference.frames.size());
+          for (size_t f = 1; f < compared; ++f) {
+            const Eigen::Matrix3Xd d = run.frames[f] - reference.frames[f];
+            sum2 += d.colwise().squaredNorm().sum();
+            worst = std::max(worst, d.colwise().norm().maxCoeff());
+            count += d.cols();
+          }
+          const bool comparable = reference.stable && run.stable && count > 0;
+          row.rms_error_mm = comparable ? 1e3 * std::sqrt(sum2 / count) : NAN;
+          row.max_error_mm = comparable ? 1e3 * worst : NAN;
+          for (const auto& m : run.metrics) {
+            row.max_strain = std::max(row.max_strain, m.max_strain);
+            row.max_penetration_mm = std::max(row.max_penetration_mm, 1e3 * m.max_penetration);
+            row.step_halvings += m.step_halvings;
+          }
+          rows.push_back(row);
+          if (progress) {
+            char buf[256];
+            std::snprintf(buf, sizeof buf, "%s: %-11s %-28s threads=%d  %8.2f ms/frame  rms %8.3f mm  %s",
+                          scene_name.c_str(), row.solver.c_str(), row.settings.c_str(), threads,
+                          row.ms_per_frame, row.rms_error_mm, row.stable ? "stable" : "UNSTABLE");
+            progress(buf);
+          }
+        }
+      }
+    }
+  }
+  return rows;
+}
+
+std::string bench_rows_csv(const std::vector<BenchRow>& rows) {
+  std::ostringstream o;
+  o << "scene,vertices,solver,settings,threads,frames,ms_per_frame,rms_error_mm,max_error_mm,"
+       "max_strain,max_penetration_mm,step_halvings,stable,message\n";
+  for (const auto& r : rows) {
+    o << csv_field(r.scene) << ',' << r.vertices << ',' << r.solver << ',' << csv_field(r.settings)
+      << ',' << r.threads << ',' << r.frames << ',' << r.ms_per_frame << ',' << r.rms_error_mm
+      << ',' << r.max_error_mm << ',' << r.max_strain << ',' << r.max_penetration_mm << ','
+      << r.step_halvings << ',' << (r.stable ? "yes" : "no") << ',' << csv_field(r.message) << '\n';
+  }
+  return o.str();
+}
+
+std::string bench_rows_json(const std::vector<BenchRow>& rows) {
+  nlohmann::json j = nlohmann::json::array();
+  auto num = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); };
+  for (const auto& r : rows) {
+    j.push_back({{"scene", r.scene},
+                 {"vertices", r.vertices},
+                 {"solver", r.solver},
+                 {"settings", r.settings},
+                 {"threads", r.threads},
+                 {"frames", r.frames},
+                 {"ms_per_frame", num(r.ms_per_frame)},
+                 {"rms_error_mm", num(r.rms_error_mm)},
+                 {"max_error_mm", num(r.max_error_mm)},
+                 {"max_strain", num(r.max_strain)},
+                 {"max_penetration_mm", num(r.max_penetration_mm)},
+                 {"step_halvings", r.step_halvings},
+                 {"stable", r.stable},
+                 {"message", r.message}});
+  }
+  return j.dump(1) + "\n";
+}
+
+std::string bench_rows_markdown(const std::vector<BenchRow>& rows) {
+  std::ostringstream o;
+  o << "| scene | verts | solver | settings | thr | ms/frame | RMS err mm | max err mm | max strain "
+       "| pen. mm | stable |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
+  char buf[512];
+  for (const auto& r : rows) {
+    std::snprintf(buf, sizeof buf, "| %s | %d | %s | %s | %d | %.2f | %.3g | %.3g | %.2f%% | %.2f | %s |\n",
+                  r.scene.c_str(), r.vertices, r.solver.c_str(), r.settings.c_str(), r.threads,
+                  r.ms_per_frame, r.rms_error_mm, r.max_error_mm, 100 * r.max_strain,
+                  r.max_penetration_mm, r.stable ? "yes" : "no");
+    o << buf;
+  }
+  return o.str();
+}
+
+PlotSpec bench_plot(const std::vector<BenchRow>& rows, const std::string& scene) {
+  PlotSpec spec;
+  spec.title = "Speed against error: " + scene;
+  spec.x_label = "ms per simulated frame (30 fps)";
+  spec.y_label = "RMS vertex error against the reference, mm";
+  spec.log_x = spec.log_y = true;
+  std::vector<double> all_x, all_y;
+  size_t color = 0;
+  for (const char* solver : {"mass-spring", "pbd", "xpbd", "newton"}) {
+    PlotSeries s;
+    s.label = solver;
+    s.color = palette_color(color++);
+    for (const auto& r : rows) {
+      if (r.scene != scene || r.solver != solver || !r.stable || !std::isfinite(r.rms_error_mm))
+        continue;
+      s.x.push_back(r.ms_per_frame);
+      s.y.push_back(std::max(r.rms_error_mm, 1e-6));
+      s.point_labels.push_back(r.settings + (r.threads > 1 ? " t" + std::to_string(r.threads) : ""));
+      all_x.push_back(s.x.back());
+      all_y.push_back(s.y.back());
+    }
+    if (!s.x.empty()) spec.series.push_back(std::move(s));
+  }
+  PlotSeries front;
+  front.label = "Pareto front";
+  front.color = "#333333";
+  front.markers = false;
+  front.line = true;
+  front.dashed = true;
+  for (size_t i : pareto_front(all_x, all_y)) {
+    front.x.push_back(all_x[i]);
+    front.y.push_back(all_y[i]);
+  }
+  if (!front.x.empty()) spec.series.push_back(std::move(front));
+  return spec;
+}
+
+}  // namespace clothdb

@@ -1,0 +1,50 @@
+// Headless PNG previews of cloth and body colliders, rendered offscreen with Mesa's OSMesa
+// (software OpenGL: no display, no GPU) and written with libpng.
+#pragma once
+
+#include <Eigen/Core>
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "cloth/collision.hpp"
+
+namespace clothdb {
+
+struct PreviewCamera {
+  Vec3 eye{0, 1.2, 3.0};
+  Vec3 target{0, 0.8, 0};
+  Vec3 up{0, 1, 0};
+  double fov_degrees = 40.0;
+};
+
+struct PreviewScene {
+  const Eigen::Matrix3Xd* cloth = nullptr;  // positions (3 x n)
+  const std::vector<std::array<int, 3>>* triangles = nullptr;
+  std::vector<CapsuleCollider> capsules;  // drawn at their end pose (a, b)
+  std::vector<SphereCollider> spheres;
+  bool floor = true;          // a grid floor at y = floor_height
+  double floor_height = 0.0;
+  // Per-vertex highlight (e.g. strain or penetration in [0, 1] -> colour ramp); empty: plain cloth.
+  std::vector<float> vertex_heat;
+  std::array<float, 3> cloth_color{0.85f, 0.35f, 0.3f};
+};
+
+// A camera that frames the given points from the front (+z), slightly above.
+PreviewCamera frame_points(const Eigen::Matrix3Xd& points, double margin = 1.3);
+
+// Renders to RGBA8, rows top to bottom. Throws std::runtime_error if OSMesa cannot create a
+// context.
+std::vector<std::uint8_t> render_preview(const PreviewScene& scene, const PreviewCamera& camera,
+                                         int width, int height);
+
+// Writes RGBA8 pixels (rows top to bottom) as a PNG, atomically; throws naming the path.
+void write_png(const std::string& path, const std::vector<std::uint8_t>& rgba, int width,
+               int height);
+
+// Pastes `tiles` (all width x height RGBA) into a grid `columns` wide; unused cells are white.
+std::vector<std::uint8_t> contact_sheet(const std::vector<std::vector<std::uint8_t>>& tiles,
+                                        int width, int height, int columns);
+
+}  // namespace clothdb
