@@ -1,6 +1,7 @@
 // Small helpers shared by the command files.
 #pragma once
 
+#include <CLI/CLI.hpp>
 #include <sstream>
 #include <string>
 #include <vector>

@@ -9,5 +9,10 @@ namespace clothdb::cli {
 
 void register_bench_solvers(CLI::App& bench);  // cmd_bench_solvers.cpp
 void register_scene_commands(CLI::App& app);   // cmd_scene.cpp: `clothdb scene run|list`
+void register_simulate(CLI::App& app);         // cmd_simulate.cpp: `clothdb simulate`
+void register_motion_commands(CLI::App& app);  // cmd_motion.cpp: `clothdb motion info`
+
+void register_db_commands(CLI::App& app);     // cmd_db.cpp: `clothdb db info|check`
+void register_bench_codec(CLI::App& bench);   // cmd_bench_codec.cpp: `clothdb bench codec`
 
 }  // namespace clothdb::cli

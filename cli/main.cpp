@@ -15,7 +15,11 @@ int main(int argc, char** argv) {
   bench->require_subcommand(1);
 
   clothdb::cli::register_bench_solvers(*bench);
+  clothdb::cli::register_bench_codec(*bench);
   clothdb::cli::register_scene_commands(app);
+  clothdb::cli::register_db_commands(app);
+  clothdb::cli::register_simulate(app);
+  clothdb::cli::register_motion_commands(app);
 
   try {
     app.parse(argc, argv);

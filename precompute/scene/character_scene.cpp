@@ -1,0 +1,316 @@
+#include "scene/character_scene.hpp"
+
+#include <chrono>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+namespace clothdb {
+
+namespace {
+
+using nlohmann::json;
+
+// Field access with errors that name the file and the field path.
+struct Fields {
+  std::string file;
+  [[noreturn]] void fail(const std::string& field, const std::string& what) const {
+    throw SceneError(file + ": " + field + ": " + what);
+  }
+  double number(const json& obj, const std::string& key, const std::string& path, double fallback,
+                bool positive = false, bool non_negative = false) const {
+    if (!obj.contains(key)) return fallback;
+    const json& v = obj.at(key);
+    if (!v.is_number()) fail(path + key, "expected a number");
+    const double d = v.get<double>();
+    if (positive && !(d > 0)) fail(path + key, "expected a positive number, got " + v.dump());
+    if (non_negative && !(d >= 0)) fail(path + key, "expected a number >= 0, got " + v.dump());
+    return d;
+  }
+  int integer(const json& obj, const std::string& key, const std::string& path, int fallback,
+              int minimum) const {
+    if (!obj.contains(key)) return fallback;
+    const json& v = obj.at(key);
+    if (!v.is_number_integer() || v.get<long>() < minimum)
+      fail(path + key, "expected an integer >= " + std::to_string(minimum) + ", got " + v.dump());
+    return v.get<int>();
+  }
+  std::string string(const json& obj, const std::string& key, const std::string& path,
+                     const std::string& fallback) const {
+    if (!obj.contains(key)) return fallback;
+    if (!obj.at(key).is_string()) fail(path + key, "expected a string");
+    return obj.at(key).get<std::string>();
+  }
+  const json& object(const json& obj, const std::string& key, const std::string& path) const {
+    static const json empty = json::object();
+    if (!obj.contains(key)) return empty;
+    if (!obj.at(key).is_object()) fail(path + key, "expected an object");
+    return obj.at(key);
+  }
+  void only(const json& obj, const std::vector<std::string>& keys, const std::string& path) const {
+    for (auto it = obj.begin(); it != obj.end(); ++it)
+      if (std::find(keys.begin(), keys.end(), it.key()) == keys.end()) {
+        std::string list;
+        for (const auto& k : keys) list += (list.empty() ? "" : ", ") + k;
+        fail(path + it.key(), "unknown field (known: " + list + ")");
+      }
+  }
+};
+
+
+}  // namespace
+
+SceneFile load_scene_file(const std::filesystem::path& file) {
+  SceneFile s;
+  s.path = file;
+  std::ifstream in(file);
+  if (!in) throw SceneError(file.string() + ": cannot open the scene file");
+  std::stringstream buf;
+  buf << in.rdbuf();
+  s.text = buf.str();
+  json j;
+  try {
+    j = json::parse(s.text);
+  } catch (const json::parse_error& e) {
+    throw SceneError(file.string() + ": not valid JSON: " + e.what());
+  }
+  const Fields f{file.string()};
+  if (!j.is_object()) f.fail("(top level)", "expected an object");
+  f.only(j, {"name", "manifest", "clips", "garment", "material", "solver", "colliders", "air_drag",
+             "settle_frames"}, "");
+  s.name = f.string(j, "name", "", file.stem().string());
+  const std::string manifest = f.string(j, "manifest", "", "");
+  if (manifest.empty()) f.fail("manifest", "required: the motion manifest (JSON) this scene uses");
+  std::filesystem::path manifest_path = manifest;
+  if (manifest_path.is_relative()) manifest_path = file.parent_path() / manifest_path;
+  s.manifest = load_manifest(manifest_path);
+  if (j.contains("clips")) {
+    if (!j["clips"].is_array() || j["clips"].empty()) f.fail("clips", "expected a non-empty array of clip names");
+    for (size_t i = 0; i < j["clips"].size(); ++i) {
+      if (!j["clips"][i].is_string()) f.fail("clips[" + std::to_string(i) + "]", "expected a string");
+      const std::string name = j["clips"][i].get<std::string>();
+      try {
+        s.manifest.require(name);
+      } catch (const MotionError& e) {
+        f.fail("clips[" + std::to_string(i) + "]", e.what());
+      }
+      s.clips.push_back(name);
+    }
+  } else {
+    for (const auto& c : s.manifest.clips) s.clips.push_back(c.name);
+  }
+
+  if (!j.contains("garment")) f.fail("garment", "required: {\"type\": \"skirt\" | \"cape\" | \"mesh\", ...}");
+  const json& g = f.object(j, "garment", "");
+  const std::string type = f.string(g, "type", "garment.", "");
+  if (type == "skirt") {
+    f.only(g, {"type", "bone", "waist_radius", "flare", "length", "raise", "vertices"}, "garment.");
+    s.garment_kind = GarmentKind::Skirt;
+    s.skirt.bone = f.string(g, "bone", "garment.", s.skirt.bone);
+    s.skirt.waist_radius = f.number(g, "waist_radius", "garment.", 0.0, false, true);
+    s.skirt.flare = f.number(g, "flare", "garment.", s.skirt.flare, true);
+    s.skirt.length = f.number(g, "length", "garment.", s.skirt.length, true);
+    s.skirt.raise = f.number(g, "raise", "garment.", s.skirt.raise);
+    s.skirt.vertices = f.integer(g, "vertices", "garment.", s.skirt.vertices, 16);
+  } else if (type == "cape") {
+    f.only(g, {"type", "bone", "width", "length", "back_offset", "vertices"}, "garment.");
+    s.garment_kind = GarmentKind::Cape;
+    s.cape.bone = f.string(g, "bone", "garment.", "");
+    s.cape.width = f.number(g, "width", "garment.", 0.0, false, true);
+    s.cape.length = f.number(g, "length", "garment.", s.cape.length, true);
+    s.cape.back_offset = f.number(g, "back_offset", "garment.", 0.0, false, true);
+    s.cape.vertices = f.integer(g, "vertices", "garment.", s.cape.vertices, 16);
+  } else if (type == "mesh") {
+    f.only(g, {"type", "file", "scale", "weld_tolerance", "pins", "bone"}, "garment.");
+    s.garment_kind = GarmentKind::Mesh;
+    std::filesystem::path mesh_file = f.string(g, "file", "garment.", "");
+    if (mesh_file.empty()) f.fail("garment.file", "required for a mesh garment");
+    if (mesh_file.is_relative()) mesh_file = file.parent_path() / mesh_file;
+    s.mesh.file = mesh_file.string();
+    s.mesh.scale = f.number(g, "scale", "garment.", 1.0, true);
+    s.mesh.weld_tolerance = f.number(g, "weld_tolerance", "garment.", s.mesh.weld_tolerance, false, true);
+    s.mesh.bone = f.string(g, "bone", "garment.", "");
+    const json& p = f.object(g, "pins", "garment.");
+    if (p.contains("vertex_group")) {
+      s.mesh.pins.kind = PinRuleKind::VertexGroup;
+      s.mesh.pins.group = f.string(p, "vertex_group", "garment.pins.", "");
+    } else if (p.contains("height_band")) {
+      const json& band = p["height_band"];
+      if (!band.is_array() || band.size() != 2 || !band[0].is_number() || !band[1].is_number() ||
+          band[0].get<double>() > band[1].get<double>())
+        f.fail("garment.pins.height_band", "expected [low, high] in metres with low <= high");
+      s.mesh.pins.kind = PinRuleKind::HeightBand;
+      s.mesh.pins.y_min = band[0].get<double>();
+      s.mesh.pins.y_max = band[1].get<double>();
+    } else if (p.contains("bone")) {
+      s.mesh.pins.kind = PinRuleKind::BoneDistance;
+      s.mesh.pins.bone = f.string(p, "bone", "garment.pins.", "");
+      s.mesh.pins.distance = f.number(p, "distance", "garment.pins.", s.mesh.pins.distance, true);
+    } else {
+      f.fail("garment.pins", "required: {\"vertex_group\": NAME} | {\"height_band\": [lo, hi]} | {\"bone\": NAME, \"distance\": M}");
+    }
+  } else {
+    f.fail("garment.type", "expected \"skirt\", \"cape\" or \"mesh\", got \"" + type + "\"");
+  }
+
+  const json& m = f.object(j, "material", "");
+  f.only(m, {"density", "youngs_modulus", "poisson", "thickness", "bending_stiffness", "damping"}, "material.");
+  s.material.density = f.number(m, "density", "material.", s.material.density, true);
+  s.material.youngs_modulus = f.number(m, "youngs_modulus", "material.", s.material.youngs_modulus, true);
+  s.material.poisson = f.number(m, "poisson", "material.", s.material.poisson, false, true);
+  if (s.material.poisson >= 0.5) f.fail("material.poisson", "expected a value in [0, 0.5)");
+  s.material.thickness = f.number(m, "thickness", "material.", s.material.thickness, true);
+  s.material.bending_stiffness = f.number(m, "bending_stiffness", "material.", s.material.bending_stiffness);
+  s.material.damping = f.number(m, "damping", "material.", s.material.damping, false, true);
+
+  const json& so = f.object(j, "solver", "");
+  f.only(so, {"name", "substeps", "iterations", "tolerance", "linear_solver", "threads"}, "solver.");
+  try {
+    s.solver = parse_solver_kind(f.string(so, "name", "solver.", "xpbd"));
+    s.settings.linear_solver = parse_linear_solver_kind(f.string(so, "linear_solver", "solver.", "ldlt"));
+  } catch (const std::invalid_argument& e) {
+    f.fail("solver", e.what());
+  }
+  s.settings.substeps = f.integer(so, "substeps", "solver.", 10, 1);
+  s.settings.iterations = f.integer(so, "iterations", "solver.", 1, 1);
+  s.settings.newton_tolerance = f.number(so, "tolerance", "solver.", s.settings.newton_tolerance, true);
+  s.settings.threads = f.integer(so, "threads", "solver.", 1, 1);
+
+  const json& c = f.object(j, "colliders", "");
+  f.only(c, {"bones", "auto_distance", "radius", "margin", "friction_static", "friction_kinetic"}, "colliders.");
+  if (c.contains("bones")) {
+    if (!c["bones"].is_array()) f.fail("colliders.bones", "expected an array of bone names");
+    for (size_t i = 0; i < c["bones"].size(); ++i) {
+      if (!c["bones"][i].is_string()) f.fail("colliders.bones[" + std::to_string(i) + "]", "expected a string");
+      s.body.bones.push_back(c["bones"][i].get<std::string>());
+    }
+  }
+  s.auto_distance = f.number(c, "auto_distance", "colliders.", 0.0, false, true);
+  const json& r = f.object(c, "radius", "colliders.");
+  for (auto it = r.begin(); it != r.end(); ++it) {
+    if (!it.value().is_number() || it.value().get<double>() <= 0)
+      f.fail("colliders.radius." + it.key(), "expected a positive number of metres");
+    s.body.radius[it.key()] = it.value().get<double>();
+  }
+  s.margin = f.number(c, "margin", "colliders.", s.margin, true);
+  s.friction_static = f.number(c, "friction_static", "colliders.", s.friction_static, false, true);
+  s.friction_kinetic = f.number(c, "friction_kinetic", "colliders.", s.friction_kinetic, false, true);
+  s.air_drag = f.number(j, "air_drag", "", s.air_drag, false, true);
+  s.settle_frames = f.integer(j, "settle_frames", "", s.settle_frames, 0);
+  return s;
+}
+
+int CharacterScene::clip_index(const std::string& name) const {
+  for (size_t i = 0; i < clips.size(); ++i)
+    if (clips[i].name == name) return static_cast<int>(i);
+  std::string list;
+  for (const auto& c : clips) list += (list.empty() ? "" : ", ") + c.name;
+  throw SceneError(file.path.string() + ": no clip '" + name + "' in this scene (clips: " + list + ")");
+}
+
+CharacterScene build_character_scene(const SceneFile& file) {
+  CharacterScene scene;
+  scene.file = file;
+  for (const auto& name : file.clips) {
+    LoadedMotion motion = load_clip(file.manifest, file.manifest.require(name));
+    if (scene.clips.empty()) {
+      scene.skeleton = std::move(motion.skeleton);
+    } else if (motion.skeleton.names != scene.skeleton.names) {
+      throw SceneError(file.path.string() + ": clip '" + name + "' (" + motion.clip.source +
+                       ") has a different skeleton from clip '" + scene.clips.front().name + "'");
+    }
+    motion.clip.name = name;
+    scene.clips.push_back(std::move(motion.clip));
+  }
+  scene.bind = rest_pose(scene.skeleton);
+  switch (file.garment_kind) {
+    case GarmentKind::Skirt: scene.garment = make_skirt(scene.skeleton, file.skirt); break;
+    case GarmentKind::Cape: scene.garment = make_cape(scene.skeleton, file.cape); break;
+    case GarmentKind::Mesh: scene.garment = import_garment(scene.skeleton, file.mesh); break;
+  }
+  scene.model = make_model(scene.garment.mesh, file.material, scene.garment.pins);
+  if (file.auto_distance > 0) {
+    // Bones near the garment over the first clip's frames (sampled), so a limb that only swings
+    // close later is still found.
+    Body merged;
+    const MotionClip& clip = scene.clips.front();
+    for (int f = 0; f < clip.frame_count; f += std::max(1, clip.frame_count / 8)) {
+      const Eigen::Matrix3Xd x = carry_garment(scene.garment, scene.bind, clip_pose(clip, f));
+      for (const auto& cap : make_body_near(scene.skeleton, clip, x, file.auto_distance, file.body, f).capsules) {
+        bool have = false;
+        for (const auto& m : merged.capsules) have |= (m.joint == cap.joint && m.child == cap.child);
+        if (!have) merged.capsules.push_back(cap);
+      }
+    }
+    scene.body = merged;
+  } else {
+    scene.body = make_body(scene.skeleton, file.body);
+  }
+  scene.env.air_drag = file.air_drag;
+  scene.env.collision_margin = file.margin;
+  scene.env.friction_static = file.friction_static;
+  scene.env.friction_kinetic = file.friction_kinetic;
+  return scene;
+}
+
+std::vector<JointPose> clip_pose(const MotionClip& clip, int frame) {
+  std::vector<JointPose> pose(clip.joint_count);
+  for (int j = 0; j < clip.joint_count; ++j) {
+    pose[j].position = clip.position(frame, j);
+    pose[j].rotation = clip.rotation(frame, j);
+  }
+  return pose;
+}
+
+ClothState settle_garment(const CharacterScene& scene, Solver& solver,
+                          const std::vector<JointPose>& pose) {
+  ClothState state;
+  state.x = carry_garment(scene.garment, scene.bind, pose);
+  state.v = Eigen::Matrix3Xd::Zero(3, state.x.cols());
+  // Push anything that starts inside the body out first, then let it hang with the pose held.
+  Environment env = scene.env;
+  env.capsules = body_capsules(scene.body, scene.skeleton, pose, pose);
+  resolve_collisions(state.x, state.x, scene.model.inv_mass, env, 1.0);
+  std::vector<std::vector<JointPose>> poses(scene.file.settle_frames + 1, pose);
+  if (scene.file.settle_frames > 0) {
+    const PoseRun run = simulate_poses(scene, solver, poses, 30.0, state);
+    if (!run.stable) throw SceneError(scene.file.path.string() + ": the garment does not settle: " + run.message);
+  }
+  state.v.setZero();
+  return state;
+}
+
+PoseRun simulate_poses(const CharacterScene& scene, Solver& solver,
+                       const std::vector<std::vector<JointPose>>& poses, double rate,
+                       ClothState& state) {
+  PoseRun run;
+  Environment env = scene.env;
+  StepInputs inputs;
+  inputs.env = &env;
+  const double dt = 1.0 / rate;
+  for (size_t f = 1; f < poses.size(); ++f) {
+    env.capsules = body_capsules(scene.body, scene.skeleton, poses[f - 1], poses[f]);
+    inputs.kinematic_targets = skin_pins(scene.garment, scene.bind, poses[f]);
+    const auto start = std::chrono::steady_clock::now();
+    const StepReport report = solver.step(state, dt, inputs);
+    run.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    if (!report.stable) {
+      run.stable = false;
+      run.message = "step " + std::to_string(f) + ": " + report.message;
+      break;
+    }
+    run.step_halvings += report.step_halvings;
+    FrameMetrics m;
+    m.max_strain = max_edge_strain(scene.model, state.x);
+    m.max_penetration = max_penetration(state.x, scene.model.inv_mass, env);
+    m.mean_penetration = mean_penetration(state.x, scene.model.inv_mass, env);
+    m.kinetic_energy = kinetic_energy(scene.model, state.v);
+    m.step_halvings = report.step_halvings;
+    run.metrics.push_back(m);
+    run.frames.push_back(state.x);
+  }
+  run.end_velocity = state.v;
+  return run;
+}
+
+}  // namespace clothdb

@@ -1,0 +1,113 @@
+// A character scene: the scene file (JSON) that names the motion manifest and clips, the garment,
+// the material, the solver and its settings, and the colliding bones; and the simulation of the
+// garment along a sequence of poses (one clip, or a transition of the motion graph).
+//
+// Scene file format (paths relative to the scene file):
+//   {
+//     "name": "skirt-walk",
+//     "manifest": "cmu_walk.json",
+//     "clips": ["walk"],                           // optional: default all of the manifest's
+//     "garment": {"type": "skirt", "bone": "Hips", "vertices": 2000, "length": 0.55},
+//        // or {"type": "cape", "vertices": 1500, "length": 0.8}
+//        // or {"type": "mesh", "file": "dress.obj", "scale": 1, "pins": {"height_band": [1.0, 1.1]}}
+//        //    pins: {"vertex_group": "waist"} | {"height_band": [lo, hi]} | {"bone": "Hips", "distance": 0.05}
+//     "material": {"density": 0.15, "youngs_modulus": 1e8, "poisson": 0.3, "thickness": 5e-4,
+//                  "bending_stiffness": 1e-5, "damping": 1e-3},
+//     "solver": {"name": "xpbd", "substeps": 10, "iterations": 1, "tolerance": 1e-6,
+//                "linear_solver": "ldlt", "threads": 1},
+//     "colliders": {"bones": ["Hips", "LeftUpLeg"], "auto_distance": 0.2,
+//                   "radius": {"Hips": 0.12}, "margin": 0.004,
+//                   "friction_static": 0.4, "friction_kinetic": 0.3},
+//     "air_drag": 0.3,
+//     "settle_frames": 30
+//   }
+// Every field but "manifest" and "garment" has a default. Errors name the scene file and field.
+#pragma once
+
+#include <filesystem>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "character/body.hpp"
+#include "character/manifest.hpp"
+#include "cloth/model.hpp"
+#include "garment/garment.hpp"
+#include "scenes/hard_cases.hpp"
+#include "solvers/solver.hpp"
+
+namespace clothdb {
+
+struct SceneError : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+enum class GarmentKind { Skirt, Cape, Mesh };
+
+struct SceneFile {
+  std::filesystem::path path;
+  std::string text;  // the file as given (stored in the database)
+  std::string name;
+  MotionManifest manifest;
+  std::vector<std::string> clips;  // names of the manifest clips the scene uses
+  GarmentKind garment_kind = GarmentKind::Skirt;
+  SkirtSpec skirt;
+  CapeSpec cape;
+  MeshGarmentSpec mesh;
+  Material material;
+  SolverKind solver = SolverKind::Xpbd;
+  SolverSettings settings;
+  BodySpec body;
+  double auto_distance = 0.0;  // > 0: collide only bones within this distance of the garment
+  double margin = 0.004;
+  double friction_static = 0.4, friction_kinetic = 0.3;
+  double air_drag = 0.3;
+  int settle_frames = 30;
+};
+
+// Reads and validates a scene file. Throws SceneError "<file>: <field>: <problem>" (and passes on
+// the manifest's MotionError).
+SceneFile load_scene_file(const std::filesystem::path& file);
+
+struct CharacterScene {
+  SceneFile file;
+  Skeleton skeleton;
+  std::vector<MotionClip> clips;  // in file.clips order, at the manifest's output rate
+  std::vector<JointPose> bind;    // the skeleton's rest pose the garment is built in
+  Garment garment;
+  ClothModel model;
+  Body body;
+  Environment env;  // gravity, drag, margin, friction (capsules are set per step)
+
+  int clip_index(const std::string& name) const;  // throws SceneError listing the clips
+};
+
+// Loads the motions, builds the garment, the cloth model and the body colliders. Throws
+// SceneError / MotionError / GarmentError naming the file and what is wrong.
+CharacterScene build_character_scene(const SceneFile& file);
+
+// Joint poses of one clip frame.
+std::vector<JointPose> clip_pose(const MotionClip& clip, int frame);
+
+// The garment carried onto `pose` and left to settle there for scene.file.settle_frames frames
+// (pose held still): the rest state every exploration starts from.
+ClothState settle_garment(const CharacterScene& scene, Solver& solver,
+                          const std::vector<JointPose>& pose);
+
+struct PoseRun {
+  std::vector<Eigen::Matrix3Xd> frames;  // one per pose after the first (the state after each step)
+  std::vector<FrameMetrics> metrics;
+  Eigen::Matrix3Xd end_velocity;         // velocities after the last step
+  bool stable = true;
+  std::string message;
+  double seconds = 0;  // solver time
+  int step_halvings = 0;
+};
+
+// Simulates from `state` (at poses[0]) through poses[1..] at `rate` Hz, one solver step per pose;
+// `state` ends at the last pose. Pins follow by skinning; capsules sweep between poses.
+PoseRun simulate_poses(const CharacterScene& scene, Solver& solver,
+                       const std::vector<std::vector<JointPose>>& poses, double rate,
+                       ClothState& state);
+
+}  // namespace clothdb
