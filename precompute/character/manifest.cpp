@@ -1,0 +1,180 @@
+#include "character/manifest.hpp"
+
+#include <cmath>
+#include <cstdlib>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <set>
+
+namespace clothdb {
+
+namespace {
+
+constexpr const char* kTestModelsVariable = "${ASSIMP_TESTMODELS}";
+
+using nlohmann::json;
+
+class FieldReader {
+ public:
+  explicit FieldReader(std::string manifest) : manifest_(std::move(manifest)) {}
+
+  [[noreturn]] void fail(const std::string& field, const std::string& what) const {
+    throw MotionError(manifest_ + ": " + field + ": " + what);
+  }
+
+  double positive_number(const json& value, const std::string& field) const {
+    if (!value.is_number() || !(value.get<double>() > 0) || !std::isfinite(value.get<double>()))
+      fail(field, "expected a positive number");
+    return value.get<double>();
+  }
+
+  int frame(const json& value, const std::string& field) const {
+    if (!value.is_number_integer() || value.get<long long>() < -1 ||
+        value.get<long long>() > (1LL << 30))
+      fail(field, "expected a frame number (an integer >= 0, or -1 for the last frame)");
+    return static_cast<int>(value.get<long long>());
+  }
+
+  std::string string(const json& value, const std::string& field) const {
+    if (!value.is_string()) fail(field, "expected a string");
+    return value.get<std::string>();
+  }
+
+  void only_known_keys(const json& object, const std::set<std::string>& known,
+                       const std::string& prefix) const {
+    for (const auto& item : object.items())
+      if (!known.count(item.key()))
+        fail(prefix + item.key(), "unknown field (typo?); known fields: " + join(known));
+  }
+
+ private:
+  static std::string join(const std::set<std::string>& names) {
+    std::string s;
+    for (const std::string& n : names) s += (s.empty() ? "" : ", ") + n;
+    return s;
+  }
+  std::string manifest_;
+};
+
+}  // namespace
+
+std::filesystem::path assimp_testmodels_dir() {
+  if (const char* env = std::getenv("ASSIMP_TESTMODELS"); env && *env) return env;
+  // Debian/Ubuntu's assimp-testmodels installs here; /usr/local for a source install.
+  for (const char* dir : {"/usr/share/assimp/models", "/usr/local/share/assimp/models"}) {
+    std::error_code ec;
+    if (std::filesystem::is_directory(dir, ec)) return dir;
+  }
+  return {};
+}
+
+int MotionManifest::require(const std::string& name) const {
+  std::string names;
+  for (size_t c = 0; c < clips.size(); ++c) {
+    if (clips[c].name == name) return static_cast<int>(c);
+    names += (names.empty() ? "" : ", ") + clips[c].name;
+  }
+  throw MotionError(path.string() + ": no clip named '" + name + "' (it has " + names + ")");
+}
+
+MotionManifest load_manifest(const std::filesystem::path& file) {
+  const std::string where = file.string();
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(file, ec)) throw MotionError(where + ": file not found");
+  std::ifstream in(file);
+  if (!in) throw MotionError(where + ": cannot open it");
+  json root;
+  try {
+    root = json::parse(in);
+  } catch (const json::parse_error& e) {
+    throw MotionError(where + ": not valid JSON: " + e.what());
+  }
+  const FieldReader reader(where);
+  if (!root.is_object()) reader.fail("(top level)", "expected an object with a \"clips\" array");
+  reader.only_known_keys(root, {"output_rate", "clips"}, "");
+
+  MotionManifest manifest;
+  manifest.path = file;
+  if (root.contains("output_rate"))
+    manifest.output_rate = reader.positive_number(root["output_rate"], "output_rate");
+  if (!root.contains("clips")) reader.fail("clips", "missing (expected an array of clips)");
+  const json& clips = root["clips"];
+  if (!clips.is_array() || clips.empty()) reader.fail("clips", "expected a non-empty array");
+
+  const std::filesystem::path base = file.parent_path();
+  std::set<std::string> seen;
+  for (size_t c = 0; c < clips.size(); ++c) {
+    const std::string prefix = "clips[" + std::to_string(c) + "]";
+    const json& clip = clips[c];
+    if (!clip.is_object()) reader.fail(prefix, "expected an object");
+    reader.only_known_keys(clip,
+                           {"name", "file", "first_frame", "last_frame", "source_rate", "scale",
+                            "up_axis", "animation"},
+                           prefix + ".");
+    MotionClipSpec spec;
+    if (!clip.contains("file")) reader.fail(prefix + ".file", "missing (expected a path)");
+    std::string path = reader.string(clip["file"], prefix + ".file");
+    if (path.empty()) reader.fail(prefix + ".file", "expected a non-empty path");
+    if (path.rfind(kTestModelsVariable, 0) == 0) {
+      const std::filesystem::path models = assimp_testmodels_dir();
+      if (models.empty())
+        reader.fail(prefix + ".file",
+                    "uses ${ASSIMP_TESTMODELS} but the assimp test models are not installed "
+                    "(install Debian's assimp-testmodels or set ASSIMP_TESTMODELS)");
+      std::string rest = path.substr(std::string(kTestModelsVariable).size());
+      while (!rest.empty() && rest.front() == '/') rest.erase(rest.begin());
+      spec.file = models / rest;
+    } else {
+      spec.file =
+          std::filesystem::path(path).is_absolute() ? std::filesystem::path(path) : base / path;
+    }
+    spec.name = clip.contains("name") ? reader.string(clip["name"], prefix + ".name")
+                                      : spec.file.stem().string();
+    if (spec.name.empty()) reader.fail(prefix + ".name", "expected a non-empty name");
+    if (!seen.insert(spec.name).second)
+      reader.fail(prefix + ".name", "duplicate clip name '" + spec.name + "'");
+
+    MotionLoadOptions& o = spec.options;
+    o.name = spec.name;
+    o.output_rate = manifest.output_rate;
+    if (clip.contains("first_frame")) {
+      o.first_frame = reader.frame(clip["first_frame"], prefix + ".first_frame");
+      if (o.first_frame < 0) reader.fail(prefix + ".first_frame", "expected an integer >= 0");
+    }
+    if (clip.contains("last_frame"))
+      o.last_frame = reader.frame(clip["last_frame"], prefix + ".last_frame");
+    if (o.last_frame >= 0 && o.last_frame < o.first_frame)
+      reader.fail(prefix + ".last_frame", "is before first_frame " + std::to_string(o.first_frame));
+    if (clip.contains("source_rate"))
+      o.source_rate = reader.positive_number(clip["source_rate"], prefix + ".source_rate");
+    if (clip.contains("scale")) o.scale = reader.positive_number(clip["scale"], prefix + ".scale");
+    if (clip.contains("up_axis")) {
+      const std::string axis = reader.string(clip["up_axis"], prefix + ".up_axis");
+      try {
+        o.up_axis = parse_up_axis(axis);
+      } catch (const std::invalid_argument& e) {
+        reader.fail(prefix + ".up_axis", e.what());
+      }
+    }
+    if (clip.contains("animation"))
+      o.animation = reader.string(clip["animation"], prefix + ".animation");
+    manifest.clips.push_back(std::move(spec));
+  }
+  return manifest;
+}
+
+LoadedMotion load_clip(const MotionManifest& manifest, int clip) {
+  if (clip < 0 || clip >= static_cast<int>(manifest.clips.size()))
+    throw MotionError(manifest.path.string() + ": no clip " + std::to_string(clip));
+  const MotionClipSpec& spec = manifest.clips[clip];
+  try {
+    return load_motion(spec.file, spec.options);
+  } catch (const MotionError& e) {
+    // Say which manifest entry led to the file as well: the file message alone may not tell the
+    // user which manifest to fix (a frame range, a scale).
+    throw MotionError(std::string(e.what()) + " (clip '" + spec.name + "' of " +
+                      manifest.path.string() + ")");
+  }
+}
+
+}  // namespace clothdb
