@@ -79,6 +79,11 @@ std::unique_ptr<Solver> make_mass_spring_solver(const ClothModel& model, const S
 std::unique_ptr<Solver> make_pbd_solver(const ClothModel& model, const SolverSettings& s);
 std::unique_ptr<Solver> make_xpbd_solver(const ClothModel& model, const SolverSettings& s);
 std::unique_ptr<Solver> make_newton_solver(const ClothModel& model, const SolverSettings& s);
+// Mass-spring (mass_spring.cpp): the recommended largest sub-step (s) for its explicit
+// integration on `model`: 80 % of the linear stability limit of the stiffest spring mode, with
+// damping. Choose substeps >= dt / mass_spring_critical_dt(model). Infinite if no spring acts on
+// a free vertex.
+double mass_spring_critical_dt(const ClothModel& model);
 
 // Shared helpers (solver_common.cpp).
 // True if every entry of x and v is finite and no speed exceeds max_speed (m/s).

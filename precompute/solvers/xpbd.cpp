@@ -1,0 +1,375 @@
+// XPBD: extended position-based dynamics (Macklin, Mueller, Chentanez 2016, "XPBD: Position-Based
+// Simulation of Compliant Constrained Dynamics"), run with many small sub-steps (Macklin et al.
+// 2019, "Small Steps in Physics Simulation"). Constraints:
+//  * one distance constraint per mesh edge, C = |x_i - x_j| - l0, and
+//  * one dihedral-angle bending constraint per hinge, C = theta - theta0 (Mueller 2007 appendix A,
+//    with the Bridson, Marino & Fedkiw 2003 gradients),
+// each with a compliance alpha = 1/k from the physical Material, using the Newton solver's
+// stiffness coefficients (shell_energy.hpp; see build_constraints) so XPBD simulates the same
+// cloth, and stiffness-proportional (Rayleigh) damping (Macklin 2016 eq. 26). Constraints are
+// projected by Gauss-Seidel over a graph colouring, each colour in parallel: the result does not
+// depend on the number of threads.
+#include <omp.h>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <numbers>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "solvers/coloring.hpp"
+#include "solvers/shell_energy.hpp"
+#include "solvers/solver.hpp"
+
+namespace clothdb {
+
+namespace {
+
+// Constraints of one kind, stored flat (structure of arrays) and sorted by colour so that colour g
+// is the contiguous range [color_begin[g], color_begin[g + 1]).
+template <std::size_t N>
+struct ConstraintSet {
+  std::vector<std::array<int, N>> vertices;
+  std::vector<double> rest;        // l0 (m) or theta0 (rad)
+  std::vector<double> compliance;  // alpha = 1/k (m/N, or 1/(N m) per rad^2 for bending)
+  std::vector<double> lambda;  // Lagrange multiplier, reset every sub-step (Macklin 2016 alg. 1)
+  std::vector<int> color_begin;
+
+  // Reorders the constraints by greedy colour (coloring.hpp), keeping the original order within a
+  // colour so memory access stays mostly sequential.
+  void sort_by_color() {
+    const std::vector<std::vector<int>> groups = greedy_coloring(vertices);
+    ConstraintSet sorted;
+    sorted.color_begin.push_back(0);
+    for (const auto& group : groups) {
+      for (int c : group) {
+        sorted.vertices.push_back(vertices[static_cast<std::size_t>(c)]);
+        sorted.rest.push_back(rest[static_cast<std::size_t>(c)]);
+        sorted.compliance.push_back(compliance[static_cast<std::size_t>(c)]);
+      }
+      sorted.color_begin.push_back(static_cast<int>(sorted.vertices.size()));
+    }
+    sorted.lambda.assign(sorted.vertices.size(), 0.0);
+    *this = std::move(sorted);
+  }
+  int color_count() const { return static_cast<int>(color_begin.size()) - 1; }
+};
+
+using Vec = Eigen::Map<Vec3>;
+
+// Signed dihedral angle of hinge (v0, v1, a, b) and its gradient with respect to the four vertices
+// (Bridson, Marino & Fedkiw 2003, sec. 4.1 "bending"). Triangles (v0, v1, a) and (v1, v0, b) have
+// normals n1, n2 (area-weighted); theta = atan2((n2 x n1) . e_hat, n1 . n2) is 0 when flat,
+// positive when the wings a, b move along their normals. Returns false for degenerate triangles.
+[[gnu::always_inline]] inline bool dihedral_angle(const Vec3& p0, const Vec3& p1, const Vec3& pa,
+                                                  const Vec3& pb, double& theta, Vec3& g0, Vec3& g1,
+                                                  Vec3& ga, Vec3& gb) {
+  const Vec3 e = p1 - p0;
+  const double e_sq = e.squaredNorm();
+  const Vec3 n1 = (pa - p0).cross(pa - p1);
+  const Vec3 n2 = (pb - p1).cross(pb - p0);
+  const double n1_sq = n1.squaredNorm(), n2_sq = n2.squaredNorm();
+  // |n| is twice the triangle area: skip slivers whose area is ~1e-12 of e^2, where the gradient
+  // 1/|n| would blow up.
+  const double tiny = 1e-24 * e_sq * e_sq;
+  if (!(e_sq > 0.0) || n1_sq <= tiny || n2_sq <= tiny) return false;
+  const double e_len = std::sqrt(e_sq), inv_e = 1.0 / e_len;
+  theta = std::atan2(n2.cross(n1).dot(e) * inv_e, n1.dot(n2));
+  const Vec3 m1 = n1 * (1.0 / n1_sq), m2 = n2 * (1.0 / n2_sq);
+  // Signed distances along the edge from v0 to the projections of the wings a and b.
+  const double a0 = (pa - p0).dot(e) * inv_e, b0 = (pb - p0).dot(e) * inv_e;
+  ga = e_len * m1;
+  gb = e_len * m2;
+  g0 = (a0 - e_len) * m1 + (b0 - e_len) * m2;
+  g1 = -a0 * m1 - b0 * m2;
+  return true;
+}
+
+// Wraps an angle difference into (-pi, pi] so a rest angle near +pi and a current angle near -pi
+// (the same fold) give a small constraint value.
+double wrap_angle(double d) {
+  constexpr double pi = std::numbers::pi;
+  constexpr double two_pi = 2.0 * std::numbers::pi;
+  if (d > pi) return d - two_pi;
+  if (d <= -pi) return d + two_pi;
+  return d;
+}
+
+class XpbdSolver final : public Solver {
+ public:
+  XpbdSolver(const ClothModel& model, const SolverSettings& settings)
+      : model_(model), settings_(settings) {
+    if (settings.substeps < 1) throw std::invalid_argument("xpbd: substeps must be at least 1");
+    if (settings.iterations < 1) throw std::invalid_argument("xpbd: iterations must be at least 1");
+    if (settings.threads < 1) throw std::invalid_argument("xpbd: threads must be at least 1");
+    build_constraints();
+  }
+
+  std::string describe() const override {
+    return "xpbd substeps=" + std::to_string(settings_.substeps) +
+           " iterations=" + std::to_string(settings_.iterations);
+  }
+
+  StepReport step(ClothState& state, double dt, const StepInputs& inputs) override;
+
+ private:
+  void build_constraints();
+  void solve_stretch(int begin, int end, Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_prev,
+                     double alpha_scale, double gamma);
+  void solve_bend(int begin, int end, Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_prev,
+                  double alpha_scale, double gamma);
+
+  // A copy: the solver must not dangle if the caller's model (e.g. a temporary scene) goes away.
+  const ClothModel model_;
+  SolverSettings settings_;
+  ConstraintSet<2> stretch_;
+  ConstraintSet<4> bend_;
+};
+
+void XpbdSolver::build_constraints() {
+  const ClothMesh& mesh = model_.mesh;
+  const Material& mat = model_.material;
+  const Eigen::Matrix3Xd& rest = mesh.rest;
+
+  // Rest area of the one or two triangles adjacent to each edge (A_adj), matched to mesh.edges by
+  // binary search over its sorted (i < j) keys.
+  std::vector<double> edge_area(mesh.edges.size(), 0.0);
+  {
+    std::vector<std::pair<std::array<int, 2>, int>> index;
+    index.reserve(mesh.edges.size());
+    for (std::size_t e = 0; e < mesh.edges.size(); ++e)
+      index.push_back({mesh.edges[e], static_cast<int>(e)});
+    std::sort(index.begin(), index.end());
+    for (const auto& t : mesh.triangles) {
+      const double area = triangle_area(rest, t);
+      for (std::size_t k = 0; k < 3; ++k) {
+        const int i = t[k], j = t[(k + 1) % 3];
+        const std::array<int, 2> key{std::min(i, j), std::max(i, j)};
+        const auto it = std::lower_bound(index.begin(), index.end(), std::make_pair(key, -1));
+        if (it != index.end() && it->first == key)
+          edge_area[static_cast<std::size_t>(it->second)] += area;
+      }
+    }
+  }
+
+  // Stretch: the same edge springs as the Newton, mass-spring and PBD solvers (shell_energy.hpp,
+  // stretch_coefficient): U = 1/2 k (l - l0)^2 with k = k_s / l0 = (E t) A_adj / l0^2. On an
+  // equilateral mesh that is the triangular spring lattice whose 2D Young's modulus is E t (Poisson
+  // ratio 1/3); equivalently, under a uniform strain eps the springs store 3/2 (E t) eps^2 per unit
+  // area, the continuum value (E t) eps^2 / (1 - nu) at nu = 1/3. XPBD writes U = 1/2 alpha^-1 C^2
+  // (Macklin 2016 eq. 4) with C = l - l0, so the compliance is alpha = 1 / k = l0 / k_s (m/N).
+  const double et = mat.stretch_stiffness();
+  for (std::size_t e = 0; e < mesh.edges.size(); ++e) {
+    const double l0 = model_.edge_rest_length[e];
+    if (l0 <= 0.0) continue;  // coincident rest vertices: no direction to act along
+    const double k_s = stretch_coefficient(et, edge_area[e], l0);
+    stretch_.vertices.push_back(mesh.edges[e]);
+    stretch_.rest.push_back(l0);
+    // An edge of zero-area triangles only has k = 0: keep it as a very soft constraint instead of
+    // dividing by zero.
+    stretch_.compliance.push_back(k_s > 0.0 ? l0 / k_s : 1e12);
+  }
+
+  // Bending: discrete shells (Grinspun et al. 2003; Tamstorf & Grinspun 2013), again with the
+  // Newton solver's coefficient (shell_energy.hpp, bend_coefficient):
+  // U = 1/2 k_b (theta - theta0)^2, k_b = D |e|^2 / (A1 + A2), which stores D/2 kappa^2 per unit
+  // area when a grid sheet is rolled into a cylinder of curvature kappa. C = theta - theta0 and
+  // alpha = 1 / k_b (1 / (N m) per rad^2).
+  const double d = mat.bending_rigidity();
+  if (d > 0.0) {
+    for (const Hinge& h : mesh.hinges) {
+      Vec3 g0, g1, ga, gb;
+      double theta0 = 0.0;
+      if (!dihedral_angle(rest.col(h.v0), rest.col(h.v1), rest.col(h.a), rest.col(h.b), theta0, g0,
+                          g1, ga, gb)) {
+        continue;  // degenerate at rest: no meaningful rest angle
+      }
+      const double areas =
+          triangle_area(rest, {h.v0, h.v1, h.a}) + triangle_area(rest, {h.v1, h.v0, h.b});
+      const double kb = bend_coefficient(d, (rest.col(h.v1) - rest.col(h.v0)).norm(), areas);
+      if (!(kb > 0.0)) continue;
+      bend_.vertices.push_back({h.v0, h.v1, h.a, h.b});
+      bend_.rest.push_back(theta0);
+      bend_.compliance.push_back(1.0 / kb);
+    }
+  }
+
+  stretch_.sort_by_color();
+  bend_.sort_by_color();
+}
+
+// XPBD update with Rayleigh damping (Macklin 2016 eq. 26), for C = |xi - xj| - l0:
+//   dlambda = (-C - alpha~ lambda - gamma grad C . (x - x^n)) / ((1 + gamma) sum w |grad C|^2 +
+//   alpha~), alpha~ = alpha / h^2, gamma = alpha~ beta~ / h with beta~ = h^2 beta_k and beta_k =
+//   material.damping * k the constraint's damping stiffness, hence gamma = material.damping / h.
+void XpbdSolver::solve_stretch(int begin, int end, Eigen::Matrix3Xd& x,
+                               const Eigen::Matrix3Xd& x_prev, double alpha_scale, double gamma) {
+  const double* w = model_.inv_mass.data();
+#pragma omp for schedule(static)
+  for (int c = begin; c < end; ++c) {
+    const std::size_t cu = static_cast<std::size_t>(c);
+    const int i = stretch_.vertices[cu][0], j = stretch_.vertices[cu][1];
+    const double wi = w[i], wj = w[j];
+    const double w_sum = wi + wj;
+    if (w_sum <= 0.0) continue;
+    Vec xi(x.col(i).data()), xj(x.col(j).data());
+    const Vec3 diff = xi - xj;
+    const double len = diff.norm();
+    if (len <= 1e-12 * stretch_.rest[cu]) continue;  // direction undefined
+    const Vec3 n = diff / len;
+    const double constraint = len - stretch_.rest[cu];
+    const double alpha = stretch_.compliance[cu] * alpha_scale;
+    const double damping = gamma * n.dot((xi - x_prev.col(i)) - (xj - x_prev.col(j)));
+    const double dlambda =
+        (-constraint - alpha * stretch_.lambda[cu] - damping) / ((1.0 + gamma) * w_sum + alpha);
+    stretch_.lambda[cu] += dlambda;
+    xi += (wi * dlambda) * n;
+    xj -= (wj * dlambda) * n;
+  }
+}
+
+// Same update (Macklin 2016 eq. 26) for C = theta - theta0 with the dihedral-angle gradients.
+void XpbdSolver::solve_bend(int begin, int end, Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_prev,
+                            double alpha_scale, double gamma) {
+  const double* w = model_.inv_mass.data();
+#pragma omp for schedule(static)
+  for (int c = begin; c < end; ++c) {
+    const std::size_t cu = static_cast<std::size_t>(c);
+    const std::array<int, 4>& v = bend_.vertices[cu];
+    const double wv[4] = {w[v[0]], w[v[1]], w[v[2]], w[v[3]]};
+    if (wv[0] + wv[1] + wv[2] + wv[3] <= 0.0) continue;
+    std::array<Vec3, 4> g;
+    double theta = 0.0;
+    if (!dihedral_angle(x.col(v[0]), x.col(v[1]), x.col(v[2]), x.col(v[3]), theta, g[0], g[1], g[2],
+                        g[3])) {
+      continue;
+    }
+    const double constraint = wrap_angle(theta - bend_.rest[cu]);
+    double denom = 0.0, damping = 0.0;
+    for (int k = 0; k < 4; ++k) {
+      denom += wv[k] * g[static_cast<std::size_t>(k)].squaredNorm();
+      damping += g[static_cast<std::size_t>(k)].dot(x.col(v[static_cast<std::size_t>(k)]) -
+                                                    x_prev.col(v[static_cast<std::size_t>(k)]));
+    }
+    const double alpha = bend_.compliance[cu] * alpha_scale;
+    const double dlambda = (-constraint - alpha * bend_.lambda[cu] - gamma * damping) /
+                           ((1.0 + gamma) * denom + alpha);
+    bend_.lambda[cu] += dlambda;
+    for (int k = 0; k < 4; ++k)
+      x.col(v[static_cast<std::size_t>(k)]) += (wv[k] * dlambda) * g[static_cast<std::size_t>(k)];
+  }
+}
+
+StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inputs) {
+  if (inputs.env == nullptr) throw std::invalid_argument("xpbd: StepInputs::env is required");
+  if (!(dt > 0.0)) throw std::invalid_argument("xpbd: dt must be positive");
+  const Eigen::Index n = model_.vertex_count();
+  if (state.x.cols() != n || state.v.cols() != n) {
+    throw std::invalid_argument("xpbd: state has " + std::to_string(state.x.cols()) +
+                                " vertices, model has " + std::to_string(n));
+  }
+  const Eigen::Index kin = static_cast<Eigen::Index>(model_.kinematic.size());
+  if (inputs.kinematic_targets.cols() != 0 && inputs.kinematic_targets.cols() != kin) {
+    throw std::invalid_argument(
+        "xpbd: kinematic_targets has " + std::to_string(inputs.kinematic_targets.cols()) +
+        " columns, model has " + std::to_string(kin) + " kinematic vertices");
+  }
+  const Environment& env = *inputs.env;
+  const ClothState saved = state;
+  const Eigen::Matrix3Xd kin_start = kinematic_positions(model_, state.x);
+
+  const int substeps = settings_.substeps;
+  const double h = dt / substeps;
+  const double inv_h = 1.0 / h;
+  // alpha~ = alpha / h^2 (Macklin 2016 eq. 9) and gamma = damping / h (eq. 26, see solve_stretch).
+  const double alpha_scale = 1.0 / (h * h);
+  const double gamma = model_.material.damping / h;
+  const Vec3 g = env.gravity;
+  // Linear air drag f = -c A_i v_i, integrated implicitly (v = (v + h g) / (1 + h c A_i / m_i)) so
+  // that a large drag on a light vertex cannot make the velocity overshoot and grow.
+  Eigen::VectorXd drag_factor(n);
+  for (Eigen::Index i = 0; i < n; ++i)
+    drag_factor[i] = 1.0 / (1.0 + h * env.air_drag * model_.vertex_area[i] * model_.inv_mass[i]);
+
+  Eigen::Matrix3Xd x_prev(3, n);
+  const int threads = settings_.threads;
+  const double* w = model_.inv_mass.data();
+  // The sub-step loop, run by every thread of one parallel region for the whole step: loops over
+  // vertices and over each colour are shared out with `omp for` (whose implicit barriers order the
+  // phases), and the serial parts (pins, collisions) run on one thread under `omp single`.
+  auto substep_loop = [&]() {
+    for (int sub = 0; sub < substeps; ++sub) {
+      const double s_start = static_cast<double>(sub) / substeps;
+      const double s_end = static_cast<double>(sub + 1) / substeps;
+      // Predict (Macklin 2016 alg. 1 lines 3-4): explicit gravity and drag on free vertices.
+#pragma omp for schedule(static)
+      for (Eigen::Index i = 0; i < n; ++i) {
+        x_prev.col(i) = state.x.col(i);
+        if (w[i] <= 0.0) continue;
+        state.v.col(i) = (state.v.col(i) + h * g) * drag_factor[i];
+        state.x.col(i) += h * state.v.col(i);
+      }
+#pragma omp single
+      {
+        place_kinematic(model_, kin_start, inputs, s_end, dt, state);
+        // Multipliers start at zero every sub-step (alg. 1 line 5).
+        std::fill(stretch_.lambda.begin(), stretch_.lambda.end(), 0.0);
+        std::fill(bend_.lambda.begin(), bend_.lambda.end(), 0.0);
+      }
+      // Gauss-Seidel over colours, each colour's constraints in parallel (they share no vertex).
+      for (int it = 0; it < settings_.iterations; ++it) {
+        for (int col = 0; col < stretch_.color_count(); ++col) {
+          solve_stretch(stretch_.color_begin[static_cast<std::size_t>(col)],
+                        stretch_.color_begin[static_cast<std::size_t>(col) + 1], state.x, x_prev,
+                        alpha_scale, gamma);
+        }
+        for (int col = 0; col < bend_.color_count(); ++col) {
+          solve_bend(bend_.color_begin[static_cast<std::size_t>(col)],
+                     bend_.color_begin[static_cast<std::size_t>(col) + 1], state.x, x_prev,
+                     alpha_scale, gamma);
+        }
+      }
+      // Colliders at this sub-step's pose; friction measured against the surface's own motion
+      // over the sub-step.
+#pragma omp single
+      resolve_collisions(state.x, x_prev, model_.inv_mass, env, s_end, s_start);
+      // Velocity update (alg. 1 line 16). Kinematic vertices keep place_kinematic's velocity.
+#pragma omp for schedule(static)
+      for (Eigen::Index i = 0; i < n; ++i) {
+        if (w[i] <= 0.0) continue;
+        state.v.col(i) = (state.x.col(i) - x_prev.col(i)) * inv_h;
+      }
+    }
+  };
+  // Single-threaded and outside any parallel region, the `omp for`/`omp single` constructs run
+  // inline with no barriers (a team of one would still pay a futex system call per barrier). Inside
+  // a caller's parallel region they would bind to the caller's team, so open our own team then.
+  if (threads > 1 || omp_in_parallel()) {
+#pragma omp parallel num_threads(threads)
+    substep_loop();
+  } else {
+    substep_loop();
+  }
+
+  StepReport report;
+  report.iterations = substeps * settings_.iterations;
+  if (!state_is_sane(state)) {
+    state = saved;
+    report.stable = false;
+    report.message =
+        "xpbd: the step produced non-finite or runaway velocities (over 200 m/s) with " +
+        describe() + " at dt=" + std::to_string(dt) + " s; try more substeps or a smaller dt";
+  }
+  return report;
+}
+
+}  // namespace
+
+std::unique_ptr<Solver> make_xpbd_solver(const ClothModel& model, const SolverSettings& s) {
+  return std::make_unique<XpbdSolver>(model, s);
+}
+
+}  // namespace clothdb

@@ -1,0 +1,308 @@
+// XPBD solver (Macklin, Mueller, Chentanez 2016) and the constraint colouring it runs on.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <set>
+#include <stdexcept>
+#include <vector>
+
+#include "cloth/collision.hpp"
+#include "cloth/mesh.hpp"
+#include "cloth/model.hpp"
+#include "scenes/hard_cases.hpp"
+#include "solvers/coloring.hpp"
+#include "solvers/solver.hpp"
+
+namespace clothdb {
+namespace {
+
+SolverSettings xpbd_settings(int substeps, int iterations, int threads = 1) {
+  SolverSettings s;
+  s.substeps = substeps;
+  s.iterations = iterations;
+  s.threads = threads;
+  return s;
+}
+
+// Every constraint lands in exactly one group, and no two constraints of a group share a vertex.
+template <std::size_t N>
+void expect_valid_coloring(const std::vector<std::array<int, N>>& constraints,
+                           const std::vector<std::vector<int>>& groups) {
+  std::vector<int> seen(constraints.size(), 0);
+  for (const auto& group : groups) {
+    ASSERT_FALSE(group.empty());
+    std::set<int> used;
+    for (int c : group) {
+      ASSERT_GE(c, 0);
+      ASSERT_LT(static_cast<std::size_t>(c), constraints.size());
+      ++seen[static_cast<std::size_t>(c)];
+      for (int v : constraints[static_cast<std::size_t>(c)]) {
+        if (v < 0) continue;
+        EXPECT_TRUE(used.insert(v).second) << "vertex " << v << " shared within a colour";
+      }
+    }
+  }
+  for (std::size_t c = 0; c < seen.size(); ++c) EXPECT_EQ(seen[c], 1) << "constraint " << c;
+}
+
+TEST(Coloring, MeshEdgesAndHingesShareNoVertexWithinAColour) {
+  const ClothMesh mesh = make_quad_grid(13, 9, 1.0, 0.7);
+  const auto edge_groups = greedy_coloring(mesh.edges);
+  expect_valid_coloring(mesh.edges, edge_groups);
+  // Greedy needs at most max-degree + 1 colours; an edge of this grid touches at most 14 others.
+  EXPECT_LE(edge_groups.size(), 15u);
+
+  std::vector<std::array<int, 4>> hinges;
+  for (const Hinge& h : mesh.hinges) hinges.push_back({h.v0, h.v1, h.a, h.b});
+  const auto hinge_groups = greedy_coloring(hinges);
+  expect_valid_coloring(hinges, hinge_groups);
+  EXPECT_GT(hinge_groups.size(), 1u);
+  // Deterministic: the same input gives the same groups.
+  EXPECT_EQ(hinge_groups, greedy_coloring(hinges));
+}
+
+TEST(Coloring, IgnoresPaddingAndRejectsBadArity) {
+  // Triples padded with -1 (a pair and a triple sharing vertex 2, and a disjoint pair).
+  const std::vector<std::array<int, 3>> tuples{{0, 1, -1}, {1, 2, 3}, {4, 5, -1}, {2, 6, -1}};
+  const auto groups = greedy_coloring(tuples);
+  expect_valid_coloring(tuples, groups);
+  // Greedy in order: 0 -> colour 0; 1 shares vertex 1 -> colour 1; 2 -> colour 0; 3 shares 2
+  // with constraint 1 only -> colour 0.
+  const std::vector<std::vector<int>> expected{{0, 2, 3}, {1}};
+  EXPECT_EQ(groups, expected);
+
+  const std::vector<int> flat{0, 1, 2, 3, 4};
+  EXPECT_THROW(greedy_coloring(flat, 2), std::invalid_argument);
+  EXPECT_THROW(greedy_coloring(flat, 0), std::invalid_argument);
+  EXPECT_TRUE(greedy_coloring(std::vector<std::array<int, 2>>{}).empty());
+}
+
+TEST(Xpbd, DescribeNamesTheSettings) {
+  const ClothScene scene = make_hard_case("hanging-sheet", 5);
+  EXPECT_EQ(make_xpbd_solver(scene.model, xpbd_settings(20, 1))->describe(),
+            "xpbd substeps=20 iterations=1");
+  EXPECT_EQ(make_solver(SolverKind::Xpbd, scene.model, xpbd_settings(3, 7))->describe(),
+            "xpbd substeps=3 iterations=7");
+  EXPECT_THROW(make_xpbd_solver(scene.model, xpbd_settings(0, 1)), std::invalid_argument);
+  EXPECT_THROW(make_xpbd_solver(scene.model, xpbd_settings(1, 0)), std::invalid_argument);
+}
+
+// The two-corner hanging sheet with enough sub-steps: no NaN, every edge within 1 % of its rest
+// length, and the motion dies out (Rayleigh damping plus the scene's air drag).
+TEST(Xpbd, HangingSheetConvergesWithoutStretchingAndComesToRest) {
+  const ClothScene scene = make_hard_case("hanging-sheet");
+  auto solver = make_xpbd_solver(scene.model, xpbd_settings(200, 2));
+  const RunResult run = run_scene(scene, *solver);
+  ASSERT_TRUE(run.stable) << run.message;
+  ASSERT_EQ(run.frames.size(), static_cast<std::size_t>(scene.frames + 1));
+  double peak_kinetic = 0.0;
+  for (std::size_t f = 0; f < run.frames.size(); ++f) {
+    ASSERT_TRUE(run.frames[f].allFinite()) << "frame " << f;
+    peak_kinetic = std::max(peak_kinetic, run.metrics[f].kinetic_energy);
+  }
+  EXPECT_LT(run.metrics.back().max_strain, 0.01);
+  // The sheet does move (it sags under gravity), then settles.
+  EXPECT_GT(peak_kinetic, 1e-8);
+  EXPECT_LT(run.metrics.back().kinetic_energy, 1e-6 * peak_kinetic);
+  EXPECT_LT(run.metrics.back().kinetic_energy, 1e-12);
+  // Gravity did work: the sheet hangs lower than it started.
+  EXPECT_LT(run.frames.back().row(1).minCoeff(), scene.initial.x.row(1).minCoeff());
+}
+
+// The converged shape does not depend on how many constraint iterations were run. The sheet starts
+// horizontal (rotated 90 degrees about its pinned top edge) so that the sag is a real drop, not
+// just the sheet's stretch.
+TEST(Xpbd, ConvergedSagIsTheSameAtTenAndFiftyIterations) {
+  ClothScene scene = make_hard_case("hanging-sheet", 9);
+  const double top = scene.model.mesh.rest.row(1).maxCoeff();
+  for (Eigen::Index i = 0; i < scene.initial.x.cols(); ++i) {
+    const double y = scene.initial.x(1, i);
+    scene.initial.x(1, i) = top;
+    scene.initial.x(2, i) = top - y;
+  }
+  scene.env.air_drag = 10.0 * scene.model.material.density;  // settle within the run
+  double sag[2] = {0, 0};
+  const int iterations[2] = {10, 50};
+  for (int k = 0; k < 2; ++k) {
+    auto solver = make_xpbd_solver(scene.model, xpbd_settings(20, iterations[k]));
+    const RunResult run = run_scene(scene, *solver, 150);
+    ASSERT_TRUE(run.stable) << run.message;
+    double peak_kinetic = 0.0;
+    for (const FrameMetrics& m : run.metrics)
+      peak_kinetic = std::max(peak_kinetic, m.kinetic_energy);
+    EXPECT_LT(run.metrics.back().max_strain, 0.01) << iterations[k] << " iterations";
+    EXPECT_LT(run.metrics.back().kinetic_energy, 1e-5 * peak_kinetic) << iterations[k];
+    sag[k] = top - run.frames.back().row(1).minCoeff();
+  }
+  EXPECT_GT(sag[0], 0.9);  // it hangs: the lowest point is about a sheet's length below the pins
+  EXPECT_NEAR(sag[0], sag[1], 0.01 * sag[1]);
+}
+
+// A single hinge flap: triangle (v0, v1, a) held, the other wing b free. At rest the bending
+// moment k_b theta balances the weight's moment m_b g d cos(theta), with k_b = D |e|^2 / (A1 + A2)
+// (the discrete-shells coefficient shared with the Newton solver).
+TEST(Xpbd, HingeFlapBalancesBendingAgainstGravity) {
+  ClothMesh mesh;
+  mesh.rest.resize(3, 4);
+  mesh.rest.col(0) = Vec3(0, 0, 0);
+  mesh.rest.col(1) = Vec3(0, 0, -0.1);
+  mesh.rest.col(2) = Vec3(-0.1, 0, -0.05);
+  mesh.rest.col(3) = Vec3(0.1, 0, -0.05);
+  mesh.triangles = {{0, 1, 2}, {1, 0, 3}};
+  build_topology(mesh);
+  ASSERT_EQ(mesh.hinges.size(), 1u);
+  Material material;
+  material.bending_stiffness = 1e-3;
+  material.damping = 1e-2;
+  const ClothModel model = make_model(mesh, material, {0, 1, 2});
+  Environment env;
+  StepInputs inputs;
+  inputs.env = &env;
+  auto solver = make_xpbd_solver(model, xpbd_settings(10, 10));
+  ClothState state = rest_state(model);
+  for (int f = 0; f < 300; ++f) ASSERT_TRUE(solver->step(state, 1.0 / 30.0, inputs).stable);
+  EXPECT_LT(state.v.norm(), 1e-6);
+  const Vec3 b = state.x.col(3);
+  const double theta = std::atan2(-b.y(), b.x());
+  const double areas = 2.0 * (0.5 * 0.1 * 0.1);  // two triangles, base 0.1 m, height 0.1 m
+  const double k_b = material.bending_stiffness * 0.1 * 0.1 / areas;
+  const double moment = model.mass[3] * 9.81 * 0.1 * std::cos(theta);
+  EXPECT_GT(theta, 0.1);  // it droops noticeably
+  EXPECT_NEAR(k_b * theta, moment, 0.01 * moment);
+  // The held vertices did not move.
+  EXPECT_EQ(state.x.leftCols(3), model.mesh.rest.leftCols(3));
+}
+
+// A soft sheet hung from its whole top edge stretches by rho g H^2 / (2 E t) (uniaxial tension
+// growing linearly up the sheet): the edge compliances reproduce the membrane stiffness E t.
+TEST(Xpbd, SoftSheetStretchesAsAMembraneOfStiffnessEt) {
+  const int columns = 11, rows = 21;
+  ClothMesh mesh = make_quad_grid(columns, rows, 1.0, 1.0);
+  Material material;
+  material.youngs_modulus = 4e4;  // E t = 20 N/m: about 4 % stretch under its own weight
+  material.damping = 1e-2;
+  std::vector<int> pins;
+  for (int c = 0; c < columns; ++c) pins.push_back(grid_index(mesh, c, rows - 1));
+  const ClothModel model = make_model(mesh, material, pins);
+  Environment env;
+  env.air_drag = 10.0 * material.density;
+  StepInputs inputs;
+  inputs.env = &env;
+  auto solver = make_xpbd_solver(model, xpbd_settings(40, 10));
+  ClothState state = rest_state(model);
+  for (int f = 0; f < 150; ++f) ASSERT_TRUE(solver->step(state, 1.0 / 30.0, inputs).stable);
+  double bottom = 0.0;
+  for (int c = 0; c < columns; ++c) bottom += state.x(1, grid_index(model.mesh, c, 0));
+  const double elongation = -bottom / columns;
+  const double expected = material.density * 9.81 / (2.0 * material.stretch_stiffness());
+  // The spring lattice is not exactly isotropic and the pinned edge cannot contract: 15 %.
+  EXPECT_NEAR(elongation, expected, 0.15 * expected);
+}
+
+// Colours make the parallel Gauss-Seidel order-independent: 1 and 2 threads agree bit for bit,
+// with moving pins (swung sheet) and with contact and friction (sphere drape).
+TEST(Xpbd, OneAndTwoThreadsGiveBitIdenticalResults) {
+  for (const char* name : {"swung-sheet", "sphere-drape"}) {
+    const ClothScene scene = make_hard_case(name);
+    auto one = make_xpbd_solver(scene.model, xpbd_settings(10, 3, 1));
+    auto two = make_xpbd_solver(scene.model, xpbd_settings(10, 3, 2));
+    const RunResult a = run_scene(scene, *one, 15);
+    const RunResult b = run_scene(scene, *two, 15);
+    ASSERT_TRUE(a.stable && b.stable) << name;
+    ASSERT_EQ(a.frames.size(), b.frames.size());
+    for (std::size_t f = 0; f < a.frames.size(); ++f) {
+      ASSERT_TRUE((a.frames[f].array() == b.frames[f].array()).all()) << name << " frame " << f;
+    }
+    // The runs did something: the cloth moved.
+    EXPECT_GT((a.frames.back() - a.frames.front()).norm(), 1e-2) << name;
+  }
+}
+
+// Cloth dropped on a sphere drapes over it without sinking in deeper than its thickness.
+TEST(Xpbd, SphereDrapeNeverPenetratesDeeperThanTheThickness) {
+  const ClothScene scene = make_hard_case("sphere-drape");
+  auto solver = make_xpbd_solver(scene.model, xpbd_settings(40, 2));
+  const RunResult run = run_scene(scene, *solver);
+  ASSERT_TRUE(run.stable) << run.message;
+  const double thickness = scene.model.material.thickness;
+  for (std::size_t f = 0; f < run.metrics.size(); ++f)
+    EXPECT_LE(run.metrics[f].max_penetration, thickness) << "frame " << f;
+  // It really is in contact: some vertex rests within two margins of the surface, and the sheet
+  // hangs down around the sphere (its edges below the sphere's top).
+  const SphereCollider& sphere = scene.env.spheres.front();
+  double closest = 1e9;
+  for (Eigen::Index i = 0; i < run.frames.back().cols(); ++i)
+    closest = std::min(closest, (run.frames.back().col(i) - sphere.center).norm() - sphere.radius);
+  EXPECT_LT(closest, 2.0 * scene.env.collision_margin);
+  EXPECT_LT(run.frames.back().row(1).minCoeff(), sphere.center.y() + sphere.radius - 0.1);
+}
+
+// The stiff material at one step per frame (no sub-steps): XPBD may be under-converged (soft),
+// but it must not blow up.
+TEST(Xpbd, StiffLargeStepStaysStable) {
+  const ClothScene scene = make_hard_case("stiff-large-step");
+  auto solver = make_xpbd_solver(scene.model, xpbd_settings(1, 10));
+  const RunResult run = run_scene(scene, *solver);
+  ASSERT_TRUE(run.stable) << run.message;
+  for (std::size_t f = 0; f < run.frames.size(); ++f) {
+    ASSERT_TRUE(run.frames[f].allFinite()) << "frame " << f;
+    // Still a hanging sheet: nothing flew off or fell far below the sheet's own length.
+    ASSERT_GT(run.frames[f].row(1).minCoeff(), -2.0) << "frame " << f;
+  }
+  EXPECT_LT(run.metrics.back().kinetic_energy,
+            run.metrics[run.metrics.size() / 2].kinetic_energy + 1e-6);
+}
+
+// Pinned vertices land exactly on their targets at the end of the step.
+TEST(Xpbd, KinematicVerticesFollowTheirTargets) {
+  const ClothScene scene = make_hard_case("swung-sheet");
+  auto solver = make_xpbd_solver(scene.model, xpbd_settings(8, 2));
+  ClothState state = scene.initial;
+  Environment env = scene.env;
+  StepInputs inputs;
+  inputs.env = &env;
+  for (int f = 1; f <= 5; ++f) {
+    inputs.kinematic_targets = scene.kinematic_path(f * scene.frame_dt);
+    ASSERT_TRUE(solver->step(state, scene.frame_dt, inputs).stable);
+    const Eigen::Matrix3Xd pins = kinematic_positions(scene.model, state.x);
+    EXPECT_LT((pins - inputs.kinematic_targets).cwiseAbs().maxCoeff(), 1e-12) << "frame " << f;
+  }
+  // The free cloth follows the pins sideways (z) rather than staying behind.
+  EXPECT_GT(state.x.row(2).mean(), 0.1 * inputs.kinematic_targets.row(2).mean());
+}
+
+// A step that runs away (absurd gravity) is reported and undone.
+TEST(Xpbd, RunawayStepIsReportedAndTheStateRestored) {
+  const ClothScene scene = make_hard_case("hanging-sheet", 7);
+  Environment env = scene.env;
+  env.gravity = Vec3(0, -1e7, 0);
+  StepInputs inputs;
+  inputs.env = &env;
+  auto solver = make_xpbd_solver(scene.model, xpbd_settings(4, 2));
+  ClothState state = scene.initial;
+  state.v.setConstant(0.01);
+  const ClothState before = state;
+  const StepReport report = solver->step(state, 1.0 / 30.0, inputs);
+  EXPECT_FALSE(report.stable);
+  EXPECT_NE(report.message.find("xpbd"), std::string::npos) << report.message;
+  EXPECT_EQ(state.x, before.x);
+  EXPECT_EQ(state.v, before.v);
+}
+
+TEST(Xpbd, RejectsMissingEnvironmentAndBadTargets) {
+  const ClothScene scene = make_hard_case("hanging-sheet", 5);
+  auto solver = make_xpbd_solver(scene.model, xpbd_settings(2, 2));
+  ClothState state = scene.initial;
+  StepInputs inputs;
+  EXPECT_THROW(solver->step(state, 0.01, inputs), std::invalid_argument);
+  Environment env;
+  inputs.env = &env;
+  inputs.kinematic_targets = Eigen::Matrix3Xd::Zero(3, 5);  // the model has two pins
+  EXPECT_THROW(solver->step(state, 0.01, inputs), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace clothdb
