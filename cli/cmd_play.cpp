@@ -1,0 +1,527 @@
+// `clothdb play FILE`: plays a path through the motion graph with the runtime library (clothrt)
+// and writes the cloth for Blender plus PNG previews; `clothdb bench runtime FILE`: per-frame cost
+// of playback for one and for many players, memory, and where the time goes (issue 6).
+#include <unistd.h>
+#include <zstd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <random>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "clothrt.h"
+#include "commands.hpp"
+#include "database/codec.hpp"
+#include "database/schema.hpp"
+#include "exchange/point_cache.hpp"
+#include "render/preview.hpp"
+#include "report/output.hpp"
+#include "runtime/tools/synthetic_db.hpp"
+
+namespace clothdb::cli {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// Owns a database handle and its players; throws with the library's message on failure.
+struct Runtime {
+  clothrt_db* db = nullptr;
+  std::vector<clothrt_player*> players;
+  Runtime(const std::string& path, const clothrt_db_options& options) {
+    const int rc = clothrt_db_open(path.c_str(), &options, &db);
+    if (rc != CLOTHRT_OK)
+      throw std::runtime_error(std::string(clothrt_last_open_errmsg()) + " (" +
+                               clothrt_status_name(rc) + ")");
+  }
+  ~Runtime() {
+    for (clothrt_player* p : players) clothrt_player_destroy(p);
+    clothrt_db_close(db);
+  }
+  Runtime(const Runtime&) = delete;
+  Runtime& operator=(const Runtime&) = delete;
+  clothrt_player* add_player() {
+    clothrt_player* p = nullptr;
+    check(clothrt_player_create(db, &p), "creating a player");
+    players.push_back(p);
+    return p;
+  }
+  void check(int rc, const char* what, clothrt_player* p = nullptr) const {
+    if (rc == CLOTHRT_OK) return;
+    throw std::runtime_error(std::string(what) + ": " +
+                             (p ? clothrt_player_errmsg(p) : clothrt_db_errmsg(db)));
+  }
+  int64_t clip_id(const std::string& token) const {
+    int64_t id = 0;
+    if (clothrt_db_find_clip(db, token.c_str(), &id) == CLOTHRT_OK) return id;
+    char* end = nullptr;
+    const long long v = std::strtoll(token.c_str(), &end, 10);
+    if (end && *end == '\0' && !token.empty())
+      for (size_t i = 0; i < clothrt_db_clip_count(db); ++i) {
+        clothrt_clip_info ci;
+        if (clothrt_db_clip_info(db, i, &ci) == CLOTHRT_OK && ci.id == v) return v;
+      }
+    throw std::runtime_error("no primary clip named or numbered '" + token + "'");
+  }
+};
+
+std::vector<std::string> split(const std::string& s, char sep) {
+  std::vector<std::string> out;
+  std::stringstream in(s);
+  std::string item;
+  while (std::getline(in, item, sep))
+    if (!item.empty()) out.push_back(item);
+  return out;
+}
+
+std::string cpu_model() {
+  std::ifstream in("/proc/cpuinfo");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("model name", 0) == 0) return line.substr(line.find(':') + 2);
+  return "unknown CPU";
+}
+
+struct Summary {
+  double median = 0, p99 = 0, mean = 0;
+};
+
+Summary summarise(std::vector<double> us) {
+  Summary s;
+  if (us.empty()) return s;
+  double sum = 0;
+  for (double v : us) sum += v;
+  s.mean = sum / double(us.size());
+  std::sort(us.begin(), us.end());
+  s.median = us[us.size() / 2];
+  s.p99 = us[std::min(us.size() - 1, size_t(double(us.size()) * 0.99))];
+  return s;
+}
+
+double us_since(Clock::time_point t) {
+  return std::chrono::duration<double, std::micro>(Clock::now() - t).count();
+}
+
+std::vector<int64_t> cloth_clip_ids(const std::string& path) {
+  db::Reader r;
+  Error err;
+  if (r.open(path, &err) != Status::Ok) throw std::runtime_error(err.message);
+  std::vector<db::ClothClip> clips;
+  if (r.cloth_clips(&clips, &err) != Status::Ok) throw std::runtime_error(err.message);
+  std::vector<int64_t> ids;
+  for (const db::ClothClip& c : clips) ids.push_back(c.id);
+  return ids;
+}
+
+// ---- clothdb play -----------------------------------------------------------------------------
+
+struct PlayArgs {
+  std::string file, path = "random", out;
+  double seconds = 10, fps = 0, blend_frames = 8;
+  uint64_t seed = 1;
+  int preview_every = 30, width = 480, height = 360;
+};
+
+void run_play(const PlayArgs& a) {
+  clothrt_db_options options;
+  clothrt_db_options_init(&options);
+  Runtime rt(a.file, options);
+  clothrt_player* p = rt.add_player();
+  rt.check(clothrt_player_set_blend_frames(p, a.blend_frames), "--blend-frames", p);
+  const bool random = a.path == "random";
+  std::vector<int64_t> path;
+  if (!random)
+    for (const std::string& token : split(a.path, ',')) path.push_back(rt.clip_id(token));
+  if (!random && path.empty()) throw std::runtime_error("--path names no clips");
+  rt.check(clothrt_player_set_random(p, random, a.seed), "random mode", p);
+  rt.check(clothrt_player_start(p, random ? 0 : path[0]), "start", p);
+  size_t next = 1;
+  if (!random && next < path.size()) rt.check(clothrt_player_set_next(p, path[next]), "path", p);
+
+  clothrt_clip_info first;
+  rt.check(clothrt_db_clip_info(rt.db, 0, &first), "clip info");
+  const double fps = a.fps > 0 ? a.fps : first.frame_rate;
+  const uint32_t vertices = clothrt_db_vertex_count(rt.db);
+  const size_t n = size_t(vertices) * 3;
+  std::vector<uint32_t> tri(size_t(clothrt_db_triangle_count(rt.db)) * 3);
+  rt.check(clothrt_db_triangles(rt.db, tri.data(), tri.size()), "triangles");
+
+  PointCache pc;
+  pc.vertex_count = int(vertices);
+  std::ostringstream csv;
+  csv << "frame,time_s,primary_clip,primary_frame,cloth_clip,cloth_state,blending,blend_weight,"
+         "fallback,holding,status\n";
+  std::vector<float> x(n);
+  clothrt_frame_info info{};
+  int errors = 0;
+  const long max_frames = a.seconds > 0 ? long(std::lround(a.seconds * fps)) + 1 : 0;
+  for (long f = 0;; ++f) {
+    if (max_frames && f >= max_frames) break;
+    int rc = CLOTHRT_OK;
+    if (f > 0) {
+      const uint64_t before = info.transitions;
+      rc = clothrt_player_advance(p, 1.0 / fps);
+      clothrt_player_info(p, &info);
+      if (rc != CLOTHRT_OK) {
+        ++errors;
+        std::fprintf(stderr, "frame %ld: %s (holding the last good pose)\n", f,
+                     clothrt_player_errmsg(p));
+      }
+      if (!random && info.transitions != before) {
+        // path[next] is now playing (or, past the path's end, the player's default: stop).
+        if (next >= path.size()) break;
+        if (++next < path.size()) rt.check(clothrt_player_set_next(p, path[next]), "path", p);
+      }
+    } else {
+      clothrt_player_info(p, &info);
+    }
+    rt.check(clothrt_player_get_positions(p, x.data(), 12, nullptr), "positions", p);
+    pc.positions.insert(pc.positions.end(), x.begin(), x.end());
+    ++pc.frame_count;
+    csv << f << ',' << double(f) / fps << ',' << info.primary_clip << ',' << info.primary_frame
+        << ',' << info.cloth_clip << ',' << info.cloth_state << ',' << info.blending << ','
+        << info.blend_weight << ',' << info.fallback << ',' << info.holding << ','
+        << clothrt_status_name(rc) << '\n';
+  }
+
+  make_directories(a.out);
+  std::vector<std::array<int, 3>> triangles(tri.size() / 3);
+  for (size_t t = 0; t < triangles.size(); ++t)
+    triangles[t] = {int(tri[3 * t]), int(tri[3 * t + 1]), int(tri[3 * t + 2])};
+  write_obj(a.out + "/garment.obj", "garment", pc.positions.data(), pc.vertex_count, triangles);
+  write_pc2(a.out + "/cloth.pc2", pc);
+  write_file_atomic(a.out + "/path.csv", csv.str());
+  int previews = 0;
+  if (a.preview_every > 0) {
+    make_directories(a.out + "/previews");
+    Eigen::Matrix3Xd all(3, 0);
+    auto frame_matrix = [&](int f) {
+      Eigen::Matrix3Xd m(3, vertices);
+      const float* src = pc.positions.data() + size_t(f) * n;
+      for (uint32_t v = 0; v < vertices; ++v)
+        for (int k = 0; k < 3; ++k) m(k, v) = src[3 * v + k];
+      return m;
+    };
+    for (int f = 0; f < pc.frame_count; f += a.preview_every) {
+      const Eigen::Matrix3Xd m = frame_matrix(f);
+      all.conservativeResize(3, all.cols() + m.cols());
+      all.rightCols(m.cols()) = m;
+    }
+    const PreviewCamera cam = frame_points(all, 1.5);
+    for (int f = 0; f < pc.frame_count; f += a.preview_every) {
+      const Eigen::Matrix3Xd m = frame_matrix(f);
+      PreviewScene scene;
+      scene.cloth = &m;
+      scene.triangles = &triangles;
+      scene.floor_height = all.row(1).minCoeff() - 0.05;
+      char name[64];
+      std::snprintf(name, sizeof name, "/previews/frame_%04d.png", f);
+      write_png(a.out + name, render_preview(scene, cam, a.width, a.height), a.width, a.height);
+      ++previews;
+    }
+  }
+  clothrt_stats stats;
+  clothrt_db_stats(rt.db, &stats);
+  std::printf(
+      "played %d frames at %g fps (%.2f s): %llu transitions, %llu fallbacks, %llu "
+      "interrupted blends, %d errors; %llu clips decoded, cache %.1f MB\n"
+      "wrote %s/{garment.obj,cloth.pc2,path.csv} and %d previews (character space)\n",
+      pc.frame_count, fps, (pc.frame_count - 1) / fps, (unsigned long long)info.transitions,
+      (unsigned long long)info.fallbacks, (unsigned long long)info.interrupted_blends, errors,
+      (unsigned long long)stats.clip_loads, stats.cache_bytes / 1048576.0, a.out.c_str(), previews);
+}
+
+// ---- clothdb bench runtime --------------------------------------------------------------------
+
+// Share of codec::decode_frames time spent inside zstd, measured on the file's own blobs: each
+// chunk decompressed alone against the whole blob decoded (the library cannot split the two
+// without instrumenting the codec).
+double zstd_fraction(const std::string& path, size_t max_clips) {
+  db::Reader r;
+  Error err;
+  if (r.open(path, &err) != Status::Ok) return 0;
+  std::vector<db::ClothClip> clips;
+  r.cloth_clips(&clips, &err);
+  std::vector<uint8_t> blob;
+  std::vector<float> out;
+  std::vector<uint8_t> raw;
+  codec::DecodeScratch scratch;
+  ZSTD_DCtx* dctx = ZSTD_createDCtx();
+  double zstd_us = 0, decode_us = 0;
+  for (size_t c = 0; c < clips.size() && c < max_clips; ++c) {
+    if (r.clip_blob(clips[c].id, &blob, &err) != Status::Ok) continue;
+    codec::BlobInfo info;
+    if (codec::read_info(blob.data(), blob.size(), &info, &err) != Status::Ok) continue;
+    // Layout (database/codec.cpp): 88-byte header, then 16 bytes per chunk (u32 compressed
+    // size first), then the compressed chunks back to back.
+    size_t offset = 88 + 16 * size_t(info.chunk_count);
+    auto t0 = Clock::now();
+    for (uint32_t k = 0; k < info.chunk_count; ++k) {
+      const uint8_t* e = blob.data() + 88 + 16 * size_t(k);
+      const size_t csize =
+          size_t(e[0]) | size_t(e[1]) << 8 | size_t(e[2]) << 16 | size_t(e[3]) << 24;
+      const unsigned long long raw_size = ZSTD_getFrameContentSize(blob.data() + offset, csize);
+      if (raw_size == ZSTD_CONTENTSIZE_ERROR || raw_size == ZSTD_CONTENTSIZE_UNKNOWN) break;
+      raw.resize(size_t(raw_size));
+      ZSTD_decompressDCtx(dctx, raw.data(), raw.size(), blob.data() + offset, csize);
+      offset += csize;
+    }
+    zstd_us += us_since(t0);
+    t0 = Clock::now();
+    codec::decode_all(blob.data(), blob.size(), out, scratch, &err);
+    decode_us += us_since(t0);
+  }
+  ZSTD_freeDCtx(dctx);
+  return decode_us > 0 ? std::min(1.0, zstd_us / decode_us) : 0;
+}
+
+struct Scenario {
+  std::string name;
+  Summary per_frame;  // µs per frame (all players)
+  size_t frames = 0;
+  clothrt_stats stats{};
+  size_t player_bytes = 0;
+  double wall_us = 0;
+  double zstd_share = 0;
+};
+
+// Plays `players` random players for `frames` frames at `dt`, each starting at a different cloth
+// clip, timing each frame (advance + positions for every player).
+Scenario run_scenario(const std::string& name, const std::string& path,
+                      const clothrt_db_options& options, int players, int frames, double dt,
+                      int warm_frames, bool pre_decode, bool world, double zfrac,
+                      bool stagger = false, bool paced = false) {
+  Runtime rt(path, options);
+  const std::vector<int64_t> clips = cloth_clip_ids(path);
+  const uint32_t vertices = clothrt_db_vertex_count(rt.db);
+  std::vector<std::vector<float>> out(size_t(players), std::vector<float>(size_t(vertices) * 3));
+  for (int i = 0; i < players; ++i) {
+    clothrt_player* p = rt.add_player();
+    rt.check(clothrt_player_set_random(p, 1, uint64_t(7919 * i + 1)), "random", p);
+    if (pre_decode && i == 0)
+      for (int64_t c : clips) rt.check(clothrt_player_start_cloth_clip(p, c), "pre-decode", p);
+    rt.check(clothrt_player_start_cloth_clip(p, clips[size_t(i) % clips.size()]), "start", p);
+    // A crowd is not in step: start each player somewhere inside its first clip.
+    if (stagger) rt.check(clothrt_player_advance(p, dt * double((i * 37) % 59)), "stagger", p);
+  }
+  const float c = std::cos(0.3f), s = std::sin(0.3f);
+  const float root[16] = {c, 0, -s, 0, 0, 1, 0, 0, s, 0, c, 0, 1.5f, 0, -0.5f, 1};
+  auto frame = [&] {
+    for (size_t i = 0; i < rt.players.size(); ++i) {
+      clothrt_player* p = rt.players[i];
+      const int rc = clothrt_player_advance(p, dt);
+      if (rc != CLOTHRT_OK) rt.check(rc, "advance", p);
+      clothrt_player_get_positions(p, out[i].data(), 12, world ? root : nullptr);
+    }
+  };
+  for (int f = 0; f < warm_frames; ++f) frame();
+  clothrt_db_reset_stats(rt.db);
+  clothrt_db_set_timing(rt.db, 1);
+  // Timing inside the library costs two clock reads per call; the per-frame figures come from a
+  // separate pass without it.
+  for (int f = 0; f < std::min(frames, 600); ++f) frame();
+  Scenario sc;
+  sc.name = name;
+  clothrt_db_stats(rt.db, &sc.stats);
+  clothrt_db_set_timing(rt.db, 0);
+  clothrt_db_reset_stats(rt.db);
+  std::vector<double> us(static_cast<size_t>(frames));
+  const auto start = Clock::now();
+  for (int f = 0; f < frames; ++f) {
+    const auto t0 = Clock::now();
+    frame();
+    us[size_t(f)] = us_since(t0);
+    // Paced like a game: the next frame starts dt after this one, so background decoding gets the
+    // wall time it would have in a game.
+    if (paced) std::this_thread::sleep_until(t0 + std::chrono::duration<double>(dt));
+  }
+  sc.wall_us = us_since(start);
+  sc.per_frame = summarise(us);
+  sc.frames = size_t(frames);
+  clothrt_stats totals;
+  clothrt_db_stats(rt.db, &totals);
+  // Keep the timed pass's load counters and memory; the shares come from the instrumented pass.
+  sc.stats.cache_bytes = std::max(sc.stats.cache_bytes, totals.cache_bytes);
+  sc.stats.clip_loads = totals.clip_loads;
+  sc.stats.stalls = totals.stalls;
+  for (clothrt_player* p : rt.players) sc.player_bytes += clothrt_player_memory(p);
+  sc.zstd_share = zfrac;
+  return sc;
+}
+
+void print_scenario(const Scenario& sc, int players) {
+  const clothrt_stats& s = sc.stats;
+  const double decode = double(s.decode_ns) * (1 - sc.zstd_share) + double(s.repack_ns);
+  const double zstd = double(s.decode_ns) * sc.zstd_share;
+  const double play = double(s.sample_ns) + double(s.transition_ns);
+  const double total = double(s.sqlite_ns) + zstd + decode + play;
+  auto pct = [&](double v) { return total > 0 ? 100.0 * v / total : 0.0; };
+  std::printf(
+      "%s\n  per frame (%d player%s): median %.2f us, p99 %.2f us, mean %.2f us over %zu "
+      "frames (%.2f us per player-frame amortised)\n",
+      sc.name.c_str(), players, players == 1 ? "" : "s", sc.per_frame.median, sc.per_frame.p99,
+      sc.per_frame.mean, sc.frames, sc.per_frame.mean / players);
+  std::printf(
+      "  clips decoded in the timed run: %llu (stalls %llu); memory: cache %.1f MB (cap "
+      "%.0f MB) + graph %.2f MB + players %.2f MB = %.1f MB\n",
+      (unsigned long long)s.clip_loads, (unsigned long long)s.stalls, s.cache_bytes / 1048576.0,
+      s.cache_cap / 1048576.0, s.metadata_bytes / 1048576.0, sc.player_bytes / 1048576.0,
+      (s.cache_bytes + s.metadata_bytes + sc.player_bytes) / 1048576.0);
+  std::printf(
+      "  time shares (instrumented pass): SQLite %.1f%%, zstd %.1f%%, decoding %.1f%%, "
+      "playback (sampling, blending, copying) %.1f%%\n",
+      pct(double(s.sqlite_ns)), pct(zstd), pct(decode), pct(play));
+}
+
+double memcpy_us(size_t bytes) {
+  std::vector<uint8_t> a(bytes, 1), b(bytes, 2);
+  std::vector<double> us;
+  for (int i = 0; i < 2000; ++i) {
+    const auto t0 = Clock::now();
+    std::memcpy(b.data(), a.data(), bytes);
+    us.push_back(us_since(t0));
+    a[size_t(i) % bytes] = b[size_t(i * 7) % bytes];  // keep the copies observable
+  }
+  return summarise(us).median;
+}
+
+struct BenchArgs {
+  std::string file;
+  int frames = 3000, players = 100;
+  size_t cache_mb = 32;
+};
+
+void run_bench(const BenchArgs& a) {
+  std::printf(
+      "clothdb bench runtime %s\nmachine: %s, %u hardware threads; all scenarios run "
+      "players on one thread\n\n",
+      a.file.c_str(), cpu_model().c_str(), std::thread::hardware_concurrency());
+  std::string big = a.file, small = a.file;
+  std::filesystem::path tmp;
+  if (a.file == "synthetic") {
+    tmp = std::filesystem::temp_directory_path() /
+          ("clothdb_bench_runtime_" + std::to_string(::getpid()));
+    std::filesystem::create_directories(tmp);
+    big = (tmp / "sheet10k.clothdb").string();
+    small = (tmp / "sheet2k.clothdb").string();
+    std::fprintf(stderr, "building synthetic databases in %s ...\n", tmp.c_str());
+    const auto t0 = Clock::now();
+    const auto b = synthetic::build(big, synthetic::bench_spec(100, 4));
+    const auto s = synthetic::build(small, synthetic::bench_spec(45, 16));
+    std::printf(
+        "synthetic databases (runtime/tools/synthetic_db.hpp; smooth made-up motion, not "
+        "simulation): %u vertices x %zu clips of 60 frames, and %u vertices x %zu clips "
+        "(built in %.1f s)\n\n",
+        b.vertices, b.clip.size(), s.vertices, s.clip.size(), us_since(t0) / 1e6);
+  }
+  uint32_t vertices = 0;
+  {
+    Runtime rt(big, clothrt_db_options{size_t(1) << 20, 0, 1.0});
+    vertices = clothrt_db_vertex_count(rt.db);
+  }
+  const size_t out_bytes = size_t(vertices) * 12;
+  const double copy = memcpy_us(out_bytes);
+  const double zbig = zstd_fraction(big, 8), zsmall = zstd_fraction(small, 8);
+  std::printf("memcpy of one frame of output (%u vertices, %.0f KB): %.2f us (median)\n\n",
+              vertices, out_bytes / 1024.0, copy);
+
+  clothrt_db_options warm{size_t(1) << 30, 1, 1.0};
+  Scenario s1 = run_scenario("[1] 1 player, clips decoded (warm cache), stored rate (dt = 1/30 s)",
+                             big, warm, 1, a.frames, 1.0 / 30, 600, true, false, zbig);
+  print_scenario(s1, 1);
+  std::printf("  ratio to the memcpy of its output: %.1fx\n\n", s1.per_frame.median / copy);
+  Scenario s2 =
+      run_scenario("[2] 1 player, warm cache, game rate 60 Hz (interpolating), world space", big,
+                   warm, 1, a.frames, 1.0 / 60, 600, true, true, zbig);
+  print_scenario(s2, 1);
+  std::printf("  ratio to the memcpy of its output: %.1fx\n\n", s2.per_frame.median / copy);
+  // Every clip decoded on first use and evicted soon after: the cap holds about two clips.
+  const size_t clip_bytes = size_t(vertices) * 6 * 60;
+  clothrt_db_options cold{2 * clip_bytes + clip_bytes / 2, 0, 1.0};
+  Scenario s3 = run_scenario(
+      "[3] 1 player, decoding included: cache of ~2 clips, decoding on the player's thread", big,
+      cold, 1, a.frames, 1.0 / 30, 0, false, false, zbig);
+  print_scenario(s3, 1);
+  std::printf("\n");
+  clothrt_db_options cold_bg{2 * clip_bytes + clip_bytes / 2, 1, 1.0};
+  Scenario s4 = run_scenario(
+      "[4] 1 player, decoding included, on the database's prefetch thread; paced at 30 Hz, "
+      "the player's thread timed",
+      big, cold_bg, 1, std::min(a.frames, 600), 1.0 / 30, 0, false, false, zbig, false, true);
+  print_scenario(s4, 1);
+  std::printf("\n");
+  clothrt_db_options many{a.cache_mb << 20, 0, 1.0};
+  Scenario s5 =
+      run_scenario("[5] " + std::to_string(a.players) + " players on different clips, " +
+                       std::to_string(a.cache_mb) +
+                       " MB cache, decoding on the same thread (one core), not in step",
+                   small, many, a.players, a.frames / 3, 1.0 / 30, 0, false, false, zsmall, true);
+  print_scenario(s5, a.players);
+  std::printf("\n");
+  if (!tmp.empty()) std::filesystem::remove_all(tmp);
+}
+
+}  // namespace
+
+void register_play_commands(CLI::App& app) {
+  auto a = std::make_shared<PlayArgs>();
+  CLI::App* cmd = app.add_subcommand(
+      "play",
+      "Plays a path through a database's motion graph with the runtime library and writes "
+      "DIR/garment.obj + DIR/cloth.pc2 (Blender: import the OBJ, add a Mesh Cache modifier with "
+      "the PC2), DIR/path.csv (clip, state, blend and fallback per frame) and PNG previews in "
+      "DIR/previews/. Positions are in character space.");
+  cmd->add_option("FILE", a->file, "Database")->required();
+  cmd->add_option("--path", a->path,
+                  "'random', or primary clips by name or id, comma-separated: the first is "
+                  "played from its source node, each next one at the following node; playback "
+                  "stops at the end of the last")
+      ->capture_default_str();
+  cmd->add_option("--seconds", a->seconds, "Stop after this long (0: at the end of --path)")
+      ->capture_default_str();
+  cmd->add_option("--out", a->out, "Output directory")->required();
+  cmd->add_option("--seed", a->seed, "Seed of the random path")->capture_default_str();
+  cmd->add_option("--fps", a->fps, "Output frame rate (0: the database's)")->capture_default_str();
+  cmd->add_option("--blend-frames", a->blend_frames, "Blend length at transitions")
+      ->capture_default_str();
+  cmd->add_option("--preview-every", a->preview_every, "A PNG preview every N frames (0: none)")
+      ->capture_default_str();
+  cmd->add_option("--width", a->width, "Preview width")->capture_default_str();
+  cmd->add_option("--height", a->height, "Preview height")->capture_default_str();
+  cmd->callback([a] {
+    if (a->path == "random" && !(a->seconds > 0))
+      throw std::runtime_error("--path random needs --seconds > 0");
+    run_play(*a);
+  });
+}
+
+void register_bench_runtime(CLI::App& bench) {
+  auto a = std::make_shared<BenchArgs>();
+  CLI::App* cmd = bench.add_subcommand(
+      "runtime",
+      "Per-frame cost of the playback runtime: one player of the largest garment with its clips "
+      "decoded and with decoding included, and many players of a smaller one sharing a "
+      "database; memory; shares of SQLite, zstd, decoding and playback. FILE 'synthetic' builds "
+      "a 10,000- and a 2,025-vertex database in a temporary directory; a real file is used for "
+      "all scenarios.");
+  cmd->add_option("FILE", a->file, "Database, or 'synthetic'")->required();
+  cmd->add_option("--frames", a->frames, "Timed frames per single-player scenario")
+      ->capture_default_str();
+  cmd->add_option("--players", a->players, "Players in the shared-database scenario")
+      ->capture_default_str();
+  cmd->add_option("--cache-mb", a->cache_mb, "Cache cap of the shared-database scenario, MB")
+      ->capture_default_str();
+  cmd->callback([a] { run_bench(*a); });
+}
+
+}  // namespace clothdb::cli

@@ -1,0 +1,478 @@
+// A player: follows the game's path through the primary graph and the secondary cloth graph,
+// blends at transitions into different states, and samples the cloth at any time.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+
+#include "internal.hpp"
+
+namespace clothrt {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+uint64_t ns_since(Clock::time_point t) {
+  return uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now() - t).count());
+}
+
+// Single-writer counters: only the owning thread adds, the stats reader only loads.
+void add(std::atomic<uint64_t>& a, uint64_t v) {
+  a.store(a.load(std::memory_order_relaxed) + v, std::memory_order_relaxed);
+}
+
+uint64_t splitmix64(uint64_t& s) {
+  uint64_t z = (s += 0x9e3779b97f4a7c15ull);
+  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+  z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+  return z ^ (z >> 31);
+}
+
+// One coordinate i of frame f of a decoded clip.
+inline float value(const ClipView& v, size_t n, size_t f, size_t i) {
+  if (v.quantised)
+    return v.origin[i % 3] + v.step * float(static_cast<const uint16_t*>(v.data)[f * n + i]);
+  return static_cast<const float*>(v.data)[f * n + i];
+}
+
+// The per-frame kernels: out = frame(t) [+ r * offset]. Coordinates are interleaved x, y, z, so
+// the loops run over blocks of 12 floats (4 vertices) with the per-axis origin as a constant
+// pattern, which the compiler turns into straight vector code.
+// Built for AVX2 as well as the x86-64 baseline, picked at load time: the loops are bound by
+// conversions and loads, which AVX2 does twice as wide.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define CLOTHRT_MULTIVERSION __attribute__((target_clones("avx2", "default")))
+#else
+#define CLOTHRT_MULTIVERSION
+#endif
+
+template <bool kInterp, bool kBlend>
+CLOTHRT_MULTIVERSION void sample_quantised(const uint16_t* __restrict q0,
+                                           const uint16_t* __restrict q1, float a,
+                                           const float origin[3], float step,
+                                           const float* __restrict d, float r,
+                                           float* __restrict out, size_t n) {
+  float base[12];
+  for (int j = 0; j < 12; ++j) base[j] = origin[j % 3];
+  auto one = [&](size_t i, float b) {
+    float q = float(q0[i]);
+    if constexpr (kInterp) q += a * (float(q1[i]) - q);
+    float x = b + step * q;
+    if constexpr (kBlend) x += r * d[i];
+    out[i] = x;
+  };
+  size_t i = 0;
+  for (; i + 12 <= n; i += 12)
+    for (size_t j = 0; j < 12; ++j) one(i + j, base[j]);
+  for (; i < n; ++i) one(i, base[i % 12]);
+}
+
+template <bool kInterp, bool kBlend>
+CLOTHRT_MULTIVERSION void sample_floats(const float* __restrict f0, const float* __restrict f1,
+                                        float a, const float* __restrict d, float r,
+                                        float* __restrict out, size_t n) {
+  for (size_t i = 0; i < n; ++i) {
+    float x = f0[i];
+    if constexpr (kInterp) x += a * (f1[i] - x);
+    if constexpr (kBlend) x += r * d[i];
+    out[i] = x;
+  }
+}
+
+template <bool kInterp, bool kBlend>
+void sample_view(const ClipView& v, size_t n, size_t f0, size_t f1, float a, const float* d,
+                 float r, float* out) {
+  if (v.quantised) {
+    const uint16_t* q = static_cast<const uint16_t*>(v.data);
+    sample_quantised<kInterp, kBlend>(q + f0 * n, q + f1 * n, a, v.origin, v.step, d, r, out, n);
+  } else {
+    const float* x = static_cast<const float*>(v.data);
+    sample_floats<kInterp, kBlend>(x + f0 * n, x + f1 * n, a, d, r, out, n);
+  }
+}
+
+// World space: out = M * [x y z 1] per vertex, written at a stride.
+CLOTHRT_MULTIVERSION void transform(const float* __restrict src, size_t vertices,
+                                    const float* __restrict m, float* __restrict out, size_t vs) {
+  const float m0 = m[0], m1 = m[1], m2 = m[2], m4 = m[4], m5 = m[5], m6 = m[6], m8 = m[8],
+              m9 = m[9], m10 = m[10], m12 = m[12], m13 = m[13], m14 = m[14];
+  for (size_t v = 0; v < vertices; ++v) {
+    const float x = src[3 * v], y = src[3 * v + 1], z = src[3 * v + 2];
+    float* o = out + v * vs;
+    o[0] = m0 * x + m4 * y + m8 * z + m12;
+    o[1] = m1 * x + m5 * y + m9 * z + m13;
+    o[2] = m2 * x + m6 * y + m10 * z + m14;
+  }
+}
+
+}  // namespace
+
+Player::Player(Db* d) : db(d) {
+  const size_t n = size_t(db->vertex_count) * 3;
+  offset_.assign(n, 0.0f);
+  local_.assign(n, 0.0f);
+  pinned_.assign(db->max_successors, -1);
+  pending_.assign(db->max_successors, 0);
+  std::lock_guard<std::mutex> lk(db->mu);
+  db->players.push_back(this);
+}
+
+Player::~Player() {
+  release_prefetch();
+  if (clip_ >= 0) db->unpin(clip_);
+  std::lock_guard<std::mutex> lk(db->mu);
+  db->retired_sample_ns += sample_ns.load();
+  db->retired_transition_ns += transition_ns.load();
+  db->retired_frames += frames.load();
+  db->players.erase(std::find(db->players.begin(), db->players.end(), this));
+}
+
+size_t Player::memory() const {
+  return sizeof(Player) + (offset_.capacity() + local_.capacity()) * sizeof(float) +
+         pinned_.capacity() * sizeof(int) + pending_.capacity();
+}
+
+int Player::start_clip(int clip) {
+  ClipView v;
+  bool stalled = false;
+  Error e;
+  if (Status st = db->acquire(clip, &v, &stalled, &e); st != Status::Ok) {
+    error = e;
+    return to_code(st);
+  }
+  release_prefetch();
+  if (clip_ >= 0) db->unpin(clip_);
+  clip_ = clip;
+  view_ = v;
+  primary_ = db->clips[size_t(clip)].primary;
+  t_ = 0;
+  r0_ = 0;
+  holding_ = fallback_ = false;
+  started_ = true;
+  next_named_ = false;
+  next_k_ = -1;
+  if (random_) next_k_ = choose_next();
+  return CLOTHRT_OK;
+}
+
+int Player::set_next(int primary) {
+  if (!started_) {
+    error.set(Status::InvalidArgument, "set_next: the player has not been started");
+    return CLOTHRT_ERR_INVALID;
+  }
+  const PrimaryInfo& p = db->primaries[size_t(primary_)];
+  for (uint32_t k = 0; k < p.succ_end - p.succ_begin; ++k) {
+    if (db->successors[p.succ_begin + k] != primary) continue;
+    const PrimaryInfo& b = db->primaries[size_t(primary)];
+    if (b.cand_begin == b.cand_end) {
+      error.set(Status::NotFound, "set_next: no cloth was precomputed along primary clip %lld",
+                (long long)b.id);
+      return CLOTHRT_ERR_NOT_FOUND;
+    }
+    next_k_ = int(k);
+    next_named_ = true;
+    // Prefetch only what will be played from now on.
+    if (prefetch_issued_) {
+      release_prefetch();
+      issue_prefetch();
+    }
+    return CLOTHRT_OK;
+  }
+  error.set(Status::InvalidArgument,
+            "set_next: primary clip %lld does not follow primary clip %lld",
+            (long long)db->primaries[size_t(primary)].id, (long long)p.id);
+  return CLOTHRT_ERR_INVALID;
+}
+
+void Player::set_random(bool enabled, uint64_t seed) {
+  random_ = enabled;
+  rng_ = seed;
+  if (started_ && !next_named_) {
+    next_k_ = -1;
+    if (random_) next_k_ = choose_next();
+    if (prefetch_issued_) {
+      release_prefetch();
+      issue_prefetch();
+    }
+  }
+}
+
+int Player::choose_next() {
+  if (next_k_ >= 0) return next_k_;
+  const PrimaryInfo& p = db->primaries[size_t(primary_)];
+  uint32_t with_cloth = 0;
+  for (uint32_t k = p.succ_begin; k < p.succ_end; ++k) {
+    const PrimaryInfo& b = db->primaries[size_t(db->successors[k])];
+    with_cloth += b.cand_end > b.cand_begin;
+  }
+  if (with_cloth == 0) return -1;
+  uint32_t pick = random_ ? uint32_t(splitmix64(rng_) % with_cloth) : 0;
+  for (uint32_t k = p.succ_begin; k < p.succ_end; ++k) {
+    const PrimaryInfo& b = db->primaries[size_t(db->successors[k])];
+    if (b.cand_end > b.cand_begin && pick-- == 0) return next_k_ = int(k - p.succ_begin);
+  }
+  return -1;
+}
+
+void Player::request(uint32_t k) {
+  if (pinned_[k] >= 0 || pending_[k]) return;
+  if (holding_) {
+    const PrimaryInfo& b =
+        db->primaries[size_t(db->successors[db->primaries[size_t(primary_)].succ_begin + k])];
+    if (b.cand_begin == b.cand_end) return;
+    pinned_[k] = db->candidates[b.cand_begin];
+    db->pin(pinned_[k]);
+    return;
+  }
+  const int32_t v =
+      db->slots[db->clips[size_t(clip_)].slot_begin + k].load(std::memory_order_acquire);
+  if (v >= 0) {
+    pinned_[k] = v >> 1;
+    db->pin(pinned_[k]);
+  } else if (v != kSlotNone) {
+    db->request_resolve(clip_, k);
+    pending_[k] = 1;
+  }
+}
+
+void Player::issue_prefetch() {
+  prefetch_issued_ = true;
+  const PrimaryInfo& p = db->primaries[size_t(primary_)];
+  if (next_k_ >= 0) {
+    request(uint32_t(next_k_));
+    return;
+  }
+  // Nothing decided yet: everything the game may pick.
+  for (uint32_t k = 0; k < p.succ_end - p.succ_begin; ++k) request(k);
+}
+
+void Player::poll_prefetch() {
+  for (size_t k = 0; k < pending_.size(); ++k) {
+    if (!pending_[k]) continue;
+    const int32_t v =
+        db->slots[db->clips[size_t(clip_)].slot_begin + k].load(std::memory_order_acquire);
+    if (v >= 0) {
+      pending_[k] = 0;
+      pinned_[k] = v >> 1;
+      db->pin(pinned_[k]);
+    } else if (v == kSlotNone) {
+      pending_[k] = 0;
+    }
+  }
+}
+
+void Player::release_prefetch() {
+  for (size_t k = 0; k < pinned_.size(); ++k) {
+    if (pinned_[k] >= 0) db->unpin(pinned_[k]);
+    pinned_[k] = -1;
+    pending_[k] = 0;
+  }
+  prefetch_issued_ = false;
+}
+
+int Player::transition() {
+  const auto t0 = Clock::now();
+  const uint32_t k = uint32_t(next_k_);
+  const PrimaryInfo& from = db->primaries[size_t(primary_)];
+  const int next_primary = db->successors[from.succ_begin + k];
+  const PrimaryInfo& to = db->primaries[size_t(next_primary)];
+  const size_t n = size_t(db->vertex_count) * 3;
+
+  int target = -1;
+  bool fallback = holding_;
+  double blend_error = 0;
+  if (holding_) {
+    target = db->candidates[to.cand_begin];
+  } else {
+    std::atomic<int32_t>& slot = db->slots[db->clips[size_t(clip_)].slot_begin + k];
+    int32_t v = slot.load(std::memory_order_acquire);
+    if (v < 0 && v != kSlotNone) {
+      v = db->resolve_now(clip_, k);
+      db->stalls.fetch_add(1, std::memory_order_relaxed);
+    }
+    if (v >= 0) {
+      target = v >> 1;
+      fallback = v & 1;
+    }
+    blend_error = db->clips[size_t(clip_)].blend_error;
+  }
+  ClipView nv;
+  bool stalled = false;
+  Error e;
+  Status st = Status::NotFound;
+  if (target >= 0)
+    st = db->acquire(target, &nv, &stalled, &e);
+  else
+    e.set(Status::NotFound, "no cloth along primary clip %lld", (long long)to.id);
+  if (stalled) db->stalls.fetch_add(1, std::memory_order_relaxed);
+
+  // The pose at the node, as it would be shown there: the old clip's last frame plus what is left
+  // of a blend still in progress (when holding, offset_ is that pose already).
+  const double end = double(from.frames - 1);
+  const double r_end = r0_ > 0 ? std::max(0.0, r0_ - end / blend_span_) : 0.0;
+  const bool blend = st == Status::Ok && (holding_ || fallback || blend_error > 0);
+  if (!holding_ && (st != Status::Ok || blend)) {
+    const float r = float(r_end);
+    const size_t last = size_t(from.frames - 1);
+    for (size_t i = 0; i < n; ++i) offset_[i] = value(view_, n, last, i) + r * offset_[i];
+  }
+  int code = CLOTHRT_OK;
+  if (st != Status::Ok) {
+    // Keep showing that pose while the primary clip plays on; restart at the next node.
+    error = e;
+    code = to_code(st);
+    if (clip_ >= 0) db->unpin(clip_);
+    clip_ = -1;
+    holding_ = true;
+    fallback_ = false;
+    r0_ = 0;
+  } else {
+    if (blend) {
+      // Offset blend: the difference to the new clip's first frame fades out over blend_frames,
+      // so the cloth keeps the new clip's motion and never jumps.
+      for (size_t i = 0; i < n; ++i) offset_[i] -= value(nv, n, 0, i);
+      if (r_end > 0) ++interrupted_;
+      r0_ = blend_frames > 0 ? 1.0 : 0.0;
+      blend_span_ = std::max(blend_frames, 1e-9);
+    } else {
+      // Same state: nothing to blend, but a blend still in progress carries on across the node.
+      if (r_end > 0) ++interrupted_;
+      r0_ = r_end;
+    }
+    if (clip_ >= 0) db->unpin(clip_);
+    clip_ = target;
+    view_ = nv;
+    holding_ = false;
+    fallback_ = fallback;
+    fallbacks_ += fallback;
+  }
+  release_prefetch();
+  ++transitions_;
+  primary_ = next_primary;
+  next_k_ = -1;
+  next_named_ = false;
+  if (random_) choose_next();
+  add(transition_ns, ns_since(t0));
+  return code;
+}
+
+int Player::advance(double dt) {
+  if (!started_) {
+    error.set(Status::InvalidArgument, "advance: the player has not been started");
+    return CLOTHRT_ERR_INVALID;
+  }
+  if (!(dt >= 0) || !std::isfinite(dt)) {
+    error.set(Status::InvalidArgument, "advance: time step %g is not a finite non-negative number",
+              dt);
+    return CLOTHRT_ERR_INVALID;
+  }
+  int code = CLOTHRT_OK;
+  const PrimaryInfo* p = &db->primaries[size_t(primary_)];
+  t_ += dt * p->rate;
+  for (;;) {
+    const double end = double(p->frames - 1);
+    if (!prefetch_issued_ && (end - t_) / p->rate <= db->options.prefetch_seconds) {
+      // The random pick is made at the start of a clip; a game that has not named the next clip
+      // yet gets all candidates prefetched.
+      issue_prefetch();
+    } else if (prefetch_issued_) {
+      poll_prefetch();
+    }
+    if (t_ < end) break;
+    if (choose_next() < 0) {
+      // A node without any way on that has cloth: stay on the last frame.
+      t_ = end;
+      break;
+    }
+    const double carry = (t_ - end) / p->rate;
+    const int c = transition();
+    if (c != CLOTHRT_OK) code = c;
+    p = &db->primaries[size_t(primary_)];
+    t_ = carry * p->rate;
+  }
+  if (db->workers.empty()) db->service_one();
+  return code;
+}
+
+int Player::positions(float* out, size_t stride, const float* m) {
+  if (!out || stride < 3 * sizeof(float) || stride % sizeof(float) != 0) {
+    error.set(Status::InvalidArgument,
+              "get_positions: need an output buffer and a stride >= 12 "
+              "that is a multiple of 4");
+    return CLOTHRT_ERR_INVALID;
+  }
+  if (!started_) {
+    error.set(Status::InvalidArgument, "get_positions: the player has not been started");
+    return CLOTHRT_ERR_INVALID;
+  }
+  const bool timed = db->timing.load(std::memory_order_relaxed);
+  Clock::time_point t0;
+  if (timed) t0 = Clock::now();
+  const size_t n = size_t(db->vertex_count) * 3;
+  const bool direct = stride == 3 * sizeof(float) && !m;
+  float* dst = direct ? out : local_.data();
+  if (holding_) {
+    std::memcpy(dst, offset_.data(), n * sizeof(float));
+  } else {
+    const size_t last = size_t(view_.frames - 1);
+    double whole = std::floor(t_);
+    size_t f0 = size_t(std::clamp(whole, 0.0, double(last)));
+    float a = float(t_ - whole);
+    if (f0 >= last) {
+      f0 = last;
+      a = 0;
+    }
+    const size_t f1 = std::min(f0 + 1, last);
+    const float r = r0_ > 0 ? float(std::max(0.0, r0_ - t_ / blend_span_)) : 0.0f;
+    const float* d = offset_.data();
+    if (a > 0) {
+      if (r > 0)
+        sample_view<true, true>(view_, n, f0, f1, a, d, r, dst);
+      else
+        sample_view<true, false>(view_, n, f0, f1, a, d, r, dst);
+    } else {
+      if (r > 0)
+        sample_view<false, true>(view_, n, f0, f1, a, d, r, dst);
+      else
+        sample_view<false, false>(view_, n, f0, f1, a, d, r, dst);
+    }
+  }
+  if (!direct) {
+    const size_t vs = stride / sizeof(float);
+    const size_t vertices = db->vertex_count;
+    const float* __restrict src = local_.data();
+    if (m) {
+      transform(src, vertices, m, out, vs);
+    } else {
+      for (size_t v = 0; v < vertices; ++v) std::memcpy(out + v * vs, src + 3 * v, 12);
+    }
+  }
+  if (timed) add(sample_ns, ns_since(t0));
+  add(frames, 1);
+  return CLOTHRT_OK;
+}
+
+void Player::info(clothrt_frame_info* out) const {
+  std::memset(out, 0, sizeof *out);
+  if (!started_) return;
+  const PrimaryInfo& p = db->primaries[size_t(primary_)];
+  out->primary_clip = p.id;
+  out->primary_frame = t_;
+  if (clip_ >= 0) {
+    out->cloth_clip = db->clips[size_t(clip_)].id;
+    out->cloth_state = db->states[size_t(db->clips[size_t(clip_)].state)].id;
+  }
+  if (next_k_ >= 0)
+    out->next_clip = db->primaries[size_t(db->successors[p.succ_begin + uint32_t(next_k_)])].id;
+  const double r = !holding_ && r0_ > 0 ? std::max(0.0, r0_ - t_ / blend_span_) : 0.0;
+  out->blending = r > 0;
+  out->blend_weight = 1.0 - r;
+  out->fallback = fallback_;
+  out->holding = holding_;
+  out->transitions = transitions_;
+  out->fallbacks = fallbacks_;
+  out->interrupted_blends = interrupted_;
+}
+
+}  // namespace clothrt

@@ -1,0 +1,761 @@
+// The playback runtime (issue 6): the C API of clothrt on synthetic databases laid out as
+// docs/SECONDARY_GRAPH.md says: stored frames played back exactly, interpolation, blends without
+// pops (also when interrupted), fallbacks to the nearest state, world space and strides, errors
+// with the last good pose, many players on threads, and no allocation per frame.
+#include <gtest/gtest.h>
+#include <sqlite3.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <new>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "clothrt.h"
+#include "database/codec.hpp"
+#include "database/schema.hpp"
+#include "runtime/tools/synthetic_db.hpp"
+
+// Counts every allocation made through operator new in this process, so a test can check that
+// playing frames allocates nothing once warm. The replacements pair malloc with free; GCC cannot
+// see that once it inlines them into callers and would warn about a mismatch.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
+namespace {
+std::atomic<uint64_t> g_allocations{0};
+}  // namespace
+
+void* operator new(size_t size) {
+  g_allocations.fetch_add(1, std::memory_order_relaxed);
+  if (void* p = std::malloc(size ? size : 1)) return p;
+  throw std::bad_alloc();
+}
+void* operator new[](size_t size) {
+  return operator new(size);
+}
+void* operator new(size_t size, std::align_val_t align) {
+  g_allocations.fetch_add(1, std::memory_order_relaxed);
+  const size_t a = std::max(size_t(align), sizeof(void*));
+  if (void* p = std::aligned_alloc(a, (std::max<size_t>(size, 1) + a - 1) / a * a)) return p;
+  throw std::bad_alloc();
+}
+void* operator new(size_t size, std::align_val_t align, const std::nothrow_t&) noexcept {
+  try {
+    return operator new(size, align);
+  } catch (...) {
+    return nullptr;
+  }
+}
+void operator delete(void* p) noexcept {
+  std::free(p);
+}
+void operator delete[](void* p) noexcept {
+  std::free(p);
+}
+void operator delete(void* p, size_t) noexcept {
+  std::free(p);
+}
+void operator delete[](void* p, size_t) noexcept {
+  std::free(p);
+}
+void operator delete(void* p, std::align_val_t) noexcept {
+  std::free(p);
+}
+void operator delete(void* p, size_t, std::align_val_t) noexcept {
+  std::free(p);
+}
+#pragma GCC diagnostic pop
+
+namespace clothdb {
+namespace {
+
+namespace fs = std::filesystem;
+
+class TempDir {
+ public:
+  TempDir() {
+    static int counter = 0;
+    path_ = fs::temp_directory_path() /
+            ("clothrt_test_" + std::to_string(getpid()) + "_" + std::to_string(counter++));
+    fs::create_directories(path_);
+  }
+  ~TempDir() {
+    std::error_code ec;
+    fs::remove_all(path_, ec);
+  }
+  std::string file(const std::string& name) const { return (path_ / name).string(); }
+
+ private:
+  fs::path path_;
+};
+
+constexpr uint32_t kSide = 16;  // 256 vertices
+constexpr double kRate = 30.0;
+
+// A database, the ids the builder gave its rows, and every clip decoded by the codec directly.
+struct Fixture {
+  TempDir dir;
+  std::string path = dir.file("demo.clothdb");
+  synthetic::Spec spec = synthetic::demo_spec(kSide);
+  synthetic::Built built;
+  std::map<int64_t, std::vector<float>> frames;  // cloth clip id -> decoded frames
+  size_t n = 0;                                  // floats per frame
+
+  Fixture() {
+    built = synthetic::build(path, spec);
+    n = size_t(built.vertices) * 3;
+    db::Reader r;
+    Error err;
+    EXPECT_EQ(r.open(path, &err), Status::Ok) << err.message;
+    codec::DecodeScratch scratch;
+    std::vector<uint8_t> blob;
+    for (const auto& [key, id] : built.clip) {
+      EXPECT_EQ(r.clip_blob(id, &blob, &err), Status::Ok);
+      EXPECT_EQ(codec::decode_all(blob.data(), blob.size(), frames[id], scratch, &err), Status::Ok);
+    }
+  }
+  const float* frame(int64_t clip, size_t f) const { return frames.at(clip).data() + f * n; }
+  size_t frame_count(int64_t clip) const { return frames.at(clip).size() / n; }
+  // Largest vertex displacement between consecutive stored frames of a clip.
+  double internal_jump(int64_t clip) const {
+    double m = 0;
+    for (size_t f = 0; f + 1 < frame_count(clip); ++f)
+      m = std::max(m, max_displacement(frame(clip, f), frame(clip, f + 1)));
+    return m;
+  }
+  double max_displacement(const float* a, const float* b) const {
+    double m = 0;
+    for (size_t i = 0; i < n; i += 3) {
+      const double dx = a[i] - b[i], dy = a[i + 1] - b[i + 1], dz = a[i + 2] - b[i + 2];
+      m = std::max(m, std::sqrt(dx * dx + dy * dy + dz * dz));
+    }
+    return m;
+  }
+  // The clip the secondary graph continues with from clip `from` along edge index `edge`.
+  int64_t follow(int64_t from, int edge) const {
+    db::Reader r;
+    Error err;
+    EXPECT_EQ(r.open(path, &err), Status::Ok);
+    std::vector<db::ClothEdge> edges;
+    r.cloth_edges(&edges, &err);
+    for (const db::ClothEdge& e : edges)
+      if (e.from_clip == from)
+        for (const auto& [key, id] : built.clip)
+          if (built.states[size_t(key.first)] == e.to_state && key.second == edge) return id;
+    return 0;
+  }
+};
+
+double max_abs_diff(const float* a, const float* b, size_t n) {
+  double m = 0;
+  for (size_t i = 0; i < n; ++i) m = std::max(m, double(std::fabs(a[i] - b[i])));
+  return m;
+}
+
+struct Handles {
+  clothrt_db* db = nullptr;
+  clothrt_player* player = nullptr;
+  ~Handles() {
+    clothrt_player_destroy(player);
+    clothrt_db_close(db);
+  }
+};
+
+void open(const Fixture& fx, Handles& h, int threads = 1, size_t cache = 0) {
+  clothrt_db_options o;
+  clothrt_db_options_init(&o);
+  o.prefetch_threads = threads;
+  if (cache) o.cache_bytes = cache;
+  ASSERT_EQ(clothrt_db_open(fx.path.c_str(), &o, &h.db), CLOTHRT_OK) << clothrt_last_open_errmsg();
+  ASSERT_EQ(clothrt_player_create(h.db, &h.player), CLOTHRT_OK);
+}
+
+// One played frame: the pose and what the player reported.
+struct Played {
+  std::vector<float> x;
+  clothrt_frame_info info;
+  int code;
+};
+
+Played play_frame(clothrt_player* p, size_t n, double dt) {
+  Played out;
+  out.code = clothrt_player_advance(p, dt);
+  out.x.resize(n);
+  EXPECT_EQ(clothrt_player_get_positions(p, out.x.data(), 12, nullptr), CLOTHRT_OK);
+  clothrt_player_info(p, &out.info);
+  return out;
+}
+
+// A path through the demo graph (edge indices): e0 0->1, e1 1->0, e2 1->1 (loop), e3 0->0 (loop).
+const std::vector<int> kPath = {0, 2, 2, 1, 3, 0, 1, 0, 2, 1, 3, 3, 0};
+
+std::vector<Played> play_path(const Fixture& fx, clothrt_player* p, const std::vector<int>& path,
+                              double dt) {
+  EXPECT_EQ(clothrt_player_start(p, fx.built.primary[size_t(path[0])]), CLOTHRT_OK);
+  std::vector<Played> out;
+  size_t next = 1;
+  if (next < path.size()) {
+    EXPECT_EQ(clothrt_player_set_next(p, fx.built.primary[size_t(path[next])]), CLOTHRT_OK)
+        << clothrt_player_errmsg(p);
+  }
+  out.push_back(play_frame(p, fx.n, 0.0));
+  while (next < path.size()) {
+    out.push_back(play_frame(p, fx.n, dt));
+    if (out.back().info.transitions != out[out.size() - 2].info.transitions) {
+      ++next;
+      if (next < path.size()) {
+        EXPECT_EQ(clothrt_player_set_next(p, fx.built.primary[size_t(path[next])]), CLOTHRT_OK)
+            << clothrt_player_errmsg(p);
+      }
+    }
+  }
+  return out;
+}
+
+// Checks the no-pop rule on a played sequence: wherever a transition or a blend happens, the
+// jump between consecutive frames is at most the largest jump inside the clips around it.
+// Returns the number of frames checked.
+int check_no_pop(const Fixture& fx, const std::vector<Played>& played, double slack = 1e-6) {
+  int checked = 0;
+  for (size_t k = 1; k < played.size(); ++k) {
+    const clothrt_frame_info& a = played[k - 1].info;
+    const clothrt_frame_info& b = played[k].info;
+    if (a.transitions == b.transitions && !b.blending) continue;
+    const double bound = std::max(fx.internal_jump(a.cloth_clip), fx.internal_jump(b.cloth_clip));
+    const double jump = fx.max_displacement(played[k - 1].x.data(), played[k].x.data());
+    EXPECT_LE(jump, bound + slack) << "frame " << k << ": clip " << a.cloth_clip << " -> "
+                                   << b.cloth_clip << (b.blending ? " (blending)" : "");
+    ++checked;
+  }
+  return checked;
+}
+
+TEST(Runtime, OpenReportsErrors) {
+  TempDir dir;
+  clothrt_db* db = nullptr;
+  EXPECT_EQ(clothrt_db_open(dir.file("missing.clothdb").c_str(), nullptr, &db), CLOTHRT_ERR_IO);
+  EXPECT_EQ(db, nullptr);
+  EXPECT_NE(std::string(clothrt_last_open_errmsg()).find("missing.clothdb"), std::string::npos);
+  std::ofstream(dir.file("text.clothdb")) << "not a database at all, just some text\n";
+  EXPECT_EQ(clothrt_db_open(dir.file("text.clothdb").c_str(), nullptr, &db),
+            CLOTHRT_ERR_NOT_CLOTHDB);
+  EXPECT_EQ(clothrt_db_open(nullptr, nullptr, &db), CLOTHRT_ERR_INVALID);
+  EXPECT_EQ(clothrt_db_open("x", nullptr, nullptr), CLOTHRT_ERR_INVALID);
+  // A database with no cloth in it.
+  {
+    db::Writer w = db::Writer::create(dir.file("empty.clothdb"));
+    db::Garment g;
+    g.rest_positions = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    g.triangles = {0, 1, 2};
+    w.put_garment(g);
+  }
+  EXPECT_EQ(clothrt_db_open(dir.file("empty.clothdb").c_str(), nullptr, &db),
+            CLOTHRT_ERR_NOT_FOUND);
+  clothrt_db_close(nullptr);
+  clothrt_player_destroy(nullptr);
+  EXPECT_STREQ(clothrt_status_name(CLOTHRT_ERR_CORRUPT), "corrupt");
+}
+
+TEST(Runtime, GraphQueries) {
+  Fixture fx;
+  Handles h;
+  open(fx, h);
+  EXPECT_EQ(clothrt_db_vertex_count(h.db), kSide * kSide);
+  EXPECT_EQ(clothrt_db_triangle_count(h.db), 2 * (kSide - 1) * (kSide - 1));
+  std::vector<uint32_t> tris(3 * clothrt_db_triangle_count(h.db));
+  EXPECT_EQ(clothrt_db_triangles(h.db, tris.data(), tris.size()), CLOTHRT_OK);
+  EXPECT_EQ(clothrt_db_triangles(h.db, tris.data(), 2), CLOTHRT_ERR_INVALID);
+  ASSERT_EQ(clothrt_db_clip_count(h.db), 4u);
+  EXPECT_EQ(clothrt_db_start_clip(h.db), fx.built.primary[0]);
+  clothrt_clip_info ci;
+  ASSERT_EQ(clothrt_db_clip_info(h.db, 0, &ci), CLOTHRT_OK);
+  EXPECT_EQ(ci.frame_count, 40);
+  EXPECT_DOUBLE_EQ(ci.frame_rate, kRate);
+  EXPECT_EQ(ci.successor_count, 2u);
+  EXPECT_TRUE(ci.has_cloth);
+  int64_t id = 0;
+  EXPECT_EQ(clothrt_db_find_clip(h.db, ci.name, &id), CLOTHRT_OK);
+  EXPECT_EQ(id, fx.built.primary[0]);
+  EXPECT_EQ(clothrt_db_find_clip(h.db, "no such clip", &id), CLOTHRT_ERR_NOT_FOUND);
+  int64_t succ[4];
+  size_t count = 0;
+  ASSERT_EQ(clothrt_db_successors(h.db, fx.built.primary[0], succ, 4, &count), CLOTHRT_OK);
+  ASSERT_EQ(count, 2u);  // the edges leaving node 1: e1 and e2
+  EXPECT_EQ(succ[0], fx.built.primary[1]);
+  EXPECT_EQ(succ[1], fx.built.primary[2]);
+}
+
+TEST(Runtime, CallOrderAndArgumentErrors) {
+  Fixture fx;
+  Handles h;
+  open(fx, h);
+  std::vector<float> x(fx.n);
+  EXPECT_EQ(clothrt_player_advance(h.player, 0.1), CLOTHRT_ERR_INVALID);
+  EXPECT_EQ(clothrt_player_get_positions(h.player, x.data(), 12, nullptr), CLOTHRT_ERR_INVALID);
+  EXPECT_EQ(clothrt_player_start(h.player, 987654), CLOTHRT_ERR_NOT_FOUND);
+  ASSERT_EQ(clothrt_player_start(h.player, 0), CLOTHRT_OK);
+  EXPECT_EQ(clothrt_player_advance(h.player, -1.0), CLOTHRT_ERR_INVALID);
+  EXPECT_EQ(clothrt_player_advance(h.player, NAN), CLOTHRT_ERR_INVALID);
+  EXPECT_EQ(clothrt_player_get_positions(h.player, x.data(), 8, nullptr), CLOTHRT_ERR_INVALID);
+  EXPECT_EQ(clothrt_player_get_positions(h.player, nullptr, 12, nullptr), CLOTHRT_ERR_INVALID);
+  // e3 (0 -> 0) does not leave node 1, where e0 ends.
+  EXPECT_EQ(clothrt_player_set_next(h.player, fx.built.primary[3]), CLOTHRT_ERR_INVALID);
+  EXPECT_NE(std::string(clothrt_player_errmsg(h.player)).find("does not follow"),
+            std::string::npos);
+  EXPECT_EQ(clothrt_player_set_next(h.player, 987654), CLOTHRT_ERR_NOT_FOUND);
+  EXPECT_EQ(clothrt_player_set_blend_frames(h.player, -2), CLOTHRT_ERR_INVALID);
+  EXPECT_EQ(clothrt_player_advance(nullptr, 0.1), CLOTHRT_ERR_INVALID);
+}
+
+// Frame by frame at the stored rate, the player shows the stored frames of the clips the cloth
+// graph prescribes, except while a blend is fading out.
+TEST(Runtime, PlaysStoredFramesAlongTheGraph) {
+  Fixture fx;
+  for (int threads : {0, 1}) {
+    Handles h;
+    open(fx, h, threads);
+    const std::vector<Played> played = play_path(fx, h.player, kPath, 1.0 / kRate);
+    int compared = 0, transitions = 0;
+    for (size_t k = 0; k < played.size(); ++k) {
+      const Played& p = played[k];
+      ASSERT_EQ(p.code, CLOTHRT_OK);
+      EXPECT_FALSE(p.info.fallback);  // kPath avoids the unexplored pair
+      if (k > 0 && p.info.transitions != played[k - 1].info.transitions) {
+        ++transitions;
+        // The clip the cloth graph continues with.
+        const int edge =
+            int(std::find(fx.built.primary.begin(), fx.built.primary.end(), p.info.primary_clip) -
+                fx.built.primary.begin());
+        EXPECT_EQ(p.info.cloth_clip, fx.follow(played[k - 1].info.cloth_clip, edge));
+      }
+      if (p.info.blending) continue;
+      const double f = p.info.primary_frame;
+      ASSERT_NEAR(f, std::round(f), 1e-6);
+      EXPECT_LE(max_abs_diff(p.x.data(), fx.frame(p.info.cloth_clip, size_t(std::lround(f))), fx.n),
+                2e-6)
+          << "frame " << k;
+      ++compared;
+    }
+    EXPECT_EQ(transitions, int(kPath.size()) - 1);
+    EXPECT_GT(compared, 300);
+  }
+}
+
+// At any game time step the pose is the linear interpolation of the stored frames around it.
+TEST(Runtime, InterpolatesAtArbitraryTimeSteps) {
+  Fixture fx;
+  Handles h;
+  open(fx, h);
+  const double dt = 1.0 / 73.0;
+  const std::vector<Played> played = play_path(fx, h.player, {0, 2, 1}, dt);
+  int compared = 0;
+  for (const Played& p : played) {
+    if (p.info.blending) continue;
+    const double t = p.info.primary_frame;
+    const size_t f0 = size_t(std::floor(t));
+    const size_t last = fx.frame_count(p.info.cloth_clip) - 1;
+    const size_t f1 = std::min(f0 + 1, last);
+    const float a = float(t - double(f0));
+    std::vector<float> expect(fx.n);
+    for (size_t i = 0; i < fx.n; ++i) {
+      const float x0 = fx.frame(p.info.cloth_clip, f0)[i], x1 = fx.frame(p.info.cloth_clip, f1)[i];
+      expect[i] = x0 + a * (x1 - x0);
+    }
+    EXPECT_LE(max_abs_diff(p.x.data(), expect.data(), fx.n), 5e-6);
+    ++compared;
+  }
+  EXPECT_GT(compared, 150);
+}
+
+TEST(Runtime, NoPopAtTransitions) {
+  Fixture fx;
+  Handles h;
+  open(fx, h);
+  ASSERT_EQ(clothrt_player_set_blend_frames(h.player, 8), CLOTHRT_OK);
+  const std::vector<Played> played = play_path(fx, h.player, kPath, 1.0 / kRate);
+  int blends = 0;
+  for (size_t k = 1; k < played.size(); ++k)
+    blends += played[k].info.blending && !played[k - 1].info.blending;
+  EXPECT_GE(blends, 3);
+  EXPECT_GT(check_no_pop(fx, played), 20);
+
+  // The same path snapping instead of blending pops: the check above has teeth.
+  Handles snap;
+  open(fx, snap);
+  ASSERT_EQ(clothrt_player_set_blend_frames(snap.player, 0), CLOTHRT_OK);
+  const std::vector<Played> snapped = play_path(fx, snap.player, kPath, 1.0 / kRate);
+  double worst_ratio = 0;
+  for (size_t k = 1; k < snapped.size(); ++k) {
+    const clothrt_frame_info& a = snapped[k - 1].info;
+    const clothrt_frame_info& b = snapped[k].info;
+    if (a.transitions == b.transitions) continue;
+    const double bound = std::max(fx.internal_jump(a.cloth_clip), fx.internal_jump(b.cloth_clip));
+    worst_ratio = std::max(
+        worst_ratio, fx.max_displacement(snapped[k - 1].x.data(), snapped[k].x.data()) / bound);
+  }
+  EXPECT_GT(worst_ratio, 1.0);
+}
+
+// Blends longer than the clips: every transition interrupts the blend before it, and the pose
+// still never jumps.
+TEST(Runtime, InterruptedBlendStaysContinuous) {
+  Fixture fx;
+  for (double dt : {1.0 / kRate, 1.0 / 57.0}) {
+    Handles h;
+    open(fx, h);
+    ASSERT_EQ(clothrt_player_set_blend_frames(h.player, 50), CLOTHRT_OK);
+    const std::vector<Played> played = play_path(fx, h.player, kPath, dt);
+    EXPECT_GE(played.back().info.interrupted_blends, 3u);
+    // At the finer step the clips' own jumps (per stored frame) overstate the motion per game
+    // frame, which makes the check stricter, not looser.
+    EXPECT_GT(check_no_pop(fx, played), 50);
+  }
+}
+
+// Nearest state by the distance of docs/SECONDARY_GRAPH.md (velocities are at rest here).
+int nearest_state(const Fixture& fx, int from_state, const std::vector<int>& candidates) {
+  db::Reader r;
+  Error err;
+  EXPECT_EQ(r.open(fx.path, &err), Status::Ok);
+  codec::DecodeScratch scratch;
+  std::vector<float> x, v, y, w;
+  EXPECT_EQ(r.read_state(fx.built.states[size_t(from_state)], &x, &v, scratch, &err), Status::Ok);
+  int best = -1;
+  double best_d = 1e30;
+  for (int c : candidates) {
+    EXPECT_EQ(r.read_state(fx.built.states[size_t(c)], &y, &w, scratch, &err), Status::Ok);
+    const double d = synthetic::rms_distance(x.data(), y.data(), x.size());
+    if (d < best_d) {
+      best_d = d;
+      best = c;
+    }
+  }
+  return best;
+}
+
+TEST(Runtime, FallsBackToNearestStateForUnexploredTransition) {
+  Fixture fx;
+  // Clip (state 1, e0) ends at state 4 (node 1, local 1), and (state 4, e2) was never explored.
+  const int64_t into = fx.built.clip.at({1, 0});
+  ASSERT_EQ(fx.built.clip.count({4, 2}), 0u);
+  const int expect_state = nearest_state(fx, 4, {3, 5});
+  for (int threads : {0, 1}) {
+    Handles h;
+    open(fx, h, threads);
+    ASSERT_EQ(clothrt_player_set_blend_frames(h.player, 12), CLOTHRT_OK);
+    ASSERT_EQ(clothrt_player_start_cloth_clip(h.player, into), CLOTHRT_OK);
+    ASSERT_EQ(clothrt_player_set_next(h.player, fx.built.primary[2]), CLOTHRT_OK);
+    std::vector<Played> played{play_frame(h.player, fx.n, 0)};
+    while (played.back().info.transitions == 0)
+      played.push_back(play_frame(h.player, fx.n, 1.0 / kRate));
+    for (int i = 0; i < 20; ++i) played.push_back(play_frame(h.player, fx.n, 1.0 / kRate));
+    const clothrt_frame_info& info = played.back().info;
+    EXPECT_TRUE(info.fallback);
+    EXPECT_EQ(info.fallbacks, 1u);
+    EXPECT_EQ(info.primary_clip, fx.built.primary[2]);
+    EXPECT_EQ(info.cloth_state, fx.built.states[size_t(expect_state)]);
+    EXPECT_EQ(info.cloth_clip, fx.built.clip.at({expect_state, 2}));
+    for (const Played& p : played) EXPECT_EQ(p.code, CLOTHRT_OK);
+    EXPECT_GT(check_no_pop(fx, played), 5);
+    clothrt_stats stats;
+    ASSERT_EQ(clothrt_db_stats(h.db, &stats), CLOTHRT_OK);
+    // This one, and the prefetch of the next node's unexplored pair (s5 along e2 ends at s4).
+    EXPECT_GE(stats.fallbacks_resolved, 1u);
+  }
+}
+
+TEST(Runtime, WorldSpaceWithStride) {
+  Fixture fx;
+  Handles h;
+  open(fx, h);
+  ASSERT_EQ(clothrt_player_start(h.player, 0), CLOTHRT_OK);
+  ASSERT_EQ(clothrt_player_advance(h.player, 0.37), CLOTHRT_OK);
+  std::vector<float> local(fx.n);
+  ASSERT_EQ(clothrt_player_get_positions(h.player, local.data(), 12, nullptr), CLOTHRT_OK);
+  // Rotation by 0.7 rad about +y (the heading) and a translation, column-major.
+  const float c = std::cos(0.7f), s = std::sin(0.7f);
+  const float m[16] = {c, 0, -s, 0, 0, 1, 0, 0, s, 0, c, 0, 3.0f, 0.1f, -2.0f, 1};
+  const size_t stride = 8;  // floats: position + 5 floats the renderer owns
+  const size_t vertices = fx.n / 3;
+  std::vector<float> vb(vertices * stride, -123.0f);
+  ASSERT_EQ(clothrt_player_get_positions(h.player, vb.data(), stride * 4, m), CLOTHRT_OK);
+  std::vector<float> plain(vertices * stride, -123.0f);
+  ASSERT_EQ(clothrt_player_get_positions(h.player, plain.data(), stride * 4, nullptr), CLOTHRT_OK);
+  for (size_t v = 0; v < vertices; ++v) {
+    const float x = local[3 * v], y = local[3 * v + 1], z = local[3 * v + 2];
+    EXPECT_NEAR(vb[v * stride], c * x + s * z + 3.0f, 1e-5);
+    EXPECT_NEAR(vb[v * stride + 1], y + 0.1f, 1e-5);
+    EXPECT_NEAR(vb[v * stride + 2], -s * x + c * z - 2.0f, 1e-5);
+    for (size_t k = 0; k < 3; ++k) EXPECT_EQ(plain[v * stride + k], local[3 * v + k]);
+    for (size_t k = 3; k < stride; ++k) {
+      EXPECT_EQ(vb[v * stride + k], -123.0f);
+      EXPECT_EQ(plain[v * stride + k], -123.0f);
+    }
+  }
+}
+
+// Replaces a clip's stored frames with `blob` directly in SQLite (as disk damage would).
+void overwrite_blob(const std::string& path, int64_t clip, const std::vector<uint8_t>& blob) {
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+  sqlite3_stmt* st = nullptr;
+  ASSERT_EQ(
+      sqlite3_prepare_v2(db, "UPDATE cloth_clip SET frames = ? WHERE id = ?", -1, &st, nullptr),
+      SQLITE_OK);
+  sqlite3_bind_blob(st, 1, blob.data(), int(blob.size()), SQLITE_TRANSIENT);
+  sqlite3_bind_int64(st, 2, clip);
+  EXPECT_EQ(sqlite3_step(st), SQLITE_DONE);
+  sqlite3_finalize(st);
+  sqlite3_close(db);
+}
+
+std::vector<uint8_t> read_blob(const std::string& path, int64_t clip) {
+  db::Reader r;
+  Error err;
+  EXPECT_EQ(r.open(path, &err), Status::Ok);
+  std::vector<uint8_t> blob;
+  EXPECT_EQ(r.clip_blob(clip, &blob, &err), Status::Ok);
+  return blob;
+}
+
+void exec(const std::string& path, const std::string& sql) {
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+  EXPECT_EQ(sqlite3_exec(db, sql.c_str(), nullptr, nullptr, nullptr), SQLITE_OK);
+  sqlite3_close(db);
+}
+
+// Plays e0 then e2 into a damaged clip: the transition reports the error, the pose stays the last
+// good one (the end of the clip before) while the character moves on, and the player recovers at
+// the next node.
+void expect_error_and_last_good_pose(Fixture& fx, int threads, int expected_code) {
+  Handles h;
+  open(fx, h, threads);
+  ASSERT_EQ(clothrt_player_set_blend_frames(h.player, 0), CLOTHRT_OK);
+  const int64_t first = fx.built.clip.at({0, 0});  // ends at state 3 (node 1, local 0)
+  ASSERT_EQ(clothrt_player_start_cloth_clip(h.player, first), CLOTHRT_OK);
+  ASSERT_EQ(clothrt_player_set_next(h.player, fx.built.primary[2]), CLOTHRT_OK);
+  std::vector<Played> played{play_frame(h.player, fx.n, 0)};
+  while (played.back().info.transitions == 0)
+    played.push_back(play_frame(h.player, fx.n, 1.0 / kRate));
+  const Played& failed = played.back();
+  EXPECT_EQ(failed.code, expected_code);
+  EXPECT_TRUE(failed.info.holding);
+  EXPECT_EQ(failed.info.cloth_clip, 0);
+  EXPECT_EQ(failed.info.primary_clip, fx.built.primary[2]);
+  EXPECT_NE(std::string(clothrt_player_errmsg(h.player)), "");
+  const float* last_good = fx.frame(first, fx.frame_count(first) - 1);
+  EXPECT_LE(max_abs_diff(failed.x.data(), last_good, fx.n), 2e-6);
+  // Holding while e2 plays on.
+  ASSERT_EQ(clothrt_player_set_next(h.player, fx.built.primary[1]), CLOTHRT_OK);
+  for (int i = 0; i < 10; ++i) {
+    const Played p = play_frame(h.player, fx.n, 1.0 / kRate);
+    EXPECT_EQ(p.code, CLOTHRT_OK);
+    EXPECT_TRUE(p.info.holding);
+    EXPECT_EQ(p.x, failed.x);
+  }
+  // At the next node it restarts from the first state with cloth along e1, blending from the
+  // held pose.
+  ASSERT_EQ(clothrt_player_set_blend_frames(h.player, 8), CLOTHRT_OK);
+  Played p = play_frame(h.player, fx.n, 1.0 / kRate);
+  while (p.info.transitions == failed.info.transitions) p = play_frame(h.player, fx.n, 1.0 / kRate);
+  EXPECT_EQ(p.code, CLOTHRT_OK);
+  EXPECT_FALSE(p.info.holding);
+  EXPECT_TRUE(p.info.fallback);
+  EXPECT_EQ(p.info.primary_clip, fx.built.primary[1]);
+  EXPECT_EQ(p.info.cloth_clip, fx.built.clip.at({3, 1}));
+  for (float v : p.x) ASSERT_TRUE(std::isfinite(v));
+}
+
+TEST(Runtime, CorruptClipGivesErrorAndLastGoodPose) {
+  Fixture fx;
+  const int64_t victim = fx.built.clip.at({3, 2});  // state 3 along the loop e2
+  std::vector<uint8_t> blob = read_blob(fx.path, victim);
+  blob[blob.size() - 5] ^= 0x5a;  // inside the compressed data: a chunk checksum fails
+  overwrite_blob(fx.path, victim, blob);
+  for (int threads : {0, 1}) expect_error_and_last_good_pose(fx, threads, CLOTHRT_ERR_CORRUPT);
+}
+
+TEST(Runtime, TruncatedClipGivesError) {
+  Fixture fx;
+  const int64_t victim = fx.built.clip.at({3, 2});
+  std::vector<uint8_t> blob = read_blob(fx.path, victim);
+  blob.resize(blob.size() / 2);
+  overwrite_blob(fx.path, victim, blob);
+  expect_error_and_last_good_pose(fx, 1, CLOTHRT_ERR_CORRUPT);
+}
+
+TEST(Runtime, ClipDeletedAfterOpenGivesNotFound) {
+  Fixture fx;
+  const int64_t victim = fx.built.clip.at({3, 2});
+  Handles keep;  // opened before the damage: its graph still lists the clip
+  open(fx, keep, 0);
+  Handles h;
+  open(fx, h, 0);
+  exec(fx.path, "DELETE FROM cloth_clip WHERE id = " + std::to_string(victim));
+  ASSERT_EQ(clothrt_player_set_blend_frames(h.player, 0), CLOTHRT_OK);
+  ASSERT_EQ(clothrt_player_start_cloth_clip(h.player, fx.built.clip.at({0, 0})), CLOTHRT_OK);
+  ASSERT_EQ(clothrt_player_set_next(h.player, fx.built.primary[2]), CLOTHRT_OK);
+  int code = CLOTHRT_OK;
+  clothrt_frame_info info{};
+  while (info.transitions == 0) {
+    code = clothrt_player_advance(h.player, 1.0 / kRate);
+    clothrt_player_info(h.player, &info);
+  }
+  EXPECT_EQ(code, CLOTHRT_ERR_NOT_FOUND);
+  EXPECT_TRUE(info.holding);
+}
+
+// Random bytes over a whole clip and a damaged cloth edge must never crash: every frame returns a
+// code and finite positions.
+TEST(Runtime, DamagedDataNeverCrashes) {
+  Fixture fx;
+  std::vector<uint8_t> noise(4000);
+  uint64_t s = 7;
+  for (uint8_t& b : noise) b = uint8_t((s = s * 6364136223846793005ull + 1) >> 56);
+  overwrite_blob(fx.path, fx.built.clip.at({0, 0}), noise);
+  std::vector<uint8_t> blob = read_blob(fx.path, fx.built.clip.at({3, 1}));
+  std::fill(blob.begin() + 8, blob.begin() + 24, uint8_t(0xff));  // header counts
+  codec::detail::reseal(blob.data(), blob.size());
+  overwrite_blob(fx.path, fx.built.clip.at({3, 1}), blob);
+  Handles h;
+  open(fx, h, 1);
+  ASSERT_EQ(clothrt_player_set_random(h.player, 1, 99), CLOTHRT_OK);
+  ASSERT_EQ(clothrt_player_start_cloth_clip(h.player, fx.built.clip.at({1, 0})), CLOTHRT_OK);
+  int errors = 0;
+  for (int f = 0; f < 30 * 60; ++f) {
+    const Played p = play_frame(h.player, fx.n, 1.0 / kRate);
+    errors += p.code != CLOTHRT_OK;
+    for (float v : p.x) ASSERT_TRUE(std::isfinite(v));
+  }
+  EXPECT_GT(errors, 0);
+}
+
+// Many players on threads sharing one database with a cache far smaller than the clips: the poses
+// are exactly those of the same random paths played one at a time with everything cached.
+TEST(Runtime, PlayersOnThreadsShareOneDatabase) {
+  Fixture fx;
+  constexpr int kPlayers = 8, kThreads = 4, kFrames = 600;
+  auto run = [&](clothrt_db* db, int p) {
+    clothrt_player* player = nullptr;
+    EXPECT_EQ(clothrt_player_create(db, &player), CLOTHRT_OK);
+    clothrt_player_set_random(player, 1, uint64_t(1000 + p));
+    clothrt_player_set_blend_frames(player, 6);
+    EXPECT_EQ(clothrt_player_start(player, 0), CLOTHRT_OK);
+    std::vector<float> x(fx.n);
+    double hash = 0;
+    for (int f = 0; f < kFrames; ++f) {
+      EXPECT_EQ(clothrt_player_advance(player, 1.0 / (40 + p)), CLOTHRT_OK);
+      EXPECT_EQ(clothrt_player_get_positions(player, x.data(), 12, nullptr), CLOTHRT_OK);
+      for (size_t i = 0; i < fx.n; i += 37) hash += x[i] * double(f % 13 + 1);
+    }
+    clothrt_player_destroy(player);
+    return hash;
+  };
+  std::vector<double> expect(kPlayers);
+  {
+    clothrt_db* db = nullptr;
+    ASSERT_EQ(clothrt_db_open(fx.path.c_str(), nullptr, &db), CLOTHRT_OK);
+    for (int p = 0; p < kPlayers; ++p) expect[size_t(p)] = run(db, p);
+    clothrt_db_close(db);
+  }
+  for (int threads : {0, 2}) {
+    clothrt_db_options o;
+    clothrt_db_options_init(&o);
+    o.prefetch_threads = threads;
+    o.cache_bytes = 1;  // everything not pinned is evicted at once
+    clothrt_db* db = nullptr;
+    ASSERT_EQ(clothrt_db_open(fx.path.c_str(), &o, &db), CLOTHRT_OK);
+    std::vector<double> got(kPlayers);
+    std::vector<std::thread> pool;
+    for (int t = 0; t < kThreads; ++t)
+      pool.emplace_back([&, t] {
+        for (int p = t; p < kPlayers; p += kThreads) got[size_t(p)] = run(db, p);
+      });
+    for (std::thread& t : pool) t.join();
+    for (int p = 0; p < kPlayers; ++p) EXPECT_EQ(got[size_t(p)], expect[size_t(p)]) << p;
+    clothrt_stats stats;
+    clothrt_db_stats(db, &stats);
+    EXPECT_GT(stats.clip_evictions, 0u);
+    EXPECT_EQ(stats.load_failures, 0u);
+    clothrt_db_close(db);
+  }
+}
+
+TEST(Runtime, NoAllocationPerFrameAfterWarmUp) {
+  Fixture fx;
+  for (int threads : {0, 1}) {
+    Handles h;
+    open(fx, h, threads);
+    clothrt_db_set_timing(h.db, 1);
+    ASSERT_EQ(clothrt_player_set_random(h.player, 1, 5), CLOTHRT_OK);
+    ASSERT_EQ(clothrt_player_start(h.player, 0), CLOTHRT_OK);
+    std::vector<float> x(fx.n * 2);
+    const float m[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 1, 2, 3, 1};
+    clothrt_frame_info info;
+    auto frames = [&](int count) {
+      for (int f = 0; f < count; ++f) {
+        EXPECT_EQ(clothrt_player_advance(h.player, 1.0 / 60), CLOTHRT_OK);
+        EXPECT_EQ(clothrt_player_get_positions(h.player, x.data(), 24, f % 2 ? m : nullptr),
+                  CLOTHRT_OK);
+        clothrt_player_info(h.player, &info);
+      }
+    };
+    // Warm up until the random path has decoded every clip of the graph.
+    clothrt_stats before;
+    for (int minute = 0; minute < 30; ++minute) {
+      frames(60 * 60);
+      clothrt_db_stats(h.db, &before);
+      if (before.clip_loads == fx.built.clip.size()) break;
+    }
+    ASSERT_EQ(before.clip_loads, fx.built.clip.size());
+    const uint64_t allocations = g_allocations.load();
+    frames(60 * 30);
+    EXPECT_EQ(g_allocations.load() - allocations, 0u);
+    clothrt_stats after;
+    clothrt_db_stats(h.db, &after);
+    EXPECT_EQ(after.clip_loads, before.clip_loads);
+    EXPECT_EQ(after.fallbacks_resolved, before.fallbacks_resolved);
+    EXPECT_GT(after.frames_sampled, before.frames_sampled);
+    EXPECT_GT(info.transitions, 20u);
+  }
+}
+
+TEST(Runtime, StatsAndMemory) {
+  Fixture fx;
+  Handles h;
+  open(fx, h, 1, size_t(8) << 20);
+  clothrt_db_set_timing(h.db, 1);
+  ASSERT_EQ(clothrt_player_set_random(h.player, 1, 11), CLOTHRT_OK);
+  ASSERT_EQ(clothrt_player_start(h.player, 0), CLOTHRT_OK);
+  std::vector<float> x(fx.n);
+  for (int f = 0; f < 600; ++f) {
+    ASSERT_EQ(clothrt_player_advance(h.player, 1.0 / kRate), CLOTHRT_OK);
+    ASSERT_EQ(clothrt_player_get_positions(h.player, x.data(), 12, nullptr), CLOTHRT_OK);
+  }
+  clothrt_stats s;
+  ASSERT_EQ(clothrt_db_stats(h.db, &s), CLOTHRT_OK);
+  EXPECT_GT(s.clip_loads, 2u);
+  EXPECT_GT(s.cache_bytes, 0u);
+  EXPECT_LE(s.cache_bytes, s.cache_cap);
+  EXPECT_EQ(s.cache_cap, size_t(8) << 20);
+  EXPECT_GT(s.metadata_bytes, 0u);
+  EXPECT_GT(s.sqlite_ns, 0u);
+  EXPECT_GT(s.decode_ns, 0u);
+  EXPECT_GT(s.sample_ns, 0u);
+  EXPECT_EQ(s.frames_sampled, 600u);
+  // Decoded clips are kept as 16-bit integers: 6 bytes per vertex and frame.
+  EXPECT_LE(s.cache_bytes, s.clips_cached * size_t(40) * fx.n * 2);
+  EXPECT_GE(clothrt_player_memory(h.player), 2 * fx.n * sizeof(float));
+}
+
+}  // namespace
+}  // namespace clothdb
