@@ -16,10 +16,13 @@ int main(int argc, char** argv) {
 
   clothdb::cli::register_bench_solvers(*bench);
   clothdb::cli::register_bench_codec(*bench);
+  clothdb::cli::register_bench_runtime(*bench);
   clothdb::cli::register_scene_commands(app);
   clothdb::cli::register_db_commands(app);
   clothdb::cli::register_simulate(app);
   clothdb::cli::register_motion_commands(app);
+  clothdb::cli::register_graph_commands(app);
+  clothdb::cli::register_play_commands(app);
 
   try {
     app.parse(argc, argv);

@@ -91,7 +91,7 @@ MotionManifest load_manifest(const std::filesystem::path& file) {
   }
   const FieldReader reader(where);
   if (!root.is_object()) reader.fail("(top level)", "expected an object with a \"clips\" array");
-  reader.only_known_keys(root, {"output_rate", "clips"}, "");
+  reader.only_known_keys(root, {"output_rate", "clips", "transitions"}, "");
 
   MotionManifest manifest;
   manifest.path = file;
@@ -159,6 +159,32 @@ MotionManifest load_manifest(const std::filesystem::path& file) {
     if (clip.contains("animation"))
       o.animation = reader.string(clip["animation"], prefix + ".animation");
     manifest.clips.push_back(std::move(spec));
+  }
+
+  if (root.contains("transitions")) {
+    const json& transitions = root["transitions"];
+    if (!transitions.is_array()) reader.fail("transitions", "expected an array");
+    for (size_t t = 0; t < transitions.size(); ++t) {
+      const std::string prefix = "transitions[" + std::to_string(t) + "]";
+      const json& item = transitions[t];
+      if (!item.is_object()) reader.fail(prefix, "expected an object");
+      reader.only_known_keys(item, {"from", "frame", "to", "to_frame"}, prefix + ".");
+      ManifestTransition transition;
+      transition.where = where + ": " + prefix;
+      for (const char* key : {"from", "frame", "to", "to_frame"})
+        if (!item.contains(key)) reader.fail(prefix + "." + key, "missing");
+      transition.from = reader.string(item["from"], prefix + ".from");
+      transition.to = reader.string(item["to"], prefix + ".to");
+      for (const std::string* name : {&transition.from, &transition.to})
+        if (!seen.count(*name))
+          reader.fail(prefix + (name == &transition.from ? ".from" : ".to"),
+                      "no clip named '" + *name + "'");
+      transition.frame = reader.frame(item["frame"], prefix + ".frame");
+      transition.to_frame = reader.frame(item["to_frame"], prefix + ".to_frame");
+      if (transition.frame < 0) reader.fail(prefix + ".frame", "expected an integer >= 0");
+      if (transition.to_frame < 0) reader.fail(prefix + ".to_frame", "expected an integer >= 0");
+      manifest.transitions.push_back(std::move(transition));
+    }
   }
   return manifest;
 }

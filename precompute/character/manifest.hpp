@@ -8,12 +8,16 @@
 //       { "name": "walk", "file": "${ASSIMP_TESTMODELS}/BVH/01_01.bvh",
 //         "first_frame": 1, "last_frame": 1200, "source_rate": 120,
 //         "scale": 0.0564444, "up_axis": "y", "animation": "" }
-//     ]
+//     ],
+//     "transitions": [ { "from": "walk", "frame": 120, "to": "run", "to_frame": 30 } ]
 //   }
 //
 // Only "clips" and each clip's "file" are required. A file path is absolute, relative to the
 // manifest, or starts with "${ASSIMP_TESTMODELS}": the directory of Debian's assimp-testmodels
 // (environment variable ASSIMP_TESTMODELS if set, else the installed package's directory).
+// "transitions" (optional) declares motion-graph transitions by hand, besides those found
+// automatically (graph/motion_graph.hpp): frame `frame` of clip `from` (frames of the clip at the
+// output rate) corresponds to frame `to_frame` of clip `to`.
 #pragma once
 
 #include <filesystem>
@@ -30,10 +34,21 @@ struct MotionClipSpec {
   MotionLoadOptions options;   // name, range, rates, scale, up axis, animation
 };
 
+// A transition declared in the manifest: clip names are checked against the manifest's clips here,
+// frames against the clips' lengths when the graph is built.
+struct ManifestTransition {
+  std::string from;
+  int frame = 0;
+  std::string to;
+  int to_frame = 0;
+  std::string where;  // "<manifest>: transitions[k]", for error messages
+};
+
 struct MotionManifest {
   std::filesystem::path path;  // the manifest file
   double output_rate = 30.0;
   std::vector<MotionClipSpec> clips;
+  std::vector<ManifestTransition> transitions;
 
   // Index of the clip called `name`; throws MotionError naming the manifest if there is none.
   int require(const std::string& name) const;

@@ -1,0 +1,186 @@
+// `clothdb graph build MANIFEST --out graph.json` finds transitions between the clips of a motion
+// manifest (Kovar et al. 2002) and writes the pruned motion graph; `clothdb graph show
+// graph.json` prints it and draws it (built-in SVG, or Graphviz DOT).
+#include <chrono>
+#include <cstdio>
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "cli_util.hpp"
+#include "commands.hpp"
+#include "graph/graph_svg.hpp"
+#include "graph/motion_graph.hpp"
+#include "report/output.hpp"
+
+namespace clothdb::cli {
+
+namespace {
+
+struct BuildArgs {
+  std::string manifest, out, clips;
+  GraphSettings settings;
+  std::optional<double> threshold, percentile;
+  bool no_prune = false;
+};
+
+void print_summary(const MotionGraph& g) {
+  std::printf("motion graph: %d nodes, %d edges (%d transitions, %d clip segments), %zu clips\n",
+              g.node_count(), g.edge_count(), g.transition_count(), g.clip_edge_count(),
+              g.clips.size());
+  std::printf("  window %d frames, blend %d frames; threshold ", g.settings.window,
+              g.settings.blend);
+  if (g.settings.threshold_mode == ThresholdMode::percentile)
+    std::printf("%g percentile of each clip pair's distances, at most %.4f m RMS:\n",
+                g.settings.threshold, g.settings.max_distance);
+  else
+    std::printf("%.4f m RMS:\n", g.settings.threshold);
+  for (const PairThreshold& t : g.thresholds)
+    std::printf("    %s - %s: %.4f m\n", g.clips[t.clip_a].name.c_str(),
+                g.clips[t.clip_b].name.c_str(), t.rms);
+  std::printf("  before pruning: %d nodes, %d transitions\n", g.candidate_nodes,
+              g.candidate_transitions);
+  for (int c = 0; c < static_cast<int>(g.clips.size()); ++c) {
+    int nodes = 0, out = 0, in = 0;
+    for (const GraphNode& n : g.nodes) nodes += n.clip == c;
+    for (const GraphEdge& e : g.edges)
+      if (e.kind == EdgeKind::transition) out += e.clip == c, in += e.target_clip == c;
+    std::printf("  clip %-20s %5d frames at %g Hz: %3d nodes, %3d transitions out, %3d in\n",
+                g.clips[c].name.c_str(), g.clips[c].frame_count, g.clips[c].rate, nodes, out, in);
+  }
+}
+
+MotionGraph build_graph(const BuildArgs& a) {
+  GraphSettings s = a.settings;
+  if (a.threshold) {
+    s.threshold_mode = ThresholdMode::absolute;
+    s.threshold = *a.threshold;
+  } else if (a.percentile) {
+    s.threshold_mode = ThresholdMode::percentile;
+    s.threshold = *a.percentile;
+  }
+  s.prune = !a.no_prune;
+  const GraphInput input = load_graph_input(a.manifest, split_list(a.clips));
+  try {
+    return build_motion_graph(input.clips, input.skeleton, s, input.transitions);
+  } catch (const GraphError& e) {
+    // Messages about a declared transition already name the manifest; the others get it here.
+    const std::string what = e.what();
+    if (what.rfind(a.manifest + ":", 0) == 0) throw;
+    throw GraphError(a.manifest + ": " + what);
+  }
+}
+
+void write_graph_json(const MotionGraph& g, const std::string& path) {
+  write_file_atomic(path, motion_graph_to_json(g).dump(1) + "\n");
+}
+
+void print_graph(const MotionGraph& g) {
+  print_summary(g);
+  std::printf("nodes:\n");
+  for (int v = 0; v < g.node_count(); ++v)
+    std::printf("  %4d  %s frame %d\n", v, g.clips[g.nodes[v].clip].name.c_str(), g.nodes[v].frame);
+  std::printf("edges:\n");
+  for (int k = 0; k < g.edge_count(); ++k) {
+    const GraphEdge& e = g.edges[k];
+    if (e.kind == EdgeKind::clip) {
+      std::printf("  %4d  %4d -> %-4d clip        %s frames %d..%d\n", k, e.from, e.to,
+                  g.clips[e.clip].name.c_str(), e.first_frame, e.last_frame);
+    } else {
+      std::printf(
+          "  %4d  %4d -> %-4d transition  %s %d -> %s %d, blend %d, %.2f cm RMS, turn %.1f deg%s\n",
+          k, e.from, e.to, g.clips[e.clip].name.c_str(), e.first_frame,
+          g.clips[e.target_clip].name.c_str(), e.target_frame, e.blend, e.distance * 100.0,
+          e.align.theta * 180.0 / 3.14159265358979323846, e.manual ? " (declared)" : "");
+    }
+  }
+}
+
+}  // namespace
+
+void register_graph_commands(CLI::App& app) {
+  CLI::App* graph = app.add_subcommand("graph", "Primary motion graph (Kovar et al. 2002)");
+  graph->require_subcommand(1);
+
+  auto build = std::make_shared<BuildArgs>();
+  CLI::App* b = graph->add_subcommand(
+      "build",
+      "Finds transitions between the clips of a motion manifest (point-cloud distance between "
+      "windows of poses, local minima under a threshold), adds the manifest's declared ones, "
+      "prunes to the largest strongly connected component and writes the graph as JSON.");
+  b->add_option("MANIFEST", build->manifest, "Motion manifest (.json)")->required();
+  b->add_option("--out", build->out, "Graph file to write (.json)")->required();
+  b->add_option("--clips", build->clips, "Comma-separated clip names (default: every clip)");
+  b->add_option("--window", build->settings.window, "Frames per window of the distance")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  b->add_option("--blend", build->settings.blend, "Frames of a transition's blend")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  auto* threshold = b->add_option("--threshold", build->threshold,
+                                  "Absolute threshold: largest RMS distance in metres");
+  auto* percentile =
+      b->add_option("--percentile", build->percentile,
+                    "Relative threshold: this percentile (0-100) of the window distances of "
+                    "each pair of clips (default 0.03)")
+          ->check(CLI::Range(0.0, 100.0));
+  threshold->excludes(percentile);
+  b->add_option("--max-distance", build->settings.max_distance,
+                "With a percentile: never above this RMS distance, metres")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
+  b->add_option("--spacing", build->settings.spacing,
+                "Radius in frames of the neighbourhood a transition is the minimum of")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
+  b->add_option("--self-offset", build->settings.min_self_offset,
+                "Within a clip, ignore frame pairs closer than this")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  b->add_flag("--no-prune", build->no_prune,
+              "Keep every node (do not prune to the largest strongly connected component)");
+  b->callback([build] {
+    const auto start = std::chrono::steady_clock::now();
+    const MotionGraph g = build_graph(*build);
+    const double seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    write_graph_json(g, build->out);
+    print_summary(g);
+    std::printf("built in %.2f s (loading included); wrote %s\n", seconds, build->out.c_str());
+  });
+
+  struct ShowArgs {
+    std::string file, svg, dot, dot_svg;
+    bool quiet = false;
+  };
+  auto show = std::make_shared<ShowArgs>();
+  CLI::App* s = graph->add_subcommand(
+      "show", "Prints a motion graph (nodes, edges, clips, transitions) and draws it as SVG");
+  s->add_option("FILE", show->file, "Graph file (.json, from graph build)")->required();
+  s->add_option("--svg", show->svg, "Write the built-in drawing (one lane per clip) to this SVG");
+  s->add_option("--dot", show->dot, "Write the graph in Graphviz DOT to this file");
+  s->add_option("--dot-svg", show->dot_svg,
+                "Render the DOT with Graphviz (dot must be on PATH) to this SVG");
+  s->add_flag("--summary", show->quiet, "Print the counts only, not every node and edge");
+  s->callback([show] {
+    const MotionGraph g = load_motion_graph(show->file);
+    if (show->quiet)
+      print_summary(g);
+    else
+      print_graph(g);
+    if (!show->svg.empty()) {
+      write_file_atomic(show->svg, motion_graph_svg(g));
+      std::printf("wrote %s\n", show->svg.c_str());
+    }
+    if (!show->dot.empty()) {
+      write_file_atomic(show->dot, motion_graph_dot(g));
+      std::printf("wrote %s\n", show->dot.c_str());
+    }
+    if (!show->dot_svg.empty()) {
+      render_dot_svg(motion_graph_dot(g), show->dot_svg);
+      std::printf("wrote %s (Graphviz)\n", show->dot_svg.c_str());
+    }
+  });
+}
+
+}  // namespace clothdb::cli
