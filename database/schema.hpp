@@ -1,0 +1,275 @@
+// The clothdb database: one SQLite file holding a garment, the character's primary motion graph
+// and the secondary cloth graph of Kim et al. 2013 (cloth states, cloth clips, edges), plus runs
+// and an edit log. docs/DATABASE.md describes the tables.
+//
+// Recognition: PRAGMA application_id = 'CLDB' and PRAGMA user_version = schema version, set in the
+// same transaction that creates the tables, so a half-created file is never taken for a finished
+// one. Durability: WAL journal, every write in a transaction, synchronous=FULL; a writer killed at
+// any moment leaves the last committed state, and readers (game players) read while it writes.
+//
+// Writer: throws ClothdbError (message names the file and what is wrong). Reader: never throws;
+// returns a Status and fills an Error, as the C runtime API needs.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "database/codec.hpp"
+#include "database/status.hpp"
+
+struct sqlite3;
+struct sqlite3_stmt;
+
+namespace clothdb::db {
+
+constexpr int kSchemaVersion = 1;
+constexpr int32_t kApplicationId = 0x434C4442;  // "CLDB"
+
+enum class ClipStatus { Ok, Flagged, Edited };
+const char* clip_status_name(ClipStatus status);  // "ok", "flagged", "edited"
+bool parse_clip_status(const std::string& name, ClipStatus* status);
+
+// How cloth is compressed in this file; fixed at creation and stored in `meta`.
+struct CodecSettings {
+  double position_bound = codec::kDefaultPositionBound;  // m, max error per coordinate
+  double velocity_bound = 0.001;  // m/s; 1 mm/s moves a resumed vertex 0.03 mm in a frame
+  uint32_t key_interval = codec::kDefaultKeyInterval;
+  int zstd_level = codec::kDefaultZstdLevel;
+};
+
+struct Garment {
+  std::vector<uint32_t> triangles;    // 3 vertex indices per triangle
+  std::vector<float> rest_positions;  // 3 floats per vertex, m
+  std::string material;               // material settings as given (JSON text)
+  std::string solver;                 // solver settings as given (JSON text)
+  uint32_t vertex_count() const { return uint32_t(rest_positions.size() / 3); }
+};
+
+struct MotionFile {
+  int64_t id = 0;
+  std::string path;          // as given in the scene file
+  std::string content_hash;  // e.g. "sha256:..." of the file's bytes
+};
+
+struct PrimaryClip {
+  int64_t id = 0;
+  std::string name;
+  int64_t motion_file = 0;  // 0: none
+  int32_t first_frame = 0;  // in the motion file
+  int32_t frame_count = 0;
+  double frame_rate = 30;
+};
+
+struct PrimaryTransition {
+  int64_t id = 0;
+  int64_t from_clip = 0;
+  int32_t from_frame = 0;
+  int64_t to_clip = 0;
+  int32_t to_frame = 0;
+  int32_t blend_frames = 0;
+  double cost = 0;
+};
+
+// A cloth state: positions and velocities of the garment at a point (primary clip, frame).
+struct ClothState {
+  int64_t id = 0;
+  int64_t primary_clip = 0;
+  int32_t frame = 0;
+  int64_t source_clip = 0;  // the cloth clip whose end produced it; 0: initial / dead-end seed
+  int64_t run = 0;          // 0: none
+  size_t positions_bytes = 0;
+  size_t velocities_bytes = 0;
+};
+
+// A cloth clip: frames simulated from a cloth state along one primary clip.
+struct ClothClip {
+  int64_t id = 0;
+  int64_t start_state = 0;
+  int64_t primary_clip = 0;
+  int32_t first_frame = 0;  // primary clip frame of the clip's first frame
+  int32_t frame_count = 0;
+  double error_bound = 0;      // codec bound the frames were stored with, m
+  double max_error = 0;        // largest codec error actually measured, m
+  double max_strain = 0;       // max (l - l0) / l0 over edges and frames
+  double max_penetration = 0;  // m
+  ClipStatus status = ClipStatus::Ok;
+  int64_t run = 0;
+  size_t blob_bytes = 0;
+};
+
+// The end of a cloth clip continues into a cloth state (possibly a blend from a different one).
+struct ClothEdge {
+  int64_t id = 0;
+  int64_t from_clip = 0;
+  int64_t to_state = 0;
+  double blend_error = 0;  // m, e.g. max vertex distance between the clip's end and the state
+};
+
+struct Run {
+  int64_t id = 0;
+  std::string started;   // ISO 8601 UTC
+  std::string finished;  // empty while running (or if the run was killed)
+  std::string settings;  // what was simulated and how (JSON text as given)
+  double cpu_seconds = 0;
+  std::string host;
+  std::string notes;
+};
+
+struct EditLogEntry {
+  int64_t id = 0;
+  std::string time;
+  std::string author;
+  int64_t clip = 0;
+  std::string action;  // "set-status", "replace-frames" or "undo"
+  std::string description;
+  std::string old_status, new_status;
+  bool has_old_frames = false;  // the previous blob is kept, so the edit can be undone
+  int64_t undoes = 0;           // for "undo": the edit it reverted
+};
+
+struct NewClothClip {
+  int64_t start_state = 0;
+  int64_t primary_clip = 0;
+  int32_t first_frame = 0;
+  double max_strain = 0;
+  double max_penetration = 0;
+  ClipStatus status = ClipStatus::Ok;
+  int64_t run = 0;
+};
+
+class Writer {
+ public:
+  // Creates a new database; refuses to overwrite an existing file.
+  static Writer create(const std::string& path, const CodecSettings& codec = {});
+  // Opens an existing clothdb database for writing (checks it is one and not newer).
+  static Writer open(const std::string& path);
+
+  Writer(Writer&& other) noexcept;
+  Writer& operator=(Writer&& other) noexcept;
+  Writer(const Writer&) = delete;
+  Writer& operator=(const Writer&) = delete;
+  ~Writer();
+
+  const std::string& path() const { return path_; }
+  const CodecSettings& codec() const { return codec_; }
+
+  void set_meta(const std::string& key, const std::string& value);  // e.g. "scene"
+  void put_garment(const Garment& garment);  // once; clips must match its vertex count
+  int64_t add_motion_file(const std::string& path, const std::string& content_hash);
+  int64_t add_primary_clip(const PrimaryClip& clip);
+  int64_t add_primary_transition(const PrimaryTransition& transition);
+
+  int64_t begin_run(const std::string& settings, const std::string& host = "");
+  void finish_run(int64_t run, double cpu_seconds, const std::string& notes = "");
+
+  // positions and velocities: vertex_count * 3 floats each, encoded with the file's bounds.
+  int64_t add_cloth_state(int64_t primary_clip, int32_t frame, const float* positions,
+                          const float* velocities, uint32_t vertex_count, int64_t run = 0,
+                          int64_t source_clip = 0);
+  // frames: frame_count * vertex_count * 3 floats, encoded with the file's codec settings.
+  int64_t add_cloth_clip(const NewClothClip& clip, const float* frames, uint32_t frame_count,
+                         uint32_t vertex_count);
+  // The same with a blob already encoded (e.g. on worker threads outside the write lock).
+  int64_t add_cloth_clip_blob(const NewClothClip& clip, const std::vector<uint8_t>& blob,
+                              double max_error);
+  int64_t add_cloth_edge(int64_t from_clip, int64_t to_state, double blend_error);
+
+  // Edits, each logged with what it replaced so undo_edit can restore it.
+  int64_t set_clip_status(int64_t clip, ClipStatus status, const std::string& author,
+                          const std::string& description);
+  // Replaces a clip's frames (status becomes Edited); the old blob is kept in the log.
+  int64_t replace_clip_frames(int64_t clip, const float* frames, uint32_t frame_count,
+                              uint32_t vertex_count, const std::string& author,
+                              const std::string& description);
+  int64_t undo_edit(int64_t edit, const std::string& author);
+
+  // Groups writes into one transaction: commit() makes them durable together; destroying an
+  // uncommitted Transaction rolls back. Without one, each call is its own transaction.
+  class Transaction {
+   public:
+    explicit Transaction(Writer& writer);
+    ~Transaction();
+    Transaction(const Transaction&) = delete;
+    Transaction& operator=(const Transaction&) = delete;
+    void commit();
+
+   private:
+    Writer* writer_;
+    bool done_ = false;
+  };
+
+  sqlite3* handle() { return db_; }
+
+ private:
+  Writer(sqlite3* db, std::string path);
+  void exec(const char* sql);
+  [[noreturn]] void throw_sql(const char* what);
+  std::vector<uint8_t> encode_frames(const float* frames, uint32_t frame_count,
+                                     uint32_t vertex_count, double bound, double* max_error);
+  uint32_t garment_vertices();  // 0 if no garment yet
+  void check_vertex_count(uint32_t vertex_count, const char* what);
+
+  sqlite3* db_ = nullptr;
+  std::string path_;
+  CodecSettings codec_;
+  int transaction_depth_ = 0;
+};
+
+// One Reader per thread (it caches prepared statements); any number of Readers, in any number of
+// processes, may read while one Writer writes.
+class Reader {
+ public:
+  Reader() = default;
+  Reader(Reader&& other) noexcept;
+  Reader& operator=(Reader&& other) noexcept;
+  Reader(const Reader&) = delete;
+  Reader& operator=(const Reader&) = delete;
+  ~Reader();
+
+  // Opens read-only. Errors: IoError (cannot open), NotClothdb, NewerVersion, Corrupt.
+  Status open(const std::string& path, Error* err);
+  void close();
+  bool is_open() const { return db_ != nullptr; }
+  const std::string& path() const { return path_; }
+  int schema_version() const { return schema_version_; }
+  const CodecSettings& codec() const { return codec_; }
+
+  Status meta(const std::string& key, std::string* value, Error* err);
+  Status all_meta(std::vector<std::pair<std::string, std::string>>* out, Error* err);
+  Status garment(Garment* out, Error* err);  // NotFound if none was stored
+  Status motion_files(std::vector<MotionFile>* out, Error* err);
+  Status primary_clips(std::vector<PrimaryClip>* out, Error* err);
+  Status primary_transitions(std::vector<PrimaryTransition>* out, Error* err);
+  Status cloth_states(std::vector<ClothState>* out, Error* err);
+  Status cloth_clips(std::vector<ClothClip>* out, Error* err);
+  Status cloth_clip(int64_t id, ClothClip* out, Error* err);
+  Status cloth_edges(std::vector<ClothEdge>* out, Error* err);
+  Status runs(std::vector<Run>* out, Error* err);
+  Status edit_log(std::vector<EditLogEntry>* out, Error* err);
+
+  // Copies a clip's encoded frames into `blob` (reusing its capacity: no allocation once it is
+  // large enough). Decode with codec::decode_frames.
+  Status clip_blob(int64_t clip, std::vector<uint8_t>* blob, Error* err);
+  Status state_blobs(int64_t state, std::vector<uint8_t>* positions,
+                     std::vector<uint8_t>* velocities, Error* err);
+  // Decoded cloth state (vertex_count * 3 floats each).
+  Status read_state(int64_t state, std::vector<float>* positions, std::vector<float>* velocities,
+                    codec::DecodeScratch& scratch, Error* err);
+
+  sqlite3* handle() { return db_; }
+
+ private:
+  Status prepare(sqlite3_stmt** cache, const char* sql, Error* err);
+  Status step_error(const char* what, Error* err);
+
+  sqlite3* db_ = nullptr;
+  std::string path_;
+  int schema_version_ = 0;
+  CodecSettings codec_;
+  sqlite3_stmt* clip_blob_stmt_ = nullptr;
+  sqlite3_stmt* state_blob_stmt_ = nullptr;
+  std::vector<uint8_t> state_pos_, state_vel_;
+};
+
+}  // namespace clothdb::db

@@ -1,0 +1,517 @@
+#include "explore/explorer.hpp"
+
+#include <omp.h>
+#include <time.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <set>
+#include <sstream>
+
+#include "database/checksum.hpp"
+#include "database/codec.hpp"
+#include "report/svg_plot.hpp"
+
+namespace clothdb {
+
+namespace {
+
+constexpr double kNoNeighbour = 1e9;  // priority of the first state at a node: explore first
+
+double thread_cpu_seconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return ts.tv_sec + 1e-9 * ts.tv_nsec;
+}
+
+std::string hex64(uint64_t v) {
+  char buf[24];
+  std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(v));
+  return buf;
+}
+
+std::string file_hash(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error(path + ": cannot read to hash it");
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  return "xxh64:" + hex64(db::xxh64(bytes.data(), bytes.size()));
+}
+
+// What a state looks like after a trip through the database (the codec's quantisation), so that
+// every simulation starts from exactly what a resumed run would read back.
+std::vector<float> roundtrip(const std::vector<float>& values, double bound) {
+  codec::EncodeSettings settings;
+  settings.bound = bound;
+  const uint32_t n = static_cast<uint32_t>(values.size() / 3);
+  const std::vector<uint8_t> blob = codec::encode(values.data(), 1, n, settings);
+  std::vector<float> out;
+  codec::DecodeScratch scratch;
+  db::Error err;
+  if (codec::decode_all(blob.data(), blob.size(), out, scratch, &err) != db::Status::Ok)
+    throw std::runtime_error(std::string("codec round trip failed: ") + err.message);
+  return out;
+}
+
+std::vector<float> to_local(const Eigen::Matrix3Xd& x, const Eigen::Isometry3d& frame, bool vectors) {
+  std::vector<float> out(static_cast<size_t>(x.cols()) * 3);
+  const Eigen::Isometry3d inv = frame.inverse();
+  for (Eigen::Index i = 0; i < x.cols(); ++i) {
+    const Vec3 p = vectors ? Vec3(inv.linear() * x.col(i)) : Vec3(inv * Vec3(x.col(i)));
+    for (int k = 0; k < 3; ++k) out[3 * i + k] = static_cast<float>(p[k]);
+  }
+  return out;
+}
+
+Eigen::Matrix3Xd to_world(const std::vector<float>& local, const Eigen::Isometry3d& frame, bool vectors) {
+  Eigen::Matrix3Xd x(3, static_cast<Eigen::Index>(local.size() / 3));
+  for (Eigen::Index i = 0; i < x.cols(); ++i) {
+    const Vec3 p(local[3 * i], local[3 * i + 1], local[3 * i + 2]);
+    x.col(i) = vectors ? Vec3(frame.linear() * p) : Vec3(frame * p);
+  }
+  return x;
+}
+
+struct StateRec {
+  int64_t id = 0;
+  int node = 0;
+  std::vector<float> x, v;  // character space, as stored
+  double priority = 0;      // unresolved error when it was made (distance to the nearest older)
+};
+
+struct Job {
+  int state = 0;  // index into states
+  int edge = 0;
+  double priority = 0;
+};
+
+struct JobResult {
+  bool stable = true;
+  std::string message;
+  std::vector<float> frames;   // frame_count * V * 3, character space
+  std::vector<float> end_x, end_v;
+  double max_strain = 0, max_penetration = 0;
+  double cpu_seconds = 0;
+  int halvings = 0;
+};
+
+JobResult simulate_job(const CharacterScene& scene, const ExploreEdge& edge, const StateRec& start,
+                       double rate) {
+  JobResult r;
+  const double t0 = thread_cpu_seconds();
+  SolverSettings settings = scene.file.settings;
+  settings.threads = 1;  // parallel across jobs, not inside one
+  auto solver = make_solver(scene.file.solver, scene.model, settings);
+  const Eigen::Isometry3d frame0 = character_frame(scene, edge.poses.front());
+  ClothState state;
+  state.x = to_world(start.x, frame0, false);
+  state.v = to_world(start.v, frame0, true);
+  // Pins exactly on their bones (the stored state is within the codec bound of them).
+  const Eigen::Matrix3Xd pins = skin_pins(scene.garment, scene.bind, edge.poses.front());
+  for (size_t k = 0; k < scene.garment.pins.size(); ++k) state.x.col(scene.garment.pins[k]) = pins.col(static_cast<Eigen::Index>(k));
+  const PoseRun run = simulate_poses(scene, *solver, edge.poses, rate, state);
+  r.cpu_seconds = thread_cpu_seconds() - t0;
+  if (!run.stable) {
+    r.stable = false;
+    r.message = run.message;
+    return r;
+  }
+  const size_t per_frame = start.x.size();
+  r.frames.reserve(per_frame * edge.poses.size());
+  r.frames.insert(r.frames.end(), start.x.begin(), start.x.end());
+  for (size_t f = 0; f < run.frames.size(); ++f) {
+    const std::vector<float> local = to_local(run.frames[f], character_frame(scene, edge.poses[f + 1]), false);
+    r.frames.insert(r.frames.end(), local.begin(), local.end());
+    r.max_strain = std::max(r.max_strain, run.metrics[f].max_strain);
+    r.max_penetration = std::max(r.max_penetration, run.metrics[f].max_penetration);
+  }
+  const Eigen::Isometry3d frame_end = character_frame(scene, edge.poses.back());
+  r.end_x.assign(r.frames.end() - static_cast<long>(per_frame), r.frames.end());
+  r.end_v = to_local(state.v, frame_end, true);
+  r.halvings = run.step_halvings;
+  return r;
+}
+
+std::string bar(double fraction, int width) {
+  fraction = std::clamp(fraction, 0.0, 1.0);
+  const int full = static_cast<int>(fraction * width);
+  return std::string(full, '#') + std::string(width - full, '.');
+}
+
+}  // namespace
+
+Eigen::Isometry3d character_frame(const CharacterScene& scene, const std::vector<JointPose>& pose) {
+  // Heading: the root's bind-pose +z carried by its rotation, projected onto the floor.
+  const Eigen::Quaterniond motion = pose[0].rotation * scene.bind[0].rotation.inverse();
+  Vec3 forward = motion * Vec3(0, 0, 1);
+  forward.y() = 0;
+  if (forward.norm() < 1e-6) {  // root pitched straight up or down: use its x axis instead
+    forward = motion * Vec3(1, 0, 0);
+    forward = Vec3(-forward.z(), 0, forward.x());
+  }
+  const double yaw = std::atan2(forward.x(), forward.z());
+  Eigen::Isometry3d t = Eigen::Isometry3d::Identity();
+  t.linear() = Eigen::AngleAxisd(yaw, Vec3::UnitY()).toRotationMatrix();
+  t.translation() = Vec3(pose[0].position.x(), 0.0, pose[0].position.z());
+  return t;
+}
+
+double state_distance(const std::vector<float>& xa, const std::vector<float>& va,
+                      const std::vector<float>& xb, const std::vector<float>& vb, double tau) {
+  double sum = 0;
+  const size_t n = xa.size() / 3;
+  for (size_t i = 0; i < 3 * n; ++i) {
+    const double dx = xa[i] - xb[i], dv = va[i] - vb[i];
+    sum += dx * dx + tau * tau * dv * dv;
+  }
+  return n > 0 ? std::sqrt(sum / n) : 0.0;
+}
+
+void prepare_database(db::Writer& writer, const CharacterScene& scene, ExploreGraph& graph,
+                      const std::string& graph_json) {
+  db::Reader reader;
+  db::Error err;
+  if (reader.open(writer.path(), &err) != db::Status::Ok)
+    throw std::runtime_error(writer.path() + ": " + std::string(err.message));
+  const std::string scene_hash = "xxh64:" + hex64(db::xxh64(scene.file.text.data(), scene.file.text.size()));
+  std::vector<std::string> motion_hashes;
+  for (const auto& name : scene.file.clips)
+    motion_hashes.push_back(file_hash(scene.file.manifest.clips[scene.file.manifest.require(name)].file.string()));
+
+  db::Garment existing;
+  if (reader.garment(&existing, &err) == db::Status::Ok) {
+    // Resuming: the scene and the motions must be the ones this database was made from.
+    std::string stored;
+    if (reader.meta("scene_hash", &stored, &err) == db::Status::Ok && stored != scene_hash)
+      throw std::runtime_error(writer.path() + ": was made from a different version of " +
+                               scene.file.path.string() + " (scene hash " + stored + ", now " + scene_hash +
+                               "); use a new --db, or restore the scene file");
+    std::vector<db::MotionFile> files;
+    reader.motion_files(&files, &err);
+    for (const auto& f : files) {
+      const std::string now = file_hash(f.path);
+      if (now != f.content_hash)
+        throw std::runtime_error(writer.path() + ": motion file " + f.path + " changed since this database was made (" +
+                                 f.content_hash + ", now " + now + "); refusing to mix results");
+    }
+    if (existing.vertex_count() != static_cast<uint32_t>(scene.model.vertex_count()))
+      throw std::runtime_error(writer.path() + ": garment has " + std::to_string(existing.vertex_count()) +
+                               " vertices, the scene makes " + std::to_string(scene.model.vertex_count()));
+    std::vector<db::PrimaryClip> clips;
+    reader.primary_clips(&clips, &err);
+    std::map<std::string, int64_t> ids;
+    for (const auto& c : clips) ids[c.name] = c.id;
+    for (auto& e : graph.edges) {
+      if (!ids.count(e.name))
+        throw std::runtime_error(writer.path() + ": has no primary clip '" + e.name +
+                                 "': the motion graph changed since this database was made");
+      e.db_clip = ids[e.name];
+    }
+    return;
+  }
+  db::Writer::Transaction tx(writer);
+  db::Garment g;
+  for (const auto& t : scene.model.mesh.triangles)
+    for (int k = 0; k < 3; ++k) g.triangles.push_back(static_cast<uint32_t>(t[k]));
+  const std::vector<float> rest = to_local(scene.model.mesh.rest, Eigen::Isometry3d::Identity(), false);
+  g.rest_positions = rest;
+  const Material& m = scene.file.material;
+  char mat[256];
+  std::snprintf(mat, sizeof mat,
+                "{\"density\": %g, \"youngs_modulus\": %g, \"poisson\": %g, \"thickness\": %g, "
+                "\"bending_stiffness\": %g, \"damping\": %g}",
+                m.density, m.youngs_modulus, m.poisson, m.thickness, m.bending_rigidity(), m.damping);
+  g.material = mat;
+  char sol[256];
+  std::snprintf(sol, sizeof sol, "{\"name\": \"%s\", \"substeps\": %d, \"iterations\": %d, \"tolerance\": %g}",
+                solver_name(scene.file.solver), scene.file.settings.substeps, scene.file.settings.iterations,
+                scene.file.settings.newton_tolerance);
+  g.solver = sol;
+  writer.put_garment(g);
+  writer.set_meta("units", "metres, seconds; cloth in character space (docs/SECONDARY_GRAPH.md)");
+  writer.set_meta("scene", scene.file.text);
+  writer.set_meta("scene_path", scene.file.path.string());
+  writer.set_meta("scene_hash", scene_hash);
+  writer.set_meta("motion_graph", graph_json);
+  std::vector<int64_t> file_ids;
+  for (size_t i = 0; i < scene.file.clips.size(); ++i) {
+    const auto& spec = scene.file.manifest.clips[scene.file.manifest.require(scene.file.clips[i])];
+    file_ids.push_back(writer.add_motion_file(spec.file.string(), motion_hashes[i]));
+  }
+  for (auto& e : graph.edges) {
+    db::PrimaryClip c;
+    c.name = e.name;
+    c.motion_file = file_ids.empty() ? 0 : file_ids.front();
+    c.first_frame = 0;
+    c.frame_count = static_cast<int32_t>(e.poses.size());
+    c.frame_rate = graph.rate;
+    e.db_clip = writer.add_primary_clip(c);
+  }
+  for (const auto& a : graph.edges)
+    for (const auto& b : graph.edges)
+      if (a.to_node == b.from_node) {
+        db::PrimaryTransition t;
+        t.from_clip = a.db_clip;
+        t.from_frame = static_cast<int32_t>(a.poses.size()) - 1;
+        t.to_clip = b.db_clip;
+        t.to_frame = 0;
+        writer.add_primary_transition(t);
+      }
+  for (const auto& e : graph.edges)
+    if (e.from_node == graph.start_node) {
+      writer.set_meta("start_clip", std::to_string(e.db_clip));
+      break;
+    }
+  tx.commit();
+}
+
+ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db::Writer& writer,
+                      const ExploreOptions& options) {
+  ExploreReport report;
+  const double tau = 1.0 / graph.rate;
+  const double pos_bound = writer.codec().position_bound, vel_bound = writer.codec().velocity_bound;
+  std::vector<std::vector<int>> out_edges(graph.node_count);
+  std::map<int64_t, int> edge_of_clip;
+  for (size_t e = 0; e < graph.edges.size(); ++e) {
+    out_edges[graph.edges[e].from_node].push_back(static_cast<int>(e));
+    edge_of_clip[graph.edges[e].db_clip] = static_cast<int>(e);
+  }
+  auto node_anchor = [&](int node) { return graph.edges[out_edges[node].front()].db_clip; };
+
+  // Load what the database holds (a resumed run), or make the rest state.
+  db::Reader reader;
+  db::Error err;
+  if (reader.open(writer.path(), &err) != db::Status::Ok) throw std::runtime_error(writer.path() + ": " + std::string(err.message));
+  std::vector<db::ClothState> stored_states;
+  std::vector<db::ClothClip> stored_clips;
+  std::vector<db::ClothEdge> stored_edges;
+  reader.cloth_states(&stored_states, &err);
+  reader.cloth_clips(&stored_clips, &err);
+  reader.cloth_edges(&stored_edges, &err);
+  std::vector<StateRec> states;
+  std::set<std::pair<int64_t, int>> done;  // (state id, edge) with a clip
+  codec::DecodeScratch scratch;
+  for (const auto& s : stored_states) {
+    StateRec rec;
+    rec.id = s.id;
+    if (!edge_of_clip.count(s.primary_clip)) throw std::runtime_error(writer.path() + ": state " + std::to_string(s.id) + " is at an unknown primary clip");
+    rec.node = graph.edges[edge_of_clip[s.primary_clip]].from_node;
+    if (reader.read_state(s.id, &rec.x, &rec.v, scratch, &err) != db::Status::Ok)
+      throw std::runtime_error(writer.path() + ": state " + std::to_string(s.id) + ": " + std::string(err.message));
+    states.push_back(std::move(rec));
+  }
+  for (const auto& c : stored_clips) done.insert({c.start_state, edge_of_clip.at(c.primary_clip)});
+  for (const auto& c : stored_clips) report.frames += c.frame_count;
+  for (const auto& e : stored_edges) report.worst_blend_error = std::max(report.worst_blend_error, e.blend_error);
+  report.resumed = !states.empty();
+  // Priorities are a function of the states alone (distance to the nearest older state at the
+  // same node), so a resumed run rebuilds the same queue.
+  for (size_t i = 0; i < states.size(); ++i) {
+    double best = kNoNeighbour;
+    for (size_t j = 0; j < i; ++j)
+      if (states[j].node == states[i].node)
+        best = std::min(best, state_distance(states[i].x, states[i].v, states[j].x, states[j].v, tau));
+    states[i].priority = best;
+  }
+  const int64_t run_id = writer.begin_run(
+      "{\"epsilon_m\": " + std::to_string(options.epsilon) + ", \"threads\": " + std::to_string(options.threads) +
+      ", \"batch\": " + std::to_string(options.batch) + ", \"solver\": \"" + solver_name(scene.file.solver) + "\"}");
+  if (states.empty()) {
+    SolverSettings settings = scene.file.settings;
+    auto solver = make_solver(scene.file.solver, scene.model, settings);
+    const ExploreEdge& first = graph.edges[out_edges[graph.start_node].front()];
+    const ClothState rest = settle_garment(scene, *solver, first.poses.front());
+    const Eigen::Isometry3d frame = character_frame(scene, first.poses.front());
+    // The writer stores encode(raw); keeping roundtrip(raw) in memory is exactly what a resumed
+    // run decodes (re-encoding an already decoded state could round differently).
+    const std::vector<float> raw_x = to_local(rest.x, frame, false), raw_v = to_local(rest.v, frame, true);
+    StateRec rec;
+    rec.node = graph.start_node;
+    rec.x = roundtrip(raw_x, pos_bound);
+    rec.v = roundtrip(raw_v, vel_bound);
+    rec.priority = kNoNeighbour;
+    rec.id = writer.add_cloth_state(node_anchor(rec.node), 0, raw_x.data(), raw_v.data(),
+                                    static_cast<uint32_t>(raw_x.size() / 3), run_id);
+    states.push_back(std::move(rec));
+  }
+
+  auto dead_ends = [&] {
+    std::vector<Job> jobs;
+    for (size_t s = 0; s < states.size(); ++s)
+      for (int e : out_edges[states[s].node])
+        if (!done.count({states[s].id, e})) jobs.push_back({static_cast<int>(s), e, states[s].priority});
+    std::sort(jobs.begin(), jobs.end(), [&](const Job& a, const Job& b) {
+      if (a.priority != b.priority) return a.priority > b.priority;
+      if (states[a.state].id != states[b.state].id) return states[a.state].id < states[b.state].id;
+      return a.edge < b.edge;
+    });
+    return jobs;
+  };
+  auto curve_point = [&](const std::vector<Job>& queue) {
+    CurvePoint p;
+    p.cpu_seconds = report.cpu_seconds;
+    p.frames = report.frames;
+    p.states = static_cast<int>(states.size());
+    p.dead_ends = static_cast<int>(queue.size());
+    double sum = 0;
+    int counted = 0;
+    for (const Job& j : queue) {
+      // The very first state at a node has no neighbour: its error is the whole unknown; count
+      // it as epsilon-free worst case only when nothing else is known.
+      const double e = j.priority >= kNoNeighbour ? 0.0 : j.priority;
+      p.worst_error = std::max(p.worst_error, e);
+      sum += e;
+      ++counted;
+    }
+    p.mean_error = counted ? sum / counted : 0.0;
+    return p;
+  };
+
+  const auto wall_start = std::chrono::steady_clock::now();
+  std::vector<Job> queue = dead_ends();
+  report.curve.push_back(curve_point(queue));
+  std::set<std::pair<int64_t, int>> failed;
+  while (true) {
+    std::vector<Job> batch;
+    for (const Job& j : queue) {
+      if (static_cast<int>(batch.size()) >= options.batch) break;
+      if (failed.count({states[j.state].id, j.edge})) continue;
+      batch.push_back(j);
+    }
+    if (batch.empty()) break;
+    if (options.cpu_hours > 0 && report.cpu_seconds >= options.cpu_hours * 3600) break;
+    if (options.max_frames > 0 && report.frames_this_run >= options.max_frames) break;
+
+    std::vector<JobResult> results(batch.size());
+#pragma omp parallel for schedule(dynamic, 1) num_threads(std::max(1, options.threads))
+    for (size_t b = 0; b < batch.size(); ++b)
+      results[b] = simulate_job(scene, graph.edges[batch[b].edge], states[batch[b].state], graph.rate);
+
+    db::Writer::Transaction tx(writer);
+    for (size_t b = 0; b < batch.size(); ++b) {
+      const Job& job = batch[b];
+      JobResult& r = results[b];
+      report.cpu_seconds += r.cpu_seconds;
+      const int64_t start_id = states[job.state].id;
+      if (!r.stable) {
+        failed.insert({start_id, job.edge});
+        std::fprintf(stderr, "\nexplore: state %lld along '%s' is unstable (%s); left as a dead end\n",
+                     static_cast<long long>(start_id), graph.edges[job.edge].name.c_str(), r.message.c_str());
+        continue;
+      }
+      const ExploreEdge& edge = graph.edges[job.edge];
+      db::NewClothClip clip;
+      clip.start_state = start_id;
+      clip.primary_clip = edge.db_clip;
+      clip.first_frame = 0;
+      clip.max_strain = r.max_strain;
+      clip.max_penetration = r.max_penetration;
+      clip.run = run_id;
+      const uint32_t vertices = static_cast<uint32_t>(states[job.state].x.size() / 3);
+      const uint32_t frame_count = static_cast<uint32_t>(r.frames.size() / (3 * vertices));
+      const int64_t clip_id = writer.add_cloth_clip(clip, r.frames.data(), frame_count, vertices);
+      done.insert({start_id, job.edge});
+      report.frames += frame_count;
+      report.frames_this_run += frame_count;
+      // The end as it will be stored, then the closest state at the end node.
+      std::vector<float> end_x = roundtrip(r.end_x, pos_bound), end_v = roundtrip(r.end_v, vel_bound);
+      double best = std::numeric_limits<double>::infinity();
+      int best_state = -1;
+      for (size_t s = 0; s < states.size(); ++s) {
+        if (states[s].node != edge.to_node) continue;
+        const double d = state_distance(end_x, end_v, states[s].x, states[s].v, tau);
+        if (d < best) best = d, best_state = static_cast<int>(s);
+      }
+      if (best_state >= 0 && best <= options.epsilon) {
+        writer.add_cloth_edge(clip_id, states[best_state].id, best);
+        report.worst_blend_error = std::max(report.worst_blend_error, best);
+      } else {
+        StateRec rec;
+        rec.node = edge.to_node;
+        rec.x = std::move(end_x);
+        rec.v = std::move(end_v);
+        rec.priority = best_state >= 0 ? best : kNoNeighbour;
+        rec.id = writer.add_cloth_state(node_anchor(rec.node), 0, r.end_x.data(), r.end_v.data(), vertices, run_id, clip_id);
+        writer.add_cloth_edge(clip_id, rec.id, 0.0);
+        states.push_back(std::move(rec));
+      }
+    }
+    tx.commit();
+    queue = dead_ends();
+    report.curve.push_back(curve_point(queue));
+    if (options.progress) {
+      const CurvePoint& p = report.curve.back();
+      double fraction = 0, eta = 0;
+      const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+      if (options.max_frames > 0) fraction = static_cast<double>(report.frames_this_run) / options.max_frames;
+      if (options.cpu_hours > 0) fraction = std::max(fraction, report.cpu_seconds / (options.cpu_hours * 3600));
+      if (fraction > 0) {
+        eta = wall / fraction * (1 - fraction);
+      } else {
+        // No budget: at least the dead ends left at the current pace (new ones may appear).
+        const double per_job = wall / std::max<size_t>(1, done.size());
+        fraction = static_cast<double>(done.size()) / (done.size() + queue.size());
+        eta = per_job * queue.size();
+      }
+      std::fprintf(stderr, "\r[%s] frames %ld  states %d  dead ends %d  worst %.1f mm  cpu %.0f s  ETA %s%.0f s   ",
+                   bar(fraction, 24).c_str(), report.frames, p.states, p.dead_ends, 1e3 * p.worst_error,
+                   report.cpu_seconds, options.max_frames > 0 || options.cpu_hours > 0 ? "" : ">=", eta);
+    }
+  }
+  if (options.progress) std::fprintf(stderr, "\n");
+  writer.finish_run(run_id, report.cpu_seconds,
+                    queue.empty() ? "converged" : std::to_string(queue.size()) + " dead ends left");
+  report.states = static_cast<int>(states.size());
+  report.clips = static_cast<int>(done.size());
+  report.dead_ends = static_cast<int>(queue.size());
+  report.edges = report.clips;
+  report.worst_error = report.curve.back().worst_error;
+  report.converged = queue.empty();
+  return report;
+}
+
+std::string curve_csv(const std::vector<CurvePoint>& curve) {
+  std::ostringstream o;
+  o << "cpu_seconds,frames,states,dead_ends,worst_error_mm,mean_error_mm\n";
+  for (const auto& p : curve)
+    o << p.cpu_seconds << ',' << p.frames << ',' << p.states << ',' << p.dead_ends << ',' << 1e3 * p.worst_error
+      << ',' << 1e3 * p.mean_error << '\n';
+  return o.str();
+}
+
+std::string curve_svg(const std::vector<CurvePoint>& curve, double epsilon) {
+  PlotSpec spec;
+  spec.title = "Unresolved error against CPU time";
+  spec.x_label = "CPU seconds";
+  spec.y_label = "unresolved error, mm";
+  PlotSeries worst, mean, eps;
+  worst.label = "worst";
+  worst.color = palette_color(1);
+  worst.line = true;
+  mean.label = "mean";
+  mean.color = palette_color(0);
+  mean.line = true;
+  eps.label = "epsilon";
+  eps.color = "#333333";
+  eps.line = true;
+  eps.markers = false;
+  eps.dashed = true;
+  for (const auto& p : curve) {
+    worst.x.push_back(p.cpu_seconds);
+    worst.y.push_back(1e3 * p.worst_error);
+    mean.x.push_back(p.cpu_seconds);
+    mean.y.push_back(1e3 * p.mean_error);
+  }
+  if (!curve.empty()) {
+    eps.x = {curve.front().cpu_seconds, curve.back().cpu_seconds};
+    eps.y = {1e3 * epsilon, 1e3 * epsilon};
+  }
+  spec.series = {worst, mean, eps};
+  return render_svg(spec);
+}
+
+}  // namespace clothdb

@@ -1,0 +1,93 @@
+// The explorer of Kim et al. 2013 ("Near-exhaustive Precomputation of Secondary Cloth Effects"):
+// grows the secondary cloth graph over a primary motion graph until every way the game can move
+// the character has cloth that continues within an error bound, or a budget runs out.
+//
+// A dead end is a pair (cloth state, primary edge leaving its node) with no cloth clip yet. The
+// explorer repeatedly takes the dead ends whose unresolved error is largest, simulates the garment
+// along their edges (in parallel, one solver per job), and at each clip's end either links back to
+// the closest existing state at that node (distance <= epsilon: a cloth edge with that blend
+// error) or makes the end a new state (a new dead end per edge leaving the node). Conventions for
+// the database are in docs/SECONDARY_GRAPH.md.
+//
+// Determinism: dead ends are taken in batches of fixed size in a total order (error, state id,
+// edge), simulated independently, and integrated in that order; every simulation starts from the
+// state as stored (decoded), so a resumed run continues exactly as an uninterrupted one. Each batch
+// is one transaction: a run killed at any moment resumes from the last committed batch.
+#pragma once
+
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "database/schema.hpp"
+#include "scene/character_scene.hpp"
+
+namespace clothdb {
+
+// One edge of the primary motion graph, as the explorer needs it.
+struct ExploreEdge {
+  int from_node = 0, to_node = 0;
+  std::string name;
+  std::vector<std::vector<JointPose>> poses;  // frame 0 at from_node, last at to_node
+  int64_t db_clip = 0;                        // its primary_clips id
+};
+
+struct ExploreGraph {
+  int node_count = 0;
+  int start_node = 0;
+  double rate = 30.0;
+  std::vector<ExploreEdge> edges;
+};
+
+struct ExploreOptions {
+  double epsilon = 0.005;     // m: link back when the state distance is at most this
+  double cpu_hours = 0.0;     // budget (0: none): CPU time of the simulations
+  long max_frames = 0;        // budget (0: none): frames simulated in this run
+  int threads = 1;            // OpenMP threads across jobs (each job's solver runs on one)
+  int batch = 8;              // dead ends per batch (fixed: the result does not depend on threads)
+  bool progress = true;       // a progress bar on stderr
+};
+
+struct CurvePoint {
+  double cpu_seconds = 0;
+  long frames = 0;
+  int states = 0;
+  int dead_ends = 0;
+  double worst_error = 0;  // m, largest unresolved error among dead ends (0 when none)
+  double mean_error = 0;   // m
+};
+
+struct ExploreReport {
+  int states = 0;
+  int clips = 0;
+  int edges = 0;
+  int dead_ends = 0;         // left when it stopped
+  long frames = 0;           // stored cloth frames in the database
+  long frames_this_run = 0;
+  double cpu_seconds = 0;    // this run
+  double worst_error = 0;    // m
+  double worst_blend_error = 0;  // m, largest recorded blend error on a cloth edge
+  bool converged = false;    // no dead end left above epsilon
+  bool resumed = false;
+  std::vector<CurvePoint> curve;  // one point per batch (this run)
+};
+
+// Character space (docs/SECONDARY_GRAPH.md): the root projected to the floor, facing +z.
+Eigen::Isometry3d character_frame(const CharacterScene& scene, const std::vector<JointPose>& pose);
+
+// RMS over vertices of sqrt(|dx|^2 + (tau |dv|)^2), metres.
+double state_distance(const std::vector<float>& xa, const std::vector<float>& va,
+                      const std::vector<float>& xb, const std::vector<float>& vb, double tau);
+
+// Writes the garment, scene and graph metadata into a new database (no-op for what is there).
+void prepare_database(db::Writer& writer, const CharacterScene& scene, ExploreGraph& graph,
+                      const std::string& graph_json);
+
+// Runs (or resumes) the exploration. The database must have been prepared for this scene and graph.
+ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db::Writer& writer,
+                      const ExploreOptions& options);
+
+std::string curve_csv(const std::vector<CurvePoint>& curve);
+std::string curve_svg(const std::vector<CurvePoint>& curve, double epsilon);
+
+}  // namespace clothdb

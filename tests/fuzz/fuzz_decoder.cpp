@@ -1,0 +1,147 @@
+// libFuzzer target for the cloth frame decoder (docs/FUZZING.md). The first input byte picks a
+// mode:
+//   0: decode the rest as a blob, checksums as given (what a damaged file looks like);
+//   1: the same after recomputing the checksums, so mutations reach the header and chunk parsers,
+//      zstd and the reconstruction behind them;
+//   2: build frames from the bytes, encode them, decode, and check the error bound.
+// Any crash, sanitizer report, bound violation or non-finite decoded value is a bug.
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <vector>
+
+#include "database/codec.hpp"
+
+namespace {
+
+using namespace clothdb;
+
+void check(bool ok, const char* what) {
+  if (!ok) {
+    std::fprintf(stderr, "fuzz_decoder: %s\n", what);
+    std::abort();
+  }
+}
+
+void decode_blob(const uint8_t* blob, size_t size) {
+  codec::BlobInfo info;
+  Error err;
+  if (codec::read_info(blob, size, &info, &err) != Status::Ok) {
+    check(err.message[0] != '\0', "error without a message");
+    return;
+  }
+  codec::DecodeScratch scratch;
+  const size_t n = size_t(info.vertex_count) * 3;
+  // Bounded output so a large (valid) header cannot exhaust memory: one frame at a time.
+  if (n > (size_t(1) << 20)) return;
+  std::vector<float> frame(n);
+  for (uint32_t f = 0; f < info.frame_count && f < 64; f += 1 + f / 4) {
+    if (codec::decode_frames(blob, size, f, 1, frame.data(), frame.size(), scratch, &err) !=
+        Status::Ok) {
+      check(err.message[0] != '\0', "error without a message");
+      return;
+    }
+    const uint32_t qlimit = std::max({info.qmax[0], info.qmax[1], info.qmax[2]});
+    for (size_t i = 0; i < n; ++i) {
+      check(std::isfinite(frame[i]), "non-finite decoded value");
+      const double lo = info.origin[i % 3], hi = lo + double(qlimit) * info.step;
+      check(frame[i] >= float(lo) - 1e-3f * float(1 + std::fabs(lo)) &&
+                frame[i] <= float(hi) + 1e-3f * float(1 + std::fabs(hi)),
+            "decoded value outside the declared range");
+    }
+  }
+  codec::verify(blob, size, scratch, &err);
+}
+
+void roundtrip(const uint8_t* data, size_t size) {
+  if (size < 4) return;
+  const double bounds[] = {1e-5, 1e-4, 5e-4, 2e-3, 0.05};
+  codec::EncodeSettings s;
+  s.bound = bounds[data[0] % 5];
+  s.key_interval = data[1] % 20;
+  s.zstd_level = 1 + data[2] % 5;
+  s.predictor = codec::Predictor(data[3] % 4);
+  const uint32_t vertices = 1 + data[3] / 4 % 40;
+  data += 4;
+  size -= 4;
+  const uint32_t frames = uint32_t(size / (vertices * 3 * 2));
+  if (frames == 0) return;
+  // Two input bytes per coordinate: a smooth ramp plus the bytes as noise, in metres.
+  std::vector<float> x(size_t(frames) * vertices * 3);
+  for (size_t i = 0; i < x.size(); ++i) {
+    const int16_t v = int16_t(data[2 * i] | data[2 * i + 1] << 8);
+    x[i] = float(0.001 * double(i / 3 % 97) + v * 1e-4);
+  }
+  std::vector<uint8_t> blob;
+  try {
+    blob = codec::encode(x.data(), frames, vertices, s);
+  } catch (const ClothdbError& e) {
+    check(false, e.what());  // valid input must always encode
+  }
+  codec::DecodeScratch scratch;
+  std::vector<float> y;
+  Error err;
+  check(codec::decode_all(blob.data(), blob.size(), y, scratch, &err) == Status::Ok, err.message);
+  for (size_t i = 0; i < x.size(); ++i)
+    check(std::fabs(double(y[i]) - double(x[i])) <= s.bound, "error bound broken");
+}
+
+}  // namespace
+
+extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
+  if (size < 1) return 0;
+  const uint8_t mode = data[0] % 3;
+  ++data;
+  --size;
+  if (mode == 0) {
+    decode_blob(data, size);
+  } else if (mode == 1) {
+    std::vector<uint8_t> copy(data, data + size);
+    codec::detail::reseal(copy.data(), copy.size());
+    decode_blob(copy.data(), copy.size());
+  } else {
+    roundtrip(data, size);
+  }
+  return 0;
+}
+
+#ifdef CLOTHDB_FUZZ_SEEDS
+// Writes a seed corpus of valid blobs (modes 0 and 1) and a round-trip input into argv[1].
+int main(int argc, char** argv) {
+  if (argc != 2) return 2;
+  int count = 0;
+  for (uint32_t k : {1u, 3u, 0u}) {
+    for (codec::Predictor p : {codec::Predictor::Delta, codec::Predictor::Linear}) {
+      const uint32_t side = 5, frames = 7;
+      std::vector<float> x(size_t(frames) * side * side * 3);
+      for (size_t i = 0; i < x.size(); ++i)
+        x[i] = float(0.1 * std::sin(0.3 * double(i % 75) + 0.2 * double(i / 75)));
+      codec::EncodeSettings s;
+      s.key_interval = k;
+      s.predictor = p;
+      const auto blob = codec::encode(x.data(), frames, side * side, s);
+      for (uint8_t mode : {uint8_t(0), uint8_t(1)}) {
+        char path[4096];
+        std::snprintf(path, sizeof path, "%s/seed_%d", argv[1], count++);
+        FILE* f = std::fopen(path, "wb");
+        if (!f) return 1;
+        std::fwrite(&mode, 1, 1, f);
+        std::fwrite(blob.data(), 1, blob.size(), f);
+        std::fclose(f);
+      }
+    }
+  }
+  char path[4096];
+  std::snprintf(path, sizeof path, "%s/seed_roundtrip", argv[1]);
+  FILE* f = std::fopen(path, "wb");
+  if (!f) return 1;
+  const uint8_t head[5] = {2, 3, 4, 1, 7};
+  std::fwrite(head, 1, sizeof head, f);
+  for (int i = 0; i < 600; ++i) std::fputc(i * 37 % 251, f);
+  std::fclose(f);
+  return 0;
+}
+#endif

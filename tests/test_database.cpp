@@ -1,0 +1,556 @@
+// The clothdb database: schema, WAL, writer/reader round trip, recognition of foreign and newer
+// files, `db check`, and a writer killed mid-transaction.
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <sqlite3.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "database/check.hpp"
+#include "database/codec.hpp"
+#include "database/schema.hpp"
+
+namespace clothdb::db {
+namespace {
+
+namespace fs = std::filesystem;
+
+class TempDir {
+ public:
+  TempDir() {
+    static int counter = 0;
+    path_ = fs::temp_directory_path() /
+            ("clothdb_test_" + std::to_string(getpid()) + "_" + std::to_string(counter++));
+    fs::create_directories(path_);
+  }
+  ~TempDir() {
+    std::error_code ec;
+    fs::remove_all(path_, ec);
+  }
+  std::string file(const std::string& name) const { return (path_ / name).string(); }
+
+ private:
+  fs::path path_;
+};
+
+constexpr uint32_t kSide = 12;
+constexpr uint32_t kVertices = kSide * kSide;
+
+std::vector<float> sheet_frames(uint32_t frames, double phase) {
+  std::vector<float> x(size_t(frames) * kVertices * 3);
+  for (uint32_t f = 0; f < frames; ++f)
+    for (uint32_t i = 0; i < kSide; ++i)
+      for (uint32_t j = 0; j < kSide; ++j) {
+        float* p = x.data() + (size_t(f) * kVertices + i * kSide + j) * 3;
+        const double t = f / 30.0 + phase;
+        p[0] = float(0.05 * i);
+        p[1] = float(1.0 - 0.05 * j + 0.1 * std::sin(2 * t + 0.3 * i));
+        p[2] = float(0.1 * std::cos(3 * t + 0.2 * j) * j / kSide);
+      }
+  return x;
+}
+
+Garment make_garment() {
+  Garment g;
+  for (uint32_t i = 0; i < kSide; ++i)
+    for (uint32_t j = 0; j < kSide; ++j) {
+      g.rest_positions.insert(g.rest_positions.end(),
+                              {0.05f * float(i), 1.0f - 0.05f * float(j), 0.0f});
+      if (i + 1 < kSide && j + 1 < kSide) {
+        const uint32_t a = i * kSide + j, b = a + 1, c = a + kSide, d = c + 1;
+        g.triangles.insert(g.triangles.end(), {a, b, c, b, d, c});
+      }
+    }
+  g.material = R"({"density": 0.2, "stretch": 1e4})";
+  g.solver = R"({"solver": "xpbd", "substeps": 20})";
+  return g;
+}
+
+double max_diff(const float* a, const float* b, size_t n) {
+  double m = 0;
+  for (size_t i = 0; i < n; ++i) m = std::max(m, std::fabs(double(a[i]) - double(b[i])));
+  return m;
+}
+
+// A small complete database: two primary clips, a transition, one state per clip start, one
+// cloth clip per primary clip and the edges between them.
+struct Fixture {
+  int64_t walk = 0, run_clip = 0, state0 = 0, state1 = 0, clip0 = 0, clip1 = 0, edge = 0;
+  std::vector<float> frames0, frames1;
+};
+
+Fixture populate(Writer& w) {
+  Fixture f;
+  w.set_meta("scene", R"({"garment": "skirt.obj", "motions": ["walk.bvh"]})");
+  w.put_garment(make_garment());
+  const int64_t motion = w.add_motion_file("walk.bvh", "sha256:0123abcd");
+  f.walk = w.add_primary_clip({0, "walk", motion, 0, 40, 30.0});
+  f.run_clip = w.add_primary_clip({0, "run", motion, 40, 30, 30.0});
+  w.add_primary_transition({0, f.walk, 39, f.run_clip, 0, 4, 0.25});
+  const int64_t run = w.begin_run(R"({"solver": "xpbd"})", "test-host");
+  Writer::Transaction t(w);
+  f.frames0 = sheet_frames(40, 0.0);
+  f.frames1 = sheet_frames(30, 1.0);
+  std::vector<float> velocities(kVertices * 3, 0.01f);
+  f.state0 = w.add_cloth_state(f.walk, 0, f.frames0.data(), velocities.data(), kVertices, run);
+  f.clip0 = w.add_cloth_clip({f.state0, f.walk, 0, 0.02, 0.001, ClipStatus::Ok, run},
+                             f.frames0.data(), 40, kVertices);
+  f.state1 = w.add_cloth_state(f.run_clip, 0, f.frames1.data(), velocities.data(), kVertices, run,
+                               f.clip0);
+  f.clip1 = w.add_cloth_clip({f.state1, f.run_clip, 0, 0.03, 0.0, ClipStatus::Flagged, run},
+                             f.frames1.data(), 30, kVertices);
+  f.edge = w.add_cloth_edge(f.clip0, f.state1, 0.004);
+  w.add_cloth_edge(f.clip1, f.state0, 0.02);
+  t.commit();
+  w.finish_run(run, 12.5, "two clips");
+  return f;
+}
+
+void exec_raw(const std::string& path, const std::string& sql) {
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+  char* msg = nullptr;
+  const int rc = sqlite3_exec(db, sql.c_str(), nullptr, nullptr, &msg);
+  EXPECT_EQ(rc, SQLITE_OK) << (msg ? msg : "");
+  sqlite3_free(msg);
+  sqlite3_close(db);
+}
+
+bool mentions(const CheckReport& r, const std::string& text) {
+  for (const auto& p : r.problems)
+    if (p.find(text) != std::string::npos) return true;
+  return false;
+}
+
+TEST(Database, WriterReaderRoundTrip) {
+  TempDir dir;
+  const std::string path = dir.file("a.clothdb");
+  Fixture f;
+  {
+    Writer w = Writer::create(path);
+    f = populate(w);
+  }
+  Reader r;
+  Error err;
+  ASSERT_EQ(r.open(path, &err), Status::Ok) << err.message;
+  EXPECT_EQ(r.schema_version(), kSchemaVersion);
+  EXPECT_DOUBLE_EQ(r.codec().position_bound, codec::kDefaultPositionBound);
+  std::string value;
+  ASSERT_EQ(r.meta("units", &value, &err), Status::Ok);
+  EXPECT_NE(value.find("length m"), std::string::npos);
+  ASSERT_EQ(r.meta("scene", &value, &err), Status::Ok);
+  EXPECT_NE(value.find("skirt.obj"), std::string::npos);
+  EXPECT_EQ(r.meta("nope", &value, &err), Status::NotFound);
+
+  Garment g;
+  ASSERT_EQ(r.garment(&g, &err), Status::Ok);
+  const Garment expected = make_garment();
+  EXPECT_EQ(g.triangles, expected.triangles);
+  EXPECT_EQ(g.rest_positions, expected.rest_positions);
+  EXPECT_EQ(g.solver, expected.solver);
+
+  std::vector<MotionFile> motions;
+  ASSERT_EQ(r.motion_files(&motions, &err), Status::Ok);
+  ASSERT_EQ(motions.size(), 1u);
+  EXPECT_EQ(motions[0].content_hash, "sha256:0123abcd");
+  std::vector<PrimaryClip> clips;
+  ASSERT_EQ(r.primary_clips(&clips, &err), Status::Ok);
+  ASSERT_EQ(clips.size(), 2u);
+  EXPECT_EQ(clips[1].name, "run");
+  EXPECT_EQ(clips[1].first_frame, 40);
+  std::vector<PrimaryTransition> transitions;
+  ASSERT_EQ(r.primary_transitions(&transitions, &err), Status::Ok);
+  ASSERT_EQ(transitions.size(), 1u);
+  EXPECT_EQ(transitions[0].blend_frames, 4);
+
+  std::vector<ClothState> states;
+  ASSERT_EQ(r.cloth_states(&states, &err), Status::Ok);
+  ASSERT_EQ(states.size(), 2u);
+  EXPECT_EQ(states[1].source_clip, f.clip0);
+  std::vector<ClothClip> cloth;
+  ASSERT_EQ(r.cloth_clips(&cloth, &err), Status::Ok);
+  ASSERT_EQ(cloth.size(), 2u);
+  EXPECT_EQ(cloth[1].status, ClipStatus::Flagged);
+  EXPECT_EQ(cloth[0].frame_count, 40);
+  EXPECT_LE(cloth[0].max_error, cloth[0].error_bound);
+  EXPECT_DOUBLE_EQ(cloth[0].max_strain, 0.02);
+  std::vector<ClothEdge> edges;
+  ASSERT_EQ(r.cloth_edges(&edges, &err), Status::Ok);
+  ASSERT_EQ(edges.size(), 2u);
+  EXPECT_EQ(edges[0].to_state, f.state1);
+  EXPECT_DOUBLE_EQ(edges[0].blend_error, 0.004);
+  std::vector<db::Run> runs;
+  ASSERT_EQ(r.runs(&runs, &err), Status::Ok);
+  ASSERT_EQ(runs.size(), 1u);
+  EXPECT_DOUBLE_EQ(runs[0].cpu_seconds, 12.5);
+  EXPECT_FALSE(runs[0].finished.empty());
+
+  // Cloth frames and states decode within the file's bounds.
+  std::vector<uint8_t> blob;
+  ASSERT_EQ(r.clip_blob(f.clip0, &blob, &err), Status::Ok);
+  codec::DecodeScratch scratch;
+  std::vector<float> decoded;
+  ASSERT_EQ(codec::decode_all(blob.data(), blob.size(), decoded, scratch, &err), Status::Ok);
+  ASSERT_EQ(decoded.size(), f.frames0.size());
+  EXPECT_LE(max_diff(decoded.data(), f.frames0.data(), decoded.size()), r.codec().position_bound);
+  std::vector<float> pos, vel;
+  ASSERT_EQ(r.read_state(f.state1, &pos, &vel, scratch, &err), Status::Ok);
+  EXPECT_LE(max_diff(pos.data(), f.frames1.data(), pos.size()), r.codec().position_bound);
+  for (float v : vel) EXPECT_NEAR(v, 0.01f, r.codec().velocity_bound);
+  EXPECT_EQ(r.clip_blob(999, &blob, &err), Status::NotFound);
+  EXPECT_NE(std::strstr(err.message, "999"), nullptr);
+
+  const DatabaseInfo info = read_database_info(path);
+  EXPECT_EQ(info.cloth_clips, 2u);
+  EXPECT_EQ(info.cloth_frames, 70u);
+  EXPECT_EQ(info.clips_flagged, 1u);
+  EXPECT_EQ(info.garment_vertices, kVertices);
+  EXPECT_GT(info.clip_raw_bytes, info.clip_blob_bytes);
+  EXPECT_TRUE(check_database(path).ok());
+}
+
+TEST(Database, UsesWalAndReadersSeeOnlyCommittedData) {
+  TempDir dir;
+  const std::string path = dir.file("wal.clothdb");
+  Writer w = Writer::create(path);
+  Fixture f = populate(w);
+  Reader r;
+  Error err;
+  ASSERT_EQ(r.open(path, &err), Status::Ok) << err.message;
+  {
+    sqlite3_stmt* s = nullptr;
+    ASSERT_EQ(sqlite3_prepare_v2(r.handle(), "PRAGMA journal_mode", -1, &s, nullptr), SQLITE_OK);
+    ASSERT_EQ(sqlite3_step(s), SQLITE_ROW);
+    EXPECT_STREQ(reinterpret_cast<const char*>(sqlite3_column_text(s, 0)), "wal");
+    sqlite3_finalize(s);
+  }
+  std::vector<ClothClip> clips;
+  {
+    Writer::Transaction t(w);
+    w.add_cloth_clip({f.state0, f.walk, 0, 0, 0, ClipStatus::Ok, 0}, f.frames0.data(), 40,
+                     kVertices);
+    // The writer holds an open write transaction; the reader is not blocked and sees 2 clips.
+    ASSERT_EQ(r.cloth_clips(&clips, &err), Status::Ok) << err.message;
+    EXPECT_EQ(clips.size(), 2u);
+    t.commit();
+  }
+  ASSERT_EQ(r.cloth_clips(&clips, &err), Status::Ok);
+  EXPECT_EQ(clips.size(), 3u);
+  {
+    Writer::Transaction t(w);
+    w.add_cloth_edge(f.clip1, f.state1, 0.1);
+  }  // not committed: rolled back
+  std::vector<ClothEdge> edges;
+  ASSERT_EQ(r.cloth_edges(&edges, &err), Status::Ok);
+  EXPECT_EQ(edges.size(), 2u);
+}
+
+TEST(Database, ForeignAndNewerFilesAreRecognised) {
+  TempDir dir;
+  Error err;
+  Reader r;
+  EXPECT_EQ(r.open(dir.file("missing.clothdb"), &err), Status::IoError);
+  EXPECT_NE(std::strstr(err.message, "missing.clothdb"), nullptr);
+
+  const std::string text = dir.file("notes.txt");
+  std::ofstream(text) << "this is not a database, just some text that is long enough to matter\n";
+  EXPECT_EQ(r.open(text, &err), Status::NotClothdb);
+  EXPECT_NE(std::strstr(err.message, "not a clothdb database"), nullptr) << err.message;
+
+  const std::string other = dir.file("other.sqlite");
+  exec_raw(other, "CREATE TABLE t(x); INSERT INTO t VALUES(1);");
+  EXPECT_EQ(r.open(other, &err), Status::NotClothdb);
+  EXPECT_NE(std::strstr(err.message, "SQLite database but not a clothdb"), nullptr) << err.message;
+  EXPECT_THROW(Writer::open(other), ClothdbError);
+  EXPECT_FALSE(check_database(other).ok());
+  EXPECT_FALSE(check_database(text).ok());
+
+  const std::string newer = dir.file("newer.clothdb");
+  { Writer::create(newer); }
+  exec_raw(newer, "PRAGMA user_version = " + std::to_string(kSchemaVersion + 1));
+  EXPECT_EQ(r.open(newer, &err), Status::NewerVersion);
+  EXPECT_NE(std::strstr(err.message, "newer"), nullptr) << err.message;
+  try {
+    Writer::open(newer);
+    FAIL() << "newer file opened for writing";
+  } catch (const ClothdbError& e) {
+    EXPECT_EQ(e.status(), Status::NewerVersion);
+  }
+  const CheckReport report = check_database(newer);
+  ASSERT_FALSE(report.ok());
+  EXPECT_NE(report.problems[0].find("newer"), std::string::npos);
+
+  // Creating over an existing file is refused.
+  EXPECT_THROW(Writer::create(other), ClothdbError);
+}
+
+TEST(Database, WriterRejectsInconsistentData) {
+  TempDir dir;
+  Writer w = Writer::create(dir.file("w.clothdb"));
+  Fixture f = populate(w);
+  std::vector<float> small(3 * 10, 0.0f);
+  EXPECT_THROW(
+      w.add_cloth_clip({f.state0, f.walk, 0, 0, 0, ClipStatus::Ok, 0}, small.data(), 1, 10),
+      ClothdbError);
+  // Foreign keys: an edge to a state that does not exist.
+  try {
+    w.add_cloth_edge(f.clip0, 12345, 0.0);
+    FAIL() << "dangling edge accepted";
+  } catch (const ClothdbError& e) {
+    EXPECT_NE(std::string(e.what()).find("w.clothdb"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW(w.add_primary_clip({0, "walk", 0, 0, 10, 30}), ClothdbError);  // duplicate name
+  EXPECT_THROW(w.add_primary_clip({0, "bad", 0, 0, 0, 30}), ClothdbError);    // no frames
+  EXPECT_THROW(w.finish_run(777, 1.0), ClothdbError);
+}
+
+TEST(Database, EditLogUndoesInOrder) {
+  TempDir dir;
+  const std::string path = dir.file("e.clothdb");
+  Writer w = Writer::create(path);
+  Fixture f = populate(w);
+  Reader r;
+  Error err;
+  ASSERT_EQ(r.open(path, &err), Status::Ok);
+  std::vector<uint8_t> original, edited, restored;
+  ASSERT_EQ(r.clip_blob(f.clip0, &original, &err), Status::Ok);
+
+  const int64_t e1 = w.set_clip_status(f.clip0, ClipStatus::Flagged, "ana", "pokes through hip");
+  std::vector<float> fixed = f.frames0;
+  for (size_t i = 2; i < fixed.size(); i += 3) fixed[i] += 0.01f;  // push the cloth out by 1 cm
+  const int64_t e2 =
+      w.replace_clip_frames(f.clip0, fixed.data(), 40, kVertices, "ana", "pushed out of the hip");
+  ClothClip c;
+  ASSERT_EQ(r.cloth_clip(f.clip0, &c, &err), Status::Ok);
+  EXPECT_EQ(c.status, ClipStatus::Edited);
+  ASSERT_EQ(r.clip_blob(f.clip0, &edited, &err), Status::Ok);
+  EXPECT_NE(edited, original);
+
+  EXPECT_THROW(w.undo_edit(e1, "ben"), ClothdbError);  // e2 must be undone first
+  w.undo_edit(e2, "ben");
+  ASSERT_EQ(r.clip_blob(f.clip0, &restored, &err), Status::Ok);
+  EXPECT_EQ(restored, original);
+  ASSERT_EQ(r.cloth_clip(f.clip0, &c, &err), Status::Ok);
+  EXPECT_EQ(c.status, ClipStatus::Flagged);
+  EXPECT_THROW(w.undo_edit(e2, "ben"), ClothdbError);  // already undone
+  const int64_t u1 = w.undo_edit(e1, "ben");
+  EXPECT_THROW(w.undo_edit(u1, "ben"), ClothdbError);  // undo of an undo
+  ASSERT_EQ(r.cloth_clip(f.clip0, &c, &err), Status::Ok);
+  EXPECT_EQ(c.status, ClipStatus::Ok);
+
+  std::vector<EditLogEntry> log;
+  ASSERT_EQ(r.edit_log(&log, &err), Status::Ok);
+  ASSERT_EQ(log.size(), 4u);
+  EXPECT_EQ(log[0].author, "ana");
+  EXPECT_EQ(log[1].action, "replace-frames");
+  EXPECT_TRUE(log[1].has_old_frames);
+  EXPECT_EQ(log[2].undoes, e2);
+  EXPECT_EQ(log[3].undoes, e1);
+  EXPECT_TRUE(check_database(path).ok());
+}
+
+TEST(Database, CheckFindsCorruptBlobsAndDanglingEdges) {
+  TempDir dir;
+  const std::string path = dir.file("c.clothdb");
+  Fixture f;
+  {
+    Writer w = Writer::create(path);
+    f = populate(w);
+  }
+  ASSERT_TRUE(check_database(path).ok());
+  // Flip one byte in the middle of a clip blob (SQLite's own pages stay consistent).
+  exec_raw(path,
+           "UPDATE cloth_clip SET frames = substr(frames, 1, 200) || "
+           "x'ff' || substr(frames, 202) WHERE id = " +
+               std::to_string(f.clip1));
+  // A dangling edge, as another tool with foreign keys off could leave it.
+  exec_raw(path,
+           "PRAGMA foreign_keys = OFF; INSERT INTO cloth_edge(from_clip, to_state, "
+           "blend_error) VALUES(" +
+               std::to_string(f.clip0) + ", 4242, 0.0);");
+  // A truncated state blob.
+  exec_raw(path, "UPDATE cloth_state SET velocities = substr(velocities, 1, 50) WHERE id = " +
+                     std::to_string(f.state0));
+  const CheckReport report = check_database(path);
+  EXPECT_FALSE(report.ok());
+  EXPECT_TRUE(mentions(report, "cloth clip " + std::to_string(f.clip1))) << report.problems[0];
+  EXPECT_TRUE(mentions(report, "checksum"));
+  EXPECT_TRUE(mentions(report, "to state 4242 does not exist"));
+  EXPECT_TRUE(mentions(report, "velocities: frame blob truncated"));
+  EXPECT_FALSE(mentions(report, "cloth clip " + std::to_string(f.clip0) + ":"));
+
+  // The reader refuses the damaged clip with a clear error, never garbage.
+  Reader r;
+  Error err;
+  ASSERT_EQ(r.open(path, &err), Status::Ok);
+  std::vector<uint8_t> blob;
+  ASSERT_EQ(r.clip_blob(f.clip1, &blob, &err), Status::Ok);
+  codec::DecodeScratch scratch;
+  std::vector<float> out;
+  EXPECT_EQ(codec::decode_all(blob.data(), blob.size(), out, scratch, &err),
+            Status::ChecksumMismatch);
+}
+
+TEST(Database, CheckReportsADamagedFile) {
+  TempDir dir;
+  const std::string path = dir.file("d.clothdb");
+  {
+    Writer w = Writer::create(path);
+    populate(w);
+  }
+  // Checkpointed and closed: all data is in the main file. Overwrite a page in the middle.
+  const auto size = fs::file_size(path);
+  {
+    std::fstream file(path, std::ios::in | std::ios::out | std::ios::binary);
+    file.seekp(std::streamoff(size / 2));
+    std::vector<char> junk(4096);
+    std::mt19937 rng(3);
+    for (auto& c : junk) c = char(rng());
+    file.write(junk.data(), std::streamsize(junk.size()));
+  }
+  EXPECT_FALSE(check_database(path).ok());
+  // Truncated to a few pages: an error, not a crash.
+  fs::resize_file(path, 3000);
+  EXPECT_FALSE(check_database(path).ok());
+}
+
+// Child process: writes clips one transaction at a time, reporting each committed id on `fd`.
+// With stop_after >= 0 it then starts one more transaction, writes into it and _exit()s without
+// committing; otherwise it writes until killed.
+[[noreturn]] void child_writer(const std::string& path, int fd, int stop_after) {
+  try {
+    Writer w = Writer::open(path);
+    Reader r;
+    Error err;
+    if (r.open(path, &err) != Status::Ok) _exit(3);
+    std::vector<ClothState> states;
+    std::vector<PrimaryClip> clips;
+    if (r.cloth_states(&states, &err) != Status::Ok || r.primary_clips(&clips, &err) != Status::Ok)
+      _exit(3);
+    const auto frames = sheet_frames(40, 0.5);
+    for (int i = 0;; ++i) {
+      Writer::Transaction t(w);
+      const int64_t id =
+          w.add_cloth_clip({states[0].id, clips[0].id, 0, 0.0, 0.0, ClipStatus::Ok, 0},
+                           frames.data(), 40, kVertices);
+      w.add_cloth_edge(id, states[1].id, 0.001);
+      if (stop_after >= 0 && i == stop_after) _exit(0);  // mid-transaction, nothing committed
+      t.commit();
+      if (write(fd, &id, sizeof id) != sizeof id) _exit(4);
+    }
+  } catch (...) {
+    _exit(5);
+  }
+}
+
+// Reads the ids the child reported committed.
+std::vector<int64_t> read_ids(int fd) {
+  std::vector<int64_t> ids;
+  int64_t id;
+  while (read(fd, &id, sizeof id) == sizeof id) ids.push_back(id);
+  return ids;
+}
+
+void expect_consistent_with(const std::string& path, const std::vector<int64_t>& committed,
+                            size_t clips_before) {
+  const CheckReport report = check_database(path);
+  EXPECT_TRUE(report.ok()) << (report.problems.empty() ? "" : report.problems[0]);
+  Reader r;
+  Error err;
+  ASSERT_EQ(r.open(path, &err), Status::Ok) << err.message;
+  std::vector<ClothClip> clips;
+  ASSERT_EQ(r.cloth_clips(&clips, &err), Status::Ok);
+  // Every reported commit is there; at most one more (committed but killed before reporting).
+  EXPECT_GE(clips.size(), clips_before + committed.size());
+  EXPECT_LE(clips.size(), clips_before + committed.size() + 1);
+  codec::DecodeScratch scratch;
+  std::vector<uint8_t> blob;
+  std::vector<float> out;
+  const auto expected = sheet_frames(40, 0.5);
+  for (int64_t id : committed) {
+    ASSERT_EQ(r.clip_blob(id, &blob, &err), Status::Ok) << "clip " << id;
+    ASSERT_EQ(codec::decode_all(blob.data(), blob.size(), out, scratch, &err), Status::Ok);
+    EXPECT_LE(max_diff(out.data(), expected.data(), out.size()), r.codec().position_bound);
+  }
+}
+
+TEST(Database, WriterExitingMidTransactionLeavesCommittedClips) {
+  TempDir dir;
+  const std::string path = dir.file("k.clothdb");
+  {
+    Writer w = Writer::create(path);
+    populate(w);
+  }
+  int fds[2];
+  ASSERT_EQ(pipe(fds), 0);
+  const pid_t pid = fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    close(fds[0]);
+    child_writer(path, fds[1], 3);
+  }
+  close(fds[1]);
+  const auto ids = read_ids(fds[0]);
+  close(fds[0]);
+  int status = 0;
+  waitpid(pid, &status, 0);
+  ASSERT_TRUE(WIFEXITED(status));
+  EXPECT_EQ(WEXITSTATUS(status), 0);
+  ASSERT_EQ(ids.size(), 3u);
+  expect_consistent_with(path, ids, 2);
+}
+
+TEST(Database, WriterKilledAtRandomMomentsLeavesCommittedClips) {
+  TempDir dir;
+  const std::string path = dir.file("kill.clothdb");
+  {
+    Writer w = Writer::create(path);
+    populate(w);
+  }
+  std::mt19937 rng(11);
+  size_t clips_before = 2;
+  size_t committed = 0;
+  for (int round = 0; round < 4; ++round) {
+    int fds[2];
+    ASSERT_EQ(pipe(fds), 0);
+    const pid_t pid = fork();
+    ASSERT_GE(pid, 0);
+    if (pid == 0) {
+      close(fds[0]);
+      child_writer(path, fds[1], -1);
+    }
+    close(fds[1]);
+    std::this_thread::sleep_for(std::chrono::milliseconds(30 + rng() % 150));
+    kill(pid, SIGKILL);
+    int status = 0;
+    waitpid(pid, &status, 0);
+    EXPECT_TRUE(WIFSIGNALED(status));
+    const auto ids = read_ids(fds[0]);
+    close(fds[0]);
+    committed += ids.size();
+    expect_consistent_with(path, ids, clips_before);
+    Reader r;
+    Error err;
+    ASSERT_EQ(r.open(path, &err), Status::Ok);
+    std::vector<ClothClip> clips;
+    ASSERT_EQ(r.cloth_clips(&clips, &err), Status::Ok);
+    clips_before = clips.size();
+  }
+  // The kills must have landed while the writer was working, not before it started.
+  EXPECT_GT(committed, 4u);
+  std::printf("writer killed 4 times after %zu committed clips in all\n", committed);
+}
+
+}  // namespace
+}  // namespace clothdb::db

@@ -1,0 +1,187 @@
+// The explorer (Kim et al. 2013) on a small graph: it converges, every edge's blend error is
+// within epsilon, every state has cloth for every way out of its node, the result does not depend
+// on the thread count, and a run stopped part-way resumes to the same database content.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+
+#include "database/check.hpp"
+#include "database/checksum.hpp"
+#include "database/schema.hpp"
+#include "explore/explorer.hpp"
+
+using namespace clothdb;
+
+namespace {
+
+const std::string kMotions = std::string(CLOTHDB_SOURCE_DIR) + "/motions/";
+
+CharacterScene small_scene() {
+  SceneFile file = load_scene_file(kMotions + "skirt_walk.json");
+  file.clips = {"01_03_level_walk"};
+  file.skirt.vertices = 200;
+  file.settle_frames = 10;
+  file.settings.substeps = 6;
+  file.settings.iterations = 1;
+  // Heavy air drag: the cloth forgets its history within about two edges, so the explorer
+  // converges in a few dozen clips (a light fabric needs Kim et al.'s CPU-hours).
+  file.air_drag = 3.0;
+  return build_character_scene(file);
+}
+
+// The character turning about its root by `angle` (radians) and back: a loop at one node.
+std::vector<std::vector<JointPose>> sway(const std::vector<JointPose>& pose, double angle, int frames) {
+  std::vector<std::vector<JointPose>> out;
+  for (int k = 0; k < frames; ++k) {
+    const double a = angle * std::sin(2 * 3.14159265358979 * k / (frames - 1));
+    const Eigen::Quaterniond q(Eigen::AngleAxisd(a, Vec3::UnitY()));
+    std::vector<JointPose> p = pose;
+    for (auto& j : p) {
+      j.position = pose[0].position + q * (j.position - pose[0].position);
+      j.rotation = q * j.rotation;
+    }
+    out.push_back(std::move(p));
+  }
+  return out;
+}
+
+ExploreGraph small_graph(const CharacterScene& scene) {
+  const auto pose = clip_pose(scene.clips.front(), 0);
+  ExploreGraph g;
+  g.node_count = 1;
+  g.rate = 30;
+  g.edges.push_back({0, 0, "hold", std::vector<std::vector<JointPose>>(12, pose), 0});
+  g.edges.push_back({0, 0, "sway", sway(pose, 0.6, 16), 0});
+  return g;
+}
+
+std::string db_path(const std::string& name) {
+  return testing::TempDir() + "/clothdb_explore_" + name + ".db";
+}
+
+// A fresh (removed) database path.
+std::string temp_db(const std::string& name) {
+  const std::string path = db_path(name);
+  for (const char* suffix : {"", "-wal", "-shm"}) std::filesystem::remove(path + suffix);
+  return path;
+}
+
+ExploreReport run(const CharacterScene& scene, const std::string& path, ExploreOptions options) {
+  ExploreGraph graph = small_graph(scene);
+  db::Writer writer = std::filesystem::exists(path) ? db::Writer::open(path) : db::Writer::create(path);
+  prepare_database(writer, scene, graph, "{}");
+  options.progress = std::getenv("CLOTHDB_PROGRESS") != nullptr;
+  return explore(scene, graph, writer, options);
+}
+
+// Every clip blob and every state blob, in id order: the database's cloth content, as one
+// checksum per row (so a mismatch prints a short diff).
+std::vector<uint64_t> content(const std::string& path) {
+  db::Reader r;
+  db::Error err;
+  EXPECT_EQ(r.open(path, &err), db::Status::Ok) << err.message;
+  std::vector<uint64_t> out;
+  auto add = [&](const std::vector<uint8_t>& bytes) { out.push_back(db::xxh64(bytes.data(), bytes.size())); };
+  std::vector<db::ClothClip> clips;
+  r.cloth_clips(&clips, &err);
+  for (const auto& c : clips) {
+    std::vector<uint8_t> blob;
+    r.clip_blob(c.id, &blob, &err);
+    add(blob);
+    out.push_back(static_cast<uint64_t>(c.start_state) << 32 | static_cast<uint64_t>(c.primary_clip));
+  }
+  std::vector<db::ClothState> states;
+  r.cloth_states(&states, &err);
+  for (const auto& s : states) {
+    std::vector<uint8_t> p, v;
+    r.state_blobs(s.id, &p, &v, &err);
+    add(p);
+    add(v);
+  }
+  std::vector<db::ClothEdge> edges;
+  r.cloth_edges(&edges, &err);
+  for (const auto& e : edges) out.push_back(static_cast<uint64_t>(e.from_clip) << 32 | static_cast<uint64_t>(e.to_state));
+  return out;
+}
+
+}  // namespace
+
+TEST(Explore, ConvergesWithinEpsilonAndCoversEveryWayOut) {
+  const CharacterScene scene = small_scene();
+  const std::string path = temp_db("converge");
+  ExploreOptions options;
+  options.epsilon = 0.02;
+  const ExploreReport report = run(scene, path, options);
+  EXPECT_TRUE(report.converged);
+  EXPECT_EQ(report.dead_ends, 0);
+  EXPECT_GE(report.states, 2);  // the sway moves the skirt: one state cannot serve
+
+  db::Reader r;
+  db::Error err;
+  ASSERT_EQ(r.open(path, &err), db::Status::Ok);
+  std::vector<db::ClothState> states;
+  std::vector<db::ClothClip> clips;
+  std::vector<db::ClothEdge> edges;
+  std::vector<db::PrimaryClip> primary;
+  r.cloth_states(&states, &err);
+  r.cloth_clips(&clips, &err);
+  r.cloth_edges(&edges, &err);
+  r.primary_clips(&primary, &err);
+  // Every state at the node has a clip along both primary edges leaving it.
+  for (const auto& s : states)
+    for (const auto& p : primary) {
+      int found = 0;
+      for (const auto& c : clips) found += (c.start_state == s.id && c.primary_clip == p.id);
+      EXPECT_EQ(found, 1) << "state " << s.id << " along " << p.name;
+    }
+  // Every clip continues somewhere, within epsilon.
+  EXPECT_EQ(edges.size(), clips.size());
+  for (const auto& e : edges) EXPECT_LE(e.blend_error, options.epsilon);
+  // The unresolved error falls to zero along the curve.
+  EXPECT_EQ(report.curve.back().worst_error, 0.0);
+  db::CheckReport check = db::check_database(path);
+  for (const auto& problem : check.problems) ADD_FAILURE() << problem;
+}
+
+TEST(Explore, SameDatabaseForOneAndTwoThreads) {
+  const CharacterScene scene = small_scene();
+  ExploreOptions options;
+  options.epsilon = 0.02;
+  options.threads = 1;
+  run(scene, temp_db("t1"), options);
+  options.threads = 2;
+  run(scene, temp_db("t2"), options);
+  const auto one = content(db_path("t1"));
+  EXPECT_GT(one.size(), 4u);
+  EXPECT_EQ(one, content(db_path("t2")));
+}
+
+TEST(Explore, StoppedRunResumesToTheSameContent) {
+  const CharacterScene scene = small_scene();
+  ExploreOptions options;
+  options.epsilon = 0.02;
+  options.batch = 2;
+  run(scene, temp_db("whole"), options);
+  // Stop after a few batches (a frame budget), then run the same command again until done.
+  const std::string path = temp_db("parts");
+  options.max_frames = 30;
+  const ExploreReport first = run(scene, path, options);
+  EXPECT_FALSE(first.converged);
+  options.max_frames = 0;
+  const ExploreReport second = run(scene, path, options);
+  EXPECT_TRUE(second.resumed);
+  EXPECT_TRUE(second.converged);
+  EXPECT_EQ(content(db_path("whole")), content(path));
+}
+
+TEST(Explore, RefusesAChangedScene) {
+  CharacterScene scene = small_scene();
+  const std::string path = temp_db("changed");
+  ExploreOptions options;
+  options.max_frames = 12;
+  run(scene, path, options);
+  scene.file.text += " ";  // the scene file as given changed
+  EXPECT_THROW(run(scene, path, options), std::runtime_error);
+}
