@@ -9,6 +9,8 @@
 
 #include "cli_util.hpp"
 #include "commands.hpp"
+#include "database/schema.hpp"
+#include <fstream>
 #include "graph/graph_svg.hpp"
 #include "graph/motion_graph.hpp"
 #include "report/output.hpp"
@@ -98,6 +100,25 @@ void print_graph(const MotionGraph& g) {
 
 }  // namespace
 
+namespace {
+
+// A graph file, or the motion graph a clothdb database holds (meta `motion_graph`).
+MotionGraph load_graph_or_database(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  char magic[16] = {};
+  in.read(magic, sizeof magic);
+  if (std::string(magic, 15) != "SQLite format 3") return load_motion_graph(path);
+  db::Reader reader;
+  db::Error err;
+  if (reader.open(path, &err) != db::Status::Ok) throw std::runtime_error(path + ": " + std::string(err.message));
+  std::string text;
+  if (reader.meta("motion_graph", &text, &err) != db::Status::Ok)
+    throw std::runtime_error(path + ": holds no motion graph (run `clothdb precompute` on it first)");
+  return motion_graph_from_json(nlohmann::json::parse(text), path + ": meta motion_graph");
+}
+
+}  // namespace
+
 void register_graph_commands(CLI::App& app) {
   CLI::App* graph = app.add_subcommand("graph", "Primary motion graph (Kovar et al. 2002)");
   graph->require_subcommand(1);
@@ -156,14 +177,14 @@ void register_graph_commands(CLI::App& app) {
   auto show = std::make_shared<ShowArgs>();
   CLI::App* s = graph->add_subcommand(
       "show", "Prints a motion graph (nodes, edges, clips, transitions) and draws it as SVG");
-  s->add_option("FILE", show->file, "Graph file (.json, from graph build)")->required();
+  s->add_option("FILE", show->file, "Graph file (.json, from graph build) or clothdb database")->required();
   s->add_option("--svg", show->svg, "Write the built-in drawing (one lane per clip) to this SVG");
   s->add_option("--dot", show->dot, "Write the graph in Graphviz DOT to this file");
   s->add_option("--dot-svg", show->dot_svg,
                 "Render the DOT with Graphviz (dot must be on PATH) to this SVG");
   s->add_flag("--summary", show->quiet, "Print the counts only, not every node and edge");
   s->callback([show] {
-    const MotionGraph g = load_motion_graph(show->file);
+    const MotionGraph g = load_graph_or_database(show->file);
     if (show->quiet)
       print_summary(g);
     else

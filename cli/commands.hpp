@@ -9,7 +9,8 @@ namespace clothdb::cli {
 
 void register_bench_solvers(CLI::App& bench);  // cmd_bench_solvers.cpp
 void register_scene_commands(CLI::App& app);   // cmd_scene.cpp: `clothdb scene run|list`
-void register_simulate(CLI::App& app);         // cmd_simulate.cpp: `clothdb simulate`
+void register_simulate(CLI::App& app);
+void register_precompute(CLI::App& app);       // cmd_precompute.cpp: `clothdb precompute`         // cmd_simulate.cpp: `clothdb simulate`
 void register_motion_commands(CLI::App& app);  // cmd_motion.cpp: `clothdb motion info`
 void register_graph_commands(CLI::App& app);   // cmd_graph.cpp: `clothdb graph build|show`
 

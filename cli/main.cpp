@@ -20,6 +20,7 @@ int main(int argc, char** argv) {
   clothdb::cli::register_scene_commands(app);
   clothdb::cli::register_db_commands(app);
   clothdb::cli::register_simulate(app);
+  clothdb::cli::register_precompute(app);
   clothdb::cli::register_motion_commands(app);
   clothdb::cli::register_graph_commands(app);
   clothdb::cli::register_play_commands(app);

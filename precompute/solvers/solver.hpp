@@ -45,6 +45,10 @@ struct SolverSettings {
   int newton_max_halvings = 6;
   LinearSolverKind linear_solver = LinearSolverKind::SimplicialLDLT;
   int threads = 1;  // OpenMP threads; results are identical whatever this is
+  // XPBD: long-range attachments (Kim, Chentanez & Mueller 2012): each free vertex may be no
+  // farther from its geodesically nearest pin than its rest path along the mesh. Cheap, and what
+  // keeps a hanging garment from stretching when few iterations leave the constraints soft.
+  bool tethers = true;
 };
 
 struct StepInputs {

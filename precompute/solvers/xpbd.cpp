@@ -18,6 +18,8 @@
 #include <numbers>
 #include <stdexcept>
 #include <string>
+#include <limits>
+#include <queue>
 #include <vector>
 
 #include "solvers/coloring.hpp"
@@ -106,6 +108,7 @@ class XpbdSolver final : public Solver {
     if (settings.iterations < 1) throw std::invalid_argument("xpbd: iterations must be at least 1");
     if (settings.threads < 1) throw std::invalid_argument("xpbd: threads must be at least 1");
     build_constraints();
+    if (settings.tethers) build_tethers();
   }
 
   std::string describe() const override {
@@ -127,7 +130,55 @@ class XpbdSolver final : public Solver {
   SolverSettings settings_;
   ConstraintSet<2> stretch_;
   ConstraintSet<4> bend_;
+  // Long-range attachments: free vertex, its nearest pin along the mesh, and that path's rest
+  // length. One per free vertex and pins are never written, so they project in parallel.
+  std::vector<int> tether_vertex_, tether_anchor_;
+  std::vector<double> tether_length_;
+  void build_tethers();
 };
+
+void XpbdSolver::build_tethers() {
+  // Multi-source Dijkstra over the mesh edges (rest lengths) from every pin (Kim, Chentanez &
+  // Mueller 2012, "Long Range Attachments": geodesic rest distance to the nearest attachment).
+  const int n = model_.vertex_count();
+  if (model_.kinematic.empty()) return;
+  std::vector<std::vector<std::pair<int, double>>> adjacency(static_cast<std::size_t>(n));
+  for (std::size_t e = 0; e < model_.mesh.edges.size(); ++e) {
+    const int a = model_.mesh.edges[e][0], b = model_.mesh.edges[e][1];
+    adjacency[static_cast<std::size_t>(a)].push_back({b, model_.edge_rest_length[e]});
+    adjacency[static_cast<std::size_t>(b)].push_back({a, model_.edge_rest_length[e]});
+  }
+  std::vector<double> distance(static_cast<std::size_t>(n), std::numeric_limits<double>::infinity());
+  std::vector<int> anchor(static_cast<std::size_t>(n), -1);
+  using Item = std::pair<double, int>;
+  std::priority_queue<Item, std::vector<Item>, std::greater<Item>> queue;
+  for (int k : model_.kinematic) {
+    distance[static_cast<std::size_t>(k)] = 0.0;
+    anchor[static_cast<std::size_t>(k)] = k;
+    queue.push({0.0, k});
+  }
+  while (!queue.empty()) {
+    const auto [d, v] = queue.top();
+    queue.pop();
+    if (d > distance[static_cast<std::size_t>(v)]) continue;
+    for (const auto& [u, len] : adjacency[static_cast<std::size_t>(v)]) {
+      const double nd = d + len;
+      // Ties go to the lower anchor index so the result does not depend on the queue's order.
+      if (nd < distance[static_cast<std::size_t>(u)] ||
+          (nd == distance[static_cast<std::size_t>(u)] && anchor[static_cast<std::size_t>(v)] < anchor[static_cast<std::size_t>(u)])) {
+        distance[static_cast<std::size_t>(u)] = nd;
+        anchor[static_cast<std::size_t>(u)] = anchor[static_cast<std::size_t>(v)];
+        queue.push({nd, u});
+      }
+    }
+  }
+  for (int i = 0; i < n; ++i) {
+    if (model_.inv_mass[i] <= 0.0 || anchor[static_cast<std::size_t>(i)] < 0) continue;
+    tether_vertex_.push_back(i);
+    tether_anchor_.push_back(anchor[static_cast<std::size_t>(i)]);
+    tether_length_.push_back(distance[static_cast<std::size_t>(i)]);
+  }
+}
 
 void XpbdSolver::build_constraints() {
   const ClothMesh& mesh = model_.mesh;
@@ -331,6 +382,15 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
                      bend_.color_begin[static_cast<std::size_t>(col) + 1], state.x, x_prev,
                      alpha_scale, gamma);
         }
+      }
+      // Long-range attachments: pull a vertex back onto the sphere of its rest path around its
+      // pin (unilateral: a vertex nearer than that is free).
+#pragma omp for schedule(static)
+      for (std::size_t t = 0; t < tether_vertex_.size(); ++t) {
+        const int i = tether_vertex_[t];
+        const Vec3 d = state.x.col(i) - state.x.col(tether_anchor_[t]);
+        const double len = d.norm();
+        if (len > tether_length_[t]) state.x.col(i) = state.x.col(tether_anchor_[t]) + d * (tether_length_[t] / len);
       }
       // Colliders at this sub-step's pose; friction measured against the surface's own motion
       // over the sub-step.
