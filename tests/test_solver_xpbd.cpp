@@ -19,11 +19,14 @@
 namespace clothdb {
 namespace {
 
-SolverSettings xpbd_settings(int substeps, int iterations, int threads = 1) {
+// Tethers off by default here: these tests pin the constraints' own physics; the long-range
+// attachments have their own test.
+SolverSettings xpbd_settings(int substeps, int iterations, int threads = 1, bool tethers = false) {
   SolverSettings s;
   s.substeps = substeps;
   s.iterations = iterations;
   s.threads = threads;
+  s.tethers = tethers;
   return s;
 }
 
@@ -302,6 +305,42 @@ TEST(Xpbd, RejectsMissingEnvironmentAndBadTargets) {
   inputs.env = &env;
   inputs.kinematic_targets = Eigen::Matrix3Xd::Zero(3, 5);  // the model has two pins
   EXPECT_THROW(solver->step(state, 0.01, inputs), std::invalid_argument);
+}
+
+
+// Long-range attachments (Kim, Chentanez & Mueller 2012): the soft sheet above, which stretches
+// ~4 % without them, cannot hang lower than its rest length from the pinned edge with them, and
+// no vertex ends farther from the pinned row than its rest path along the mesh.
+TEST(Xpbd, TethersKeepVerticesWithinTheirRestPathFromThePins) {
+  const int columns = 11, rows = 21;
+  ClothMesh mesh = make_quad_grid(columns, rows, 1.0, 1.0);
+  Material material;
+  material.youngs_modulus = 4e4;
+  material.damping = 1e-2;
+  std::vector<int> pins;
+  for (int c = 0; c < columns; ++c) pins.push_back(grid_index(mesh, c, rows - 1));
+  const ClothModel model = make_model(mesh, material, pins);
+  Environment env;
+  env.air_drag = 10.0 * material.density;
+  StepInputs inputs;
+  inputs.env = &env;
+  auto with = make_xpbd_solver(model, xpbd_settings(40, 10, 1, true));
+  auto without = make_xpbd_solver(model, xpbd_settings(40, 10, 1, false));
+  ClothState a = rest_state(model), b = rest_state(model);
+  for (int f = 0; f < 60; ++f) {
+    ASSERT_TRUE(with->step(a, 1.0 / 30.0, inputs).stable);
+    ASSERT_TRUE(without->step(b, 1.0 / 30.0, inputs).stable);
+  }
+  // Every vertex of column c hangs straight below pin c: its rest path is its rest height gap.
+  for (int r = 0; r < rows; ++r)
+    for (int c = 0; c < columns; ++c) {
+      const int v = grid_index(model.mesh, c, r), pin = grid_index(model.mesh, c, rows - 1);
+      const double rest = (model.mesh.rest.col(v) - model.mesh.rest.col(pin)).norm();
+      EXPECT_LE((a.x.col(v) - a.x.col(pin)).norm(), rest + 1e-9) << "vertex " << v;
+    }
+  const double bottom_with = a.x.row(1).minCoeff(), bottom_without = b.x.row(1).minCoeff();
+  EXPECT_GT(bottom_with, -1e-9);                // no lower than the rest length
+  EXPECT_LT(bottom_without, bottom_with - 0.01);  // while the soft membrane alone sags further
 }
 
 }  // namespace
