@@ -20,7 +20,7 @@ void register_precompute(CLI::App& app) {
     std::string scene, db, graph, curve;
     double epsilon_mm = 5.0, cpu_hours = 0.0, percentile = -1.0;
     long frames = 0;
-    int threads = 0, batch = 8;
+    int threads = 0, batch = 16;
     bool quiet = false;
   };
   auto args = std::make_shared<Args>();

@@ -386,10 +386,20 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
     if (options.cpu_hours > 0 && report.cpu_seconds >= options.cpu_hours * 3600) break;
     if (options.max_frames > 0 && report.frames_this_run >= options.max_frames) break;
 
+    // Longest edges first (LPT scheduling): a batch mixes 300-frame clip segments with 10-frame
+    // transitions, and a long job started last would leave the other threads idle. Results are
+    // integrated in batch order below, so the schedule cannot change what is stored.
+    std::vector<size_t> order(batch.size());
+    for (size_t b = 0; b < batch.size(); ++b) order[b] = b;
+    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) {
+      return graph.edges[batch[a].edge].poses.size() > graph.edges[batch[b].edge].poses.size();
+    });
     std::vector<JobResult> results(batch.size());
 #pragma omp parallel for schedule(dynamic, 1) num_threads(std::max(1, options.threads))
-    for (size_t b = 0; b < batch.size(); ++b)
+    for (size_t k = 0; k < order.size(); ++k) {
+      const size_t b = order[k];
       results[b] = simulate_job(scene, graph.edges[batch[b].edge], states[batch[b].state], graph.rate);
+    }
 
     db::Writer::Transaction tx(writer);
     for (size_t b = 0; b < batch.size(); ++b) {
