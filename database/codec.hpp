@@ -29,7 +29,9 @@ namespace clothdb::codec {
 
 constexpr uint32_t kFormatVersion = 1;
 constexpr double kDefaultPositionBound = 0.0005;  // m: 0.5 mm per coordinate
-constexpr uint32_t kDefaultKeyInterval = 16;
+// A key frame every 4 frames: random access costs at most 4 frame reconstructions, and on
+// simulated garments the ratio is within 1 % of K = 16 or 64 (docs/BENCHMARKS.md, Codec).
+constexpr uint32_t kDefaultKeyInterval = 4;
 // zstd level 9: about 12 % smaller than level 3 on simulated cloth and faster to decode; encoding
 // (6 MB/s per core) stays several times faster than a solver produces frames.
 constexpr int kDefaultZstdLevel = 9;
