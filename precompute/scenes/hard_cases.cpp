@@ -12,6 +12,15 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 
+// What every sheet scene shares: air drag at 2/s of the fabric's mass (c / density), so the
+// swinging modes that stiffness-proportional damping barely touches settle within the scene; the
+// collision margin at the fabric's thickness; and a start at rest.
+void finish_scene(ClothScene& scene, const Material& m) {
+  scene.env.air_drag = 2.0 * m.density;
+  scene.env.collision_margin = m.thickness;
+  scene.initial = rest_state(scene.model);
+}
+
 // A 1 m x 1 m sheet hanging in the XY plane, top edge at y = 1, pinned at its two top corners.
 ClothScene hanging_sheet(const std::string& name, int resolution, const Material& material) {
   const int n = resolution > 0 ? resolution : 21;
@@ -20,11 +29,7 @@ ClothScene hanging_sheet(const std::string& name, int resolution, const Material
   ClothScene scene;
   scene.name = name;
   scene.model = make_model(std::move(mesh), material, pins);
-  // Air drag at 2/s of the fabric's mass (c / density): the swinging modes, which the
-  // stiffness-proportional damping barely touches, settle within the scene's length.
-  scene.env.air_drag = 2.0 * material.density;
-  scene.env.collision_margin = material.thickness;
-  scene.initial = rest_state(scene.model);
+  finish_scene(scene, material);
   scene.frames = 90;
   return scene;
 }
@@ -44,9 +49,7 @@ ClothScene sphere_drape(int resolution) {
   SphereCollider sphere;
   sphere.radius = 0.3;
   scene.env.spheres.push_back(sphere);
-  scene.env.air_drag = 2.0 * m.density;
-  scene.env.collision_margin = m.thickness;
-  scene.initial = rest_state(scene.model);
+  finish_scene(scene, m);
   scene.frames = 60;
   return scene;
 }
@@ -61,9 +64,7 @@ ClothScene swung_sheet(int resolution) {
   scene.description = "sheet pinned along its top edge, swung sideways at up to 5 m/s";
   Material m;
   scene.model = make_model(std::move(mesh), m, pins);
-  scene.env.air_drag = 2.0 * m.density;
-  scene.env.collision_margin = m.thickness;
-  scene.initial = rest_state(scene.model);
+  finish_scene(scene, m);
   scene.frames = 60;
   const Eigen::Matrix3Xd pin_rest = kinematic_positions(scene.model, scene.model.mesh.rest);
   // x(t) = A sin(w t) along z (out of the sheet's plane), peak speed A w = 5 m/s at 2 Hz.
@@ -94,9 +95,7 @@ ClothScene slivers(int resolution) {
   scene.description = "hanging sheet with near-zero-area and sliver triangles";
   Material m;
   scene.model = make_model(std::move(mesh), m, pins);
-  scene.env.air_drag = 2.0 * m.density;
-  scene.env.collision_margin = m.thickness;
-  scene.initial = rest_state(scene.model);
+  finish_scene(scene, m);
   scene.frames = 60;
   return scene;
 }
@@ -110,9 +109,7 @@ ClothScene stretched_start(int resolution) {
   scene.description = "sheet hung from its top middle, starting stretched to 150 %";
   Material m;
   scene.model = make_model(std::move(mesh), m, {top_middle});
-  scene.env.air_drag = 2.0 * m.density;
-  scene.env.collision_margin = m.thickness;
-  scene.initial = rest_state(scene.model);
+  finish_scene(scene, m);
   const Vec3 anchor = scene.model.mesh.rest.col(top_middle);
   scene.initial.x = ((scene.model.mesh.rest.colwise() - anchor) * 1.5).colwise() + anchor;
   scene.frames = 60;
@@ -204,9 +201,7 @@ ClothScene make_seed004_grid() {
   scene.name = "seed004-529";
   scene.description = "seed 004's 529-node equilateral grid hanging from two corners";
   scene.model = make_model(std::move(mesh), m, pins);
-  scene.env.air_drag = 2.0 * m.density;
-  scene.env.collision_margin = m.thickness;
-  scene.initial = rest_state(scene.model);
+  finish_scene(scene, m);
   scene.frames = 60;
   return scene;
 }
