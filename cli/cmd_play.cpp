@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "clothrt.h"
+#include "cli_util.hpp"
 #include "commands.hpp"
 #include "database/codec.hpp"
 #include "database/schema.hpp"
@@ -75,23 +76,6 @@ struct Runtime {
   }
 };
 
-std::vector<std::string> split(const std::string& s, char sep) {
-  std::vector<std::string> out;
-  std::stringstream in(s);
-  std::string item;
-  while (std::getline(in, item, sep))
-    if (!item.empty()) out.push_back(item);
-  return out;
-}
-
-std::string cpu_model() {
-  std::ifstream in("/proc/cpuinfo");
-  std::string line;
-  while (std::getline(in, line))
-    if (line.rfind("model name", 0) == 0) return line.substr(line.find(':') + 2);
-  return "unknown CPU";
-}
-
 struct Summary {
   double median = 0, p99 = 0, mean = 0;
 };
@@ -141,7 +125,7 @@ void run_play(const PlayArgs& a) {
   const bool random = a.path == "random";
   std::vector<int64_t> path;
   if (!random)
-    for (const std::string& token : split(a.path, ',')) path.push_back(rt.clip_id(token));
+    for (const std::string& token : split_list(a.path)) path.push_back(rt.clip_id(token));
   if (!random && path.empty()) throw std::runtime_error("--path names no clips");
   rt.check(clothrt_player_set_random(p, random, a.seed), "random mode", p);
   rt.check(clothrt_player_start(p, random ? 0 : path[0]), "start", p);

@@ -565,17 +565,8 @@ Status Db::acquire(int clip, ClipView* view, bool* stalled, Error* err) {
           st = load(clip, sync_loader, &load_err);
         }
         lk.lock();
-        if (st == Status::Ok) {
-          e.state = EntryState::Ready;
-          loads.fetch_add(1, std::memory_order_relaxed);
-          lru_push_front(clip);
-          trim_to_cap();
-        } else {
-          e.state = EntryState::Failed;
-          e.failure = st;
-          failures.fetch_add(1, std::memory_order_relaxed);
-          if (e.buffer.data) pool.push_back(e.buffer);
-          e.buffer = Buffer{};
+        finish_load(clip, st);
+        if (st != Status::Ok) {
           --e.pins;
           loaded_cv.notify_all();
           *err = load_err;
@@ -592,6 +583,22 @@ Status Db::acquire(int clip, ClipView* view, bool* stalled, Error* err) {
   }
 }
 
+void Db::finish_load(int clip, Status st) {
+  Entry& e = entries[size_t(clip)];
+  if (st == Status::Ok) {
+    e.state = EntryState::Ready;
+    loads.fetch_add(1, std::memory_order_relaxed);
+    lru_push_front(clip);
+    trim_to_cap();
+  } else {
+    e.state = EntryState::Failed;
+    e.failure = st;
+    failures.fetch_add(1, std::memory_order_relaxed);
+    if (e.buffer.data) pool.push_back(e.buffer);
+    e.buffer = Buffer{};
+  }
+}
+
 void Db::run_job(int64_t job, Loader& loader) {
   if (job >= 0) {
     const int clip = int(job);
@@ -604,18 +611,7 @@ void Db::run_job(int64_t job, Loader& loader) {
     Error err;
     const Status st = load(clip, loader, &err);
     std::lock_guard<std::mutex> lk(mu);
-    if (st == Status::Ok) {
-      e.state = EntryState::Ready;
-      loads.fetch_add(1, std::memory_order_relaxed);
-      lru_push_front(clip);
-      trim_to_cap();
-    } else {
-      e.state = EntryState::Failed;
-      e.failure = st;
-      failures.fetch_add(1, std::memory_order_relaxed);
-      if (e.buffer.data) pool.push_back(e.buffer);
-      e.buffer = Buffer{};
-    }
+    finish_load(clip, st);
     loaded_cv.notify_all();
     return;
   }

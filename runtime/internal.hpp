@@ -183,6 +183,9 @@ struct Db {
   void lru_remove(int clip);  // mu held
   void lru_push_front(int clip);
   void trim_to_cap();                           // mu held: frees pooled buffers while over the cap
+  // mu held: records how a load of `clip` ended (Ready and in the LRU, or Failed with its buffer
+  // back in the pool). Callers notify loaded_cv.
+  void finish_load(int clip, Status st);
   bool take_buffer(size_t bytes, Buffer* out);  // mu held
 };
 
