@@ -20,6 +20,17 @@ inline std::vector<std::string> split_list(const std::string& s) {
   return out;
 }
 
+// A command group (`clip`, `clips`, ...) that several command files add subcommands to: the
+// first caller creates it, later callers get the same one, so registration order does not matter.
+inline CLI::App& command_group(CLI::App& app, const std::string& name,
+                               const std::string& description) {
+  for (CLI::App* sub : app.get_subcommands([](CLI::App*) { return true; }))
+    if (sub->get_name() == name) return *sub;
+  CLI::App* group = app.add_subcommand(name, description);
+  group->require_subcommand(1);
+  return *group;
+}
+
 // The CPU's model name, for benchmark reports (every figure names the machine it ran on).
 inline std::string cpu_model() {
   std::ifstream in("/proc/cpuinfo");
