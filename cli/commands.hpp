@@ -19,5 +19,7 @@ void register_bench_codec(CLI::App& bench);   // cmd_bench_codec.cpp: `clothdb b
 
 void register_play_commands(CLI::App& app);     // cmd_play.cpp: `clothdb play`
 void register_bench_runtime(CLI::App& bench);   // cmd_play.cpp: `clothdb bench runtime`
+void register_bench_character(
+    CLI::App& bench);  // cmd_bench_character.cpp: `clothdb bench character`
 
 }  // namespace clothdb::cli

@@ -17,6 +17,7 @@ int main(int argc, char** argv) {
   clothdb::cli::register_bench_solvers(*bench);
   clothdb::cli::register_bench_codec(*bench);
   clothdb::cli::register_bench_runtime(*bench);
+  clothdb::cli::register_bench_character(*bench);
   clothdb::cli::register_scene_commands(app);
   clothdb::cli::register_db_commands(app);
   clothdb::cli::register_simulate(app);

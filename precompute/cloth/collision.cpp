@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
 
 namespace clothdb {
 
@@ -56,9 +57,72 @@ bool respond(Vec3& x, const Vec3& x_start, const SurfacePoint& sp, const Vec3& s
   return true;
 }
 
+// ColliderMotion::Swept, for one vertex against one capsule (a sphere is a capsule with a = b).
+// Over a sub-step the vertex moves straight from p0 to p and the capsule's end points straight
+// from (a0, b0) to (a1, b1). If the vertex starts outside and its path relative to the capsule
+// enters it (the surface at `radius`; the margin is left to the projection), returns the entry
+// point carried with the surface to the end pose, so the projection that follows pushes it out on
+// the side it came from; otherwise returns p. The path is sampled in steps of at most a quarter
+// radius of relative motion (distance to a segment moves no faster than the point and the end
+// points), so a crossing of the capsule cannot fall between samples; the first sample inside is
+// refined by bisection.
+Vec3 swept_entry(const Vec3& p0, const Vec3& p, const Vec3& a0, const Vec3& b0, const Vec3& a1,
+                 const Vec3& b1, double radius) {
+  const double d0 = capsule_point(a0, b0, radius, p0).distance;
+  const double reach = (p - p0).norm() + std::max((a1 - a0).norm(), (b1 - b0).norm());
+  if (d0 < 0.0 || d0 > reach) return p;  // inside already (projection's job) or cannot touch
+  auto at = [&](double u) {
+    return capsule_point(lerp(a0, a1, u), lerp(b0, b1, u), radius, lerp(p0, p, u)).distance;
+  };
+  const int samples = std::clamp(static_cast<int>(std::ceil(reach / (0.25 * radius))), 1, 1024);
+  double lo = 0.0, hi = -1.0;
+  for (int k = 1; k <= samples; ++k) {
+    const double u = static_cast<double>(k) / samples;
+    if (at(u) < 0.0) {
+      hi = u;
+      break;
+    }
+    lo = u;
+  }
+  if (hi < 0.0) return p;  // never inside on the way
+  for (int it = 0; it < 30; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    (at(mid) < 0.0 ? hi : lo) = mid;
+  }
+  const Vec3 a = lerp(a0, a1, lo), b = lerp(b0, b1, lo);
+  const double t = capsule_point(a, b, radius, lerp(p0, p, lo)).segment_t;
+  return lerp(p0, p, lo) + (a1 + t * (b1 - a1)) - (a + t * (b - a));
+}
+
+// The pose fraction colliders are at: the end pose throughout for ColliderMotion::EndPose.
+double pose_fraction(const Environment& env, double s) {
+  return env.collider_motion == ColliderMotion::EndPose ? 1.0 : s;
+}
+
 }  // namespace
 
+const char* collider_motion_name(ColliderMotion m) {
+  switch (m) {
+    case ColliderMotion::EndPose:
+      return "end-pose";
+    case ColliderMotion::Interpolated:
+      return "interpolated";
+    case ColliderMotion::Swept:
+      return "swept";
+  }
+  return "?";
+}
+
+ColliderMotion parse_collider_motion(const std::string& name) {
+  for (ColliderMotion m :
+       {ColliderMotion::EndPose, ColliderMotion::Interpolated, ColliderMotion::Swept})
+    if (name == collider_motion_name(m)) return m;
+  throw std::invalid_argument("unknown collider motion '" + name +
+                              "' (expected end-pose, interpolated or swept)");
+}
+
 Environment environment_at(const Environment& env, double s) {
+  s = pose_fraction(env, s);
   Environment out = env;
   for (auto& sp : out.spheres) sp.center = sp.center_start = lerp(sp.center_start, sp.center, s);
   for (auto& c : out.capsules) {
@@ -72,6 +136,9 @@ int resolve_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
                        const Eigen::VectorXd& inv_mass, const Environment& env, double s,
                        double s_start) {
   if (s_start < 0.0) s_start = s;
+  s = pose_fraction(env, s);
+  s_start = pose_fraction(env, s_start);
+  const bool swept = env.collider_motion == ColliderMotion::Swept;
   int contacts = 0;
   const Eigen::Index n = x.cols();
   for (Eigen::Index i = 0; i < n; ++i) {
@@ -82,14 +149,16 @@ int resolve_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
     for (const auto& c : env.planes) hit |= respond(p, p0, plane_point(c, p), Vec3::Zero(), env);
     for (const auto& c : env.spheres) {
       const Vec3 center = lerp(c.center_start, c.center, s);
-      const Vec3 motion = center - lerp(c.center_start, c.center, s_start);
-      hit |= respond(p, p0, sphere_point(center, c.radius, p), motion, env);
+      const Vec3 center0 = lerp(c.center_start, c.center, s_start);
+      if (swept) p = swept_entry(p0, p, center0, center0, center, center, c.radius);
+      hit |= respond(p, p0, sphere_point(center, c.radius, p), center - center0, env);
     }
     for (const auto& c : env.capsules) {
       const Vec3 a = lerp(c.a_start, c.a, s), b = lerp(c.b_start, c.b, s);
+      const Vec3 a0 = lerp(c.a_start, c.a, s_start), b0 = lerp(c.b_start, c.b, s_start);
+      if (swept) p = swept_entry(p0, p, a0, b0, a, b, c.radius);
       const SurfacePoint sp = capsule_point(a, b, c.radius, p);
       const Vec3 axis_now = a + sp.segment_t * (b - a);
-      const Vec3 a0 = lerp(c.a_start, c.a, s_start), b0 = lerp(c.b_start, c.b, s_start);
       const Vec3 axis_before = a0 + sp.segment_t * (b0 - a0);
       hit |= respond(p, p0, sp, axis_now - axis_before, env);
     }
@@ -105,6 +174,7 @@ namespace {
 
 // Depth of p below the deepest collider surface at pose s (0 if outside all).
 double penetration_depth(const Vec3& p, const Environment& env, double s) {
+  s = pose_fraction(env, s);
   double depth = 0.0;
   for (const auto& c : env.planes) depth = std::max(depth, -plane_point(c, p).distance);
   for (const auto& c : env.spheres)
@@ -117,6 +187,22 @@ double penetration_depth(const Vec3& p, const Environment& env, double s) {
 }
 
 }  // namespace
+
+double path_depth_fraction(const Vec3& x0, const Vec3& x1, const CapsuleCollider& c) {
+  const double reach =
+      (x1 - x0).norm() + std::max((c.a - c.a_start).norm(), (c.b - c.b_start).norm());
+  if (capsule_point(c.a_start, c.b_start, c.radius, x0).distance > reach) return 0.0;
+  const int samples = std::clamp(static_cast<int>(std::ceil(16.0 * reach / c.radius)), 1, 4096);
+  double deepest = 0.0;
+  for (int k = 0; k <= samples; ++k) {
+    const double u = static_cast<double>(k) / samples;
+    const double d =
+        capsule_point(lerp(c.a_start, c.a, u), lerp(c.b_start, c.b, u), c.radius, lerp(x0, x1, u))
+            .distance;
+    deepest = std::max(deepest, -d / c.radius);
+  }
+  return std::min(deepest, 1.0);
+}
 
 double max_penetration(const Eigen::Matrix3Xd& x, const Eigen::VectorXd& inv_mass,
                        const Environment& env, double s) {

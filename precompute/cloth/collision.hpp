@@ -3,6 +3,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <string>
 #include <vector>
 
 #include "cloth/mesh.hpp"
@@ -30,6 +31,26 @@ struct CapsuleCollider {
   int bone = -1;  // skeleton joint it belongs to, for reports (-1: none)
 };
 
+// Where a moving sphere or capsule is during a (sub)step, and how a vertex is tested against it.
+// This is the "no tunnelling for fast limbs" choice of issue 3; docs/BENCHMARKS.md compares the
+// three on the boxing clip.
+enum class ColliderMotion {
+  // At the end pose for every sub-step, as if the limb jumped there at the start of the step.
+  // Only for comparison: a limb faster than its radius per step can pass through cloth.
+  EndPose,
+  // At each sub-step's pose, interpolated linearly between start and end (the default): a vertex
+  // is projected out of the collider where it is at the end of the sub-step, so a limb moving
+  // less than about its radius per sub-step cannot jump over a vertex.
+  Interpolated,
+  // Interpolated, plus a continuous test of each sub-step: a vertex whose straight path relative
+  // to the moving collider enters it during the sub-step is put back on the side it entered from
+  // (carried along with the surface) before it is projected, however far the limb moved.
+  Swept,
+};
+const char* collider_motion_name(ColliderMotion m);  // "end-pose", "interpolated", "swept"
+// Parses a name as above; throws std::invalid_argument naming the accepted values.
+ColliderMotion parse_collider_motion(const std::string& name);
+
 struct Environment {
   Vec3 gravity{0, -9.81, 0};
   // Linear air drag, N*s/m^3: force on vertex i is -air_drag * vertex_area_i * v_i.
@@ -40,9 +61,11 @@ struct Environment {
   double collision_margin = 1.0e-3;  // thickness margin kept between cloth and collider surface, m
   double friction_static = 0.4;      // Coulomb static coefficient
   double friction_kinetic = 0.3;     // Coulomb kinetic coefficient
+  ColliderMotion collider_motion = ColliderMotion::Interpolated;
 };
 
-// Colliders interpolated to fraction `s` of the step (0 = start, 1 = end).
+// Colliders interpolated to fraction `s` of the step (0 = start, 1 = end); with
+// ColliderMotion::EndPose, at the end pose whatever `s` is.
 Environment environment_at(const Environment& env, double s);
 
 // Projects every vertex with inv_mass > 0 out of every collider (at pose fraction `s` of the step)
@@ -50,8 +73,10 @@ Environment environment_at(const Environment& env, double s);
 // over the step relative to the collider surface's own motion: if it is below friction_static times
 // the normal correction it is removed (stick), otherwise reduced by friction_kinetic times it.
 // `x_start` are the positions at the start of the (sub)step, which began at pose fraction
-// `s_start` (default: s, i.e. the surface is taken as still over the sub-step). Returns the number
-// of contacts.
+// `s_start` (default: s, i.e. the surface is taken as still over the sub-step). With
+// ColliderMotion::Swept, a vertex whose path from x_start to x relative to a sphere or capsule
+// moving from pose s_start to s enters it is first moved to its entry point carried with the
+// surface. Returns the number of contacts.
 int resolve_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
                        const Eigen::VectorXd& inv_mass, const Environment& env, double s,
                        double s_start = -1.0);
@@ -61,6 +86,14 @@ int resolve_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
 // counted: a vertex resting at the margin has penetration 0.
 double max_penetration(const Eigen::Matrix3Xd& x, const Eigen::VectorXd& inv_mass,
                        const Environment& env, double s = 1.0);
+// How deep the straight path of a point from x0 to x1 reaches into capsule `c` while the capsule
+// moves linearly from its start pose to its end pose over the same interval, as a fraction of its
+// radius: 0 if the path stays outside, 1 if it crosses the axis. Tunnelling shows here: a vertex
+// a limb swept through ends on the far side of it and its path crosses the limb (near 1), while
+// a vertex carried along the surface stays near 0. Sampled in steps of 1/16 radius of relative
+// motion.
+double path_depth_fraction(const Vec3& x0, const Vec3& x1, const CapsuleCollider& c);
+
 // Mean over penetrating vertices (0 if none).
 double mean_penetration(const Eigen::Matrix3Xd& x, const Eigen::VectorXd& inv_mass,
                         const Environment& env, double s = 1.0);

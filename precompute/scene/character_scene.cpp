@@ -177,7 +177,10 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   s.settings.threads = f.integer(so, "threads", "solver.", 1, 1);
 
   const json& c = f.object(j, "colliders", "");
-  f.only(c, {"bones", "auto_distance", "radius", "margin", "friction_static", "friction_kinetic"}, "colliders.");
+  f.only(c,
+         {"bones", "auto_distance", "radius", "margin", "friction_static", "friction_kinetic",
+          "motion"},
+         "colliders.");
   if (c.contains("bones")) {
     if (!c["bones"].is_array()) f.fail("colliders.bones", "expected an array of bone names");
     for (size_t i = 0; i < c["bones"].size(); ++i) {
@@ -195,6 +198,12 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   s.margin = f.number(c, "margin", "colliders.", s.margin, true);
   s.friction_static = f.number(c, "friction_static", "colliders.", s.friction_static, false, true);
   s.friction_kinetic = f.number(c, "friction_kinetic", "colliders.", s.friction_kinetic, false, true);
+  try {
+    s.collider_motion = parse_collider_motion(
+        f.string(c, "motion", "colliders.", collider_motion_name(s.collider_motion)));
+  } catch (const std::invalid_argument& e) {
+    f.fail("colliders.motion", e.what());
+  }
   s.air_drag = f.number(j, "air_drag", "", s.air_drag, false, true);
   s.settle_frames = f.integer(j, "settle_frames", "", s.settle_frames, 0);
   return s;
@@ -250,6 +259,7 @@ CharacterScene build_character_scene(const SceneFile& file) {
   scene.env.collision_margin = file.margin;
   scene.env.friction_static = file.friction_static;
   scene.env.friction_kinetic = file.friction_kinetic;
+  scene.env.collider_motion = file.collider_motion;
   return scene;
 }
 

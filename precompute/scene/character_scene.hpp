@@ -9,15 +9,18 @@
 //     "clips": ["walk"],                           // optional: default all of the manifest's
 //     "garment": {"type": "skirt", "bone": "Hips", "vertices": 2000, "length": 0.55},
 //        // or {"type": "cape", "vertices": 1500, "length": 0.8}
-//        // or {"type": "mesh", "file": "dress.obj", "scale": 1, "pins": {"height_band": [1.0, 1.1]}}
-//        //    pins: {"vertex_group": "waist"} | {"height_band": [lo, hi]} | {"bone": "Hips", "distance": 0.05}
+//        // or {"type": "mesh", "file": "dress.obj", "scale": 1, "pins": {"height_band":
+//        [1.0, 1.1]}}
+//        //    pins: {"vertex_group": "waist"} | {"height_band": [lo, hi]} | {"bone": "Hips",
+//        "distance": 0.05}
 //     "material": {"density": 0.15, "youngs_modulus": 1e8, "poisson": 0.3, "thickness": 5e-4,
 //                  "bending_stiffness": 1e-5, "damping": 1e-3},
 //     "solver": {"name": "xpbd", "substeps": 10, "iterations": 1, "tolerance": 1e-6,
 //                "linear_solver": "ldlt", "threads": 1},
 //     "colliders": {"bones": ["Hips", "LeftUpLeg"], "auto_distance": 0.2,
 //                   "radius": {"Hips": 0.12}, "margin": 0.004,
-//                   "friction_static": 0.4, "friction_kinetic": 0.3},
+//                   "friction_static": 0.4, "friction_kinetic": 0.3,
+//                   "motion": "interpolated"},   // or "swept", "end-pose": cloth/collision.hpp
 //     "air_drag": 0.3,
 //     "settle_frames": 30
 //   }
@@ -61,6 +64,7 @@ struct SceneFile {
   double auto_distance = 0.0;  // > 0: collide only bones within this distance of the garment
   double margin = 0.004;
   double friction_static = 0.4, friction_kinetic = 0.3;
+  ColliderMotion collider_motion = ColliderMotion::Interpolated;
   double air_drag = 0.3;
   int settle_frames = 30;
 };

@@ -1,0 +1,126 @@
+// `clothdb bench character SCENE`: time per frame, strain, penetration and tunnelling of a
+// character scene's clip for several solvers, sub-steps, thread counts and collider motions.
+#include <cstdio>
+#include <fstream>
+#include <memory>
+
+#include "bench/character_bench.hpp"
+#include "cli_util.hpp"
+#include "commands.hpp"
+#include "report/output.hpp"
+
+namespace clothdb::cli {
+
+namespace {
+
+std::vector<int> int_list(const std::string& text, const std::string& option) {
+  std::vector<int> out;
+  for (const auto& item : split_list(text)) {
+    try {
+      size_t used = 0;
+      out.push_back(std::stoi(item, &used));
+      if (used != item.size() || out.back() < 0) throw std::invalid_argument(item);
+    } catch (const std::exception&) {
+      throw std::invalid_argument(
+          option + ": expected a comma-separated list of integers >= 0, got '" + item + "'");
+    }
+  }
+  if (out.empty()) throw std::invalid_argument(option + ": empty list");
+  return out;
+}
+
+std::string load_average() {
+  std::ifstream in("/proc/loadavg");
+  std::string one, five, fifteen;
+  in >> one >> five >> fifteen;
+  return one + " " + five + " " + fifteen;
+}
+
+}  // namespace
+
+void register_bench_character(CLI::App& bench) {
+  struct Args {
+    std::string scene, solvers, substeps = "0", threads = "1", motions, out;
+    int vertices = 0;
+    CharacterBenchOptions options;
+  };
+  auto args = std::make_shared<Args>();
+  CLI::App* cmd = bench.add_subcommand("character",
+                                       "Runs one clip of a character scene with each listed "
+                                       "solver, sub-step count, thread count and "
+                                       "collider motion, and prints a markdown table: ms per frame "
+                                       "(wall and CPU), largest edge strain, "
+                                       "largest and mean penetration into the body capsules, and "
+                                       "tunnelling (vertex-frames whose path "
+                                       "crossed more than half a capsule's radius into a moving "
+                                       "limb). Also prints the fastest capsule "
+                                       "speed in the clip, the CPU model and the load average.");
+  cmd->add_option("SCENE", args->scene, "Scene file (JSON), e.g. motions/skirt_walk.json")
+      ->required();
+  cmd->add_option("--clip", args->options.clip, "Clip name (default: the scene's first clip)");
+  cmd->add_option("--frames", args->options.frames, "Frames of the clip to simulate after settling")
+      ->capture_default_str()
+      ->check(CLI::Range(2, 1000000));
+  cmd->add_option("--vertices", args->vertices,
+                  "Override the procedural garment's vertex count (skirt, cape)");
+  cmd->add_option("--solvers", args->solvers, "Comma-separated solvers (default: the scene's)");
+  cmd->add_option(
+         "--substeps", args->substeps,
+         "Comma-separated sub-step counts; 0: the solver's default (scene's for PBD/XPBD, 1 for "
+         "Newton, the stability limit for mass-spring, which is never run below it)")
+      ->capture_default_str();
+  cmd->add_option("--iterations", args->options.iterations,
+                  "Constraint iterations (PBD, XPBD); 0: the scene's")
+      ->capture_default_str();
+  cmd->add_option("--threads", args->threads, "Comma-separated OpenMP thread counts, e.g. 1,2")
+      ->capture_default_str();
+  cmd->add_option(
+      "--collider-motion", args->motions,
+      "Comma-separated: end-pose | interpolated | swept (see cloth/collision.hpp); default: "
+      "the scene's colliders.motion");
+  cmd->add_option("--out", args->out, "Also write DIR/character.md");
+  cmd->callback([args] {
+    SceneFile file = load_scene_file(args->scene);
+    CharacterBenchOptions options = args->options;
+    for (const auto& s : split_list(args->solvers)) options.solvers.push_back(parse_solver_kind(s));
+    options.substeps = int_list(args->substeps, "--substeps");
+    options.threads = int_list(args->threads, "--threads");
+    for (int t : options.threads)
+      if (t < 1) throw std::invalid_argument("--threads: expected thread counts >= 1");
+    for (const auto& m : split_list(args->motions))
+      options.collider_motions.push_back(parse_collider_motion(m));
+    if (args->vertices > 0) {
+      if (file.garment_kind == GarmentKind::Mesh)
+        throw std::invalid_argument(args->scene +
+                                    ": --vertices: the garment is a mesh file, not procedural");
+      file.skirt.vertices = file.cape.vertices = args->vertices;
+    }
+    {
+      const CharacterScene scene = build_character_scene(file);
+      const MotionClip& clip =
+          scene.clips[options.clip.empty() ? 0
+                                           : static_cast<size_t>(scene.clip_index(options.clip))];
+      const CapsuleSpeed fast = fastest_capsule(scene, clip, options.frames);
+      std::printf("scene %s, clip %s (%d frames at %g Hz), %s\n", file.path.c_str(),
+                  clip.name.c_str(), std::min(options.frames, clip.frame_count), clip.rate,
+                  cpu_model().c_str());
+      std::printf(
+          "fastest capsule: %s at %.2f m/s (%.1f mm per frame, radius %.1f mm) arriving at frame "
+          "%d\n",
+          fast.bone.c_str(), fast.speed, 1e3 * fast.speed / clip.rate, 1e3 * fast.radius,
+          fast.frame);
+      std::printf("load average before: %s\n", load_average().c_str());
+    }
+    const auto rows = run_character_bench(
+        file, options, [](const std::string& line) { std::fprintf(stderr, "%s\n", line.c_str()); });
+    const std::string md = character_rows_markdown(rows);
+    std::printf("load average after: %s\n%s", load_average().c_str(), md.c_str());
+    if (!args->out.empty()) {
+      make_directories(args->out);
+      write_file_atomic(args->out + "/character.md", md);
+      std::printf("wrote %s/character.md\n", args->out.c_str());
+    }
+  });
+}
+
+}  // namespace clothdb::cli

@@ -1,0 +1,163 @@
+#include "bench/character_bench.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <ctime>
+#include <sstream>
+
+namespace clothdb {
+
+CapsuleSpeed fastest_capsule(const CharacterScene& scene, const MotionClip& clip, int frames) {
+  CapsuleSpeed best;
+  frames = std::min(frames, clip.frame_count);
+  for (int f = 1; f < frames; ++f) {
+    const auto caps =
+        body_capsules(scene.body, scene.skeleton, clip_pose(clip, f - 1), clip_pose(clip, f));
+    for (const auto& c : caps) {
+      const double speed = std::max((c.a - c.a_start).norm(), (c.b - c.b_start).norm()) * clip.rate;
+      if (speed > best.speed)
+        best = {speed, c.radius, f, scene.skeleton.names[static_cast<size_t>(c.bone)]};
+    }
+  }
+  return best;
+}
+
+namespace {
+
+// Sub-steps for one run: see CharacterBenchOptions::substeps.
+int substeps_for(SolverKind kind, int requested, const CharacterScene& scene, double dt) {
+  if (kind == SolverKind::MassSpring) {
+    const int stable = static_cast<int>(std::ceil(dt / mass_spring_critical_dt(scene.model)));
+    return std::max(requested, stable);
+  }
+  if (requested > 0) return requested;
+  if (kind == SolverKind::Newton) return 1;
+  return scene.file.settings.substeps;
+}
+
+CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverKind kind,
+                          const SolverSettings& settings, ColliderMotion motion, int frames,
+                          const std::function<void(const std::string&)>& progress) {
+  scene.env.collider_motion = motion;
+  auto solver = make_solver(kind, scene.model, settings);
+  CharacterBenchRow row;
+  row.solver = solver->describe();
+  row.threads = settings.threads;
+  row.collider_motion = motion;
+  row.vertices = scene.model.vertex_count();
+  row.capsules = static_cast<int>(scene.body.capsules.size());
+  ClothState state = settle_garment(scene, *solver, clip_pose(clip, 0));
+  double wall = 0, cpu = 0;
+  const auto start = std::chrono::steady_clock::now();
+  for (int f = 1; f < frames; ++f) {
+    const Eigen::Matrix3Xd x0 = state.x;
+    const std::clock_t c0 = std::clock();
+    const PoseRun run = simulate_poses(scene, *solver, {clip_pose(clip, f - 1), clip_pose(clip, f)},
+                                       clip.rate, state);
+    cpu += static_cast<double>(std::clock() - c0) / CLOCKS_PER_SEC;
+    if (!run.stable) {
+      row.stable = false;
+      row.message = "frame " + std::to_string(f) + ": " + run.message;
+      break;
+    }
+    wall += run.seconds;
+    ++row.frames;
+    const FrameMetrics& m = run.metrics.front();
+    row.max_strain = std::max(row.max_strain, m.max_strain);
+    row.max_penetration = std::max(row.max_penetration, m.max_penetration);
+    row.mean_penetration = std::max(row.mean_penetration, m.mean_penetration);
+    const auto caps =
+        body_capsules(scene.body, scene.skeleton, clip_pose(clip, f - 1), clip_pose(clip, f));
+    for (Eigen::Index i = 0; i < state.x.cols(); ++i) {
+      if (scene.model.inv_mass[i] <= 0.0) continue;
+      double deepest = 0.0;
+      for (const auto& c : caps)
+        deepest = std::max(deepest, path_depth_fraction(x0.col(i), state.x.col(i), c));
+      row.deepest_path = std::max(row.deepest_path, deepest);
+      if (deepest > 0.5) ++row.tunnelled;
+    }
+    if (progress && (f % 10 == 0 || f + 1 == frames)) {
+      const double elapsed =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      std::ostringstream line;
+      line << "  " << row.solver << " threads=" << settings.threads << ' '
+           << collider_motion_name(motion) << ": frame " << f + 1 << '/' << frames << ", ETA "
+           << std::lround(elapsed / f * (frames - 1 - f)) << " s";
+      progress(line.str());
+    }
+  }
+  if (row.frames > 0) {
+    row.ms_per_frame = 1e3 * wall / row.frames;
+    row.cpu_ms_per_frame = 1e3 * cpu / row.frames;
+  }
+  return row;
+}
+
+std::string fixed(double v, int digits) {
+  std::ostringstream out;
+  out.setf(std::ios::fixed);
+  out.precision(digits);
+  out << v;
+  return out.str();
+}
+
+}  // namespace
+
+std::vector<CharacterBenchRow> run_character_bench(
+    const SceneFile& file, const CharacterBenchOptions& options,
+    const std::function<void(const std::string&)>& progress) {
+  std::vector<CharacterBenchRow> rows;
+  std::vector<SolverKind> solvers = options.solvers;
+  if (solvers.empty()) solvers.push_back(file.solver);
+  for (SolverKind kind : solvers) {
+    SceneFile f = file;
+    f.solver = kind;
+    CharacterScene scene = build_character_scene(f);
+    const MotionClip& clip =
+        scene.clips[options.clip.empty() ? 0 : static_cast<size_t>(scene.clip_index(options.clip))];
+    const int frames = std::min(options.frames, clip.frame_count);
+    for (int requested : options.substeps) {
+      SolverSettings settings = file.settings;
+      settings.substeps = substeps_for(kind, requested, scene, 1.0 / clip.rate);
+      if (options.iterations > 0) settings.iterations = options.iterations;
+      for (int threads : options.threads) {
+        settings.threads = threads;
+        std::vector<ColliderMotion> motions = options.collider_motions;
+        if (motions.empty()) motions.push_back(file.collider_motion);
+        for (ColliderMotion motion : motions) {
+          rows.push_back(run_one(scene, clip, kind, settings, motion, frames, progress));
+          const CharacterBenchRow& r = rows.back();
+          if (progress)
+            progress(r.solver + " threads=" + std::to_string(threads) + " " +
+                     collider_motion_name(motion) + ": " + fixed(r.ms_per_frame, 2) +
+                     " ms/frame, max strain " + fixed(100 * r.max_strain, 1) +
+                     " %, max penetration " + fixed(1e3 * r.max_penetration, 2) +
+                     " mm, tunnelled " + std::to_string(r.tunnelled) +
+                     (r.stable ? "" : ", UNSTABLE: " + r.message));
+        }
+      }
+    }
+  }
+  return rows;
+}
+
+std::string character_rows_markdown(const std::vector<CharacterBenchRow>& rows) {
+  std::ostringstream out;
+  out << "| solver | threads | colliders | verts | capsules | frames | ms/frame | CPU ms/frame | "
+         "max strain "
+         "| max pen. mm | mean pen. mm | tunnelled | deepest path | stable |\n"
+         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const auto& r : rows) {
+    out << "| " << r.solver << " | " << r.threads << " | "
+        << collider_motion_name(r.collider_motion) << " | " << r.vertices << " | " << r.capsules
+        << " | " << r.frames << " | " << fixed(r.ms_per_frame, 2) << " | "
+        << fixed(r.cpu_ms_per_frame, 2) << " | " << fixed(100 * r.max_strain, 1) << "% | "
+        << fixed(1e3 * r.max_penetration, 2) << " | " << fixed(1e3 * r.mean_penetration, 2) << " | "
+        << r.tunnelled << " | " << fixed(r.deepest_path, 2) << " | "
+        << (r.stable ? "yes" : "no: " + r.message) << " |\n";
+  }
+  return out.str();
+}
+
+}  // namespace clothdb

@@ -1,0 +1,63 @@
+// `clothdb bench character`: a character scene's clip run with several solvers, sub-step counts,
+// thread counts and collider motions (issue 3): time per frame, edge strain, penetration into the
+// body capsules, and tunnelling (vertices whose path crossed a capsule during a frame).
+#pragma once
+
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "cloth/collision.hpp"
+#include "scene/character_scene.hpp"
+
+namespace clothdb {
+
+struct CharacterBenchOptions {
+  std::string clip;                 // empty: the scene's first clip
+  int frames = 90;                  // frames of the clip simulated after settling (from frame 0)
+  std::vector<SolverKind> solvers;  // empty: the scene's solver
+  // Sub-steps per frame; 0 is each solver's default: the scene's for PBD and XPBD, 1 for Newton,
+  // and for mass-spring the count its stability limit asks for (mass_spring_critical_dt).
+  // Mass-spring is never run below that count (it would blow up; the row says so).
+  std::vector<int> substeps{0};
+  int iterations = 0;  // constraint iterations (PBD, XPBD); 0: the scene's
+  std::vector<int> threads{1};
+  std::vector<ColliderMotion> collider_motions;  // empty: the scene's
+};
+
+struct CharacterBenchRow {
+  std::string solver;  // Solver::describe()
+  int threads = 1;
+  ColliderMotion collider_motion = ColliderMotion::Interpolated;
+  int vertices = 0, capsules = 0, frames = 0;
+  double ms_per_frame = 0;      // wall time of the solver steps per frame
+  double cpu_ms_per_frame = 0;  // process CPU time (all threads) per frame
+  double max_strain = 0;        // largest edge strain over all frames
+  double max_penetration = 0;   // deepest vertex below a capsule surface at a frame's end, m
+  double mean_penetration = 0;  // largest per-frame mean over penetrating vertices, m
+  // Vertex-frames whose straight path over the frame, relative to a capsule moving with the body,
+  // reaches deeper than half the capsule's radius: the vertex passed through the limb.
+  int tunnelled = 0;
+  double deepest_path = 0;  // largest path_depth_fraction over vertices, capsules and frames
+  bool stable = true;
+  std::string message;
+};
+
+// The fastest point of any body capsule (its end points) over clip frames [0, frames).
+struct CapsuleSpeed {
+  double speed = 0;   // m/s
+  double radius = 0;  // of that capsule, m
+  int frame = 0;      // the frame the end point arrives at
+  std::string bone;
+};
+CapsuleSpeed fastest_capsule(const CharacterScene& scene, const MotionClip& clip, int frames);
+
+// Runs every combination of options.solvers x substeps x threads x collider_motions on the scene
+// (built once per solver); `progress` gets one line per finished run.
+std::vector<CharacterBenchRow> run_character_bench(
+    const SceneFile& file, const CharacterBenchOptions& options,
+    const std::function<void(const std::string&)>& progress = {});
+
+std::string character_rows_markdown(const std::vector<CharacterBenchRow>& rows);
+
+}  // namespace clothdb
