@@ -7,6 +7,7 @@
 #include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -17,6 +18,8 @@
 #include "explore/explorer.hpp"
 #include "quality/clip_quality.hpp"
 #include "render/preview.hpp"
+#include "report/output.hpp"
+#include "report/svg_plot.hpp"
 
 namespace clothdb::cli {
 
@@ -171,7 +174,7 @@ void list_clips(const std::string& path, int worst, const std::string& by, bool 
 // ---- clip show --------------------------------------------------------------------------------
 
 struct ShowArgs {
-  std::string file, png, scene;
+  std::string file, png, svg, scene;
   int64_t id = 0;
   int tiles = 12, columns = 4, tile_size = 320;
   bool no_png = false;
@@ -196,30 +199,61 @@ std::vector<int> sheet_frames(int frame_count, int count, int worst) {
   return frames;
 }
 
-// The body at each frame of the clip, in character space, or empty (with the reason printed) when
-// the scene cannot be rebuilt: the sheet is then drawn without it.
-std::vector<std::vector<CapsuleCollider>> clip_body(db::Reader& reader, const ClipTable& t,
-                                                    const db::ClothClip& c,
-                                                    const std::string& scene_file,
-                                                    int* scene_vertices) {
+// The clip's poses and the scene it was simulated in, when the scene can be rebuilt from the
+// database (otherwise the reason is printed and the sheet is drawn without the body).
+struct ClipScene {
+  std::optional<DatabaseScene> scene;
+  const ExploreEdge* edge = nullptr;
+};
+
+ClipScene clip_scene(db::Reader& reader, const ClipTable& t, const db::ClothClip& c,
+                     const std::string& scene_file, uint32_t vertices) {
+  ClipScene out;
   try {
-    const DatabaseScene s = load_database_scene(reader, scene_file);
-    for (const auto& e : s.graph.edges)
-      if (e.db_clip == c.primary_clip) {
-        if (int(e.poses.size()) != c.frame_count)
-          throw std::runtime_error("primary clip has " + std::to_string(e.poses.size()) +
-                                   " poses, the cloth clip " + std::to_string(c.frame_count) +
-                                   " frames");
-        *scene_vertices = s.scene.model.vertex_count();
-        return character_space_capsules(s.scene, e.poses);
-      }
-    throw std::runtime_error(
-        "no edge of its motion graph is primary clip " +
-        (t.primary_name.count(c.primary_clip) ? t.primary_name.at(c.primary_clip) : "?"));
+    out.scene = load_database_scene(reader, scene_file);
+    if (uint32_t(out.scene->scene.model.vertex_count()) != vertices)
+      throw std::runtime_error("the scene's garment has " +
+                               std::to_string(out.scene->scene.model.vertex_count()) +
+                               " vertices, the database's " + std::to_string(vertices));
+    for (const auto& e : out.scene->graph.edges)
+      if (e.db_clip == c.primary_clip) out.edge = &e;
+    if (!out.edge)
+      throw std::runtime_error(
+          "no edge of its motion graph is primary clip " +
+          (t.primary_name.count(c.primary_clip) ? t.primary_name.at(c.primary_clip) : "?"));
+    if (int(out.edge->poses.size()) != c.frame_count)
+      throw std::runtime_error("primary clip has " + std::to_string(out.edge->poses.size()) +
+                               " poses, the cloth clip " + std::to_string(c.frame_count) +
+                               " frames");
   } catch (const std::exception& e) {
     std::fprintf(stderr, "clip show: drawing without the body: %s\n", e.what());
-    return {};
+    out.scene.reset();
+    out.edge = nullptr;
   }
+  return out;
+}
+
+// Each frame's defects relative to the level where they show (what worst_frame maximises).
+void write_frame_plot(const std::string& path, int64_t id, const std::vector<FrameQuality>& q) {
+  PlotSpec spec;
+  spec.title = "Cloth clip " + std::to_string(id) + ": defects per frame (decoded frames)";
+  spec.x_label = "frame";
+  spec.y_label = "relative to visible: strain / 10 %, penetration / 5 mm, jitter / 1 mm";
+  const char* names[3] = {"strain", "max penetration", "jitter"};
+  for (int k = 0; k < 3; ++k) {
+    PlotSeries s;
+    s.label = names[k];
+    s.color = palette_color(size_t(k));
+    s.line = true;
+    for (size_t f = 0; f < q.size(); ++f) {
+      s.x.push_back(double(f));
+      s.y.push_back(k == 0   ? q[f].strain / kVisibleStrain
+                    : k == 1 ? q[f].max_penetration / kVisiblePenetration
+                             : q[f].jitter / kVisibleJitter);
+    }
+    spec.series.push_back(std::move(s));
+  }
+  write_file_atomic(path, render_svg(spec));
 }
 
 void show_clip(const ShowArgs& a) {
@@ -244,7 +278,7 @@ void show_clip(const ShowArgs& a) {
   std::printf("  max penetration   %s mm\n", cell(1e3 * c.max_penetration, "%.3f").c_str());
   std::printf("  mean penetration  %s mm (over penetrating vertex-frames)\n",
               cell(1e3 * c.mean_penetration, "%.3f").c_str());
-  std::printf("  jitter            %s mm (RMS normalised 4th difference)\n",
+  std::printf("  jitter            %s mm (RMS normalised 4th difference, world space)\n",
               cell(1e3 * c.jitter, "%.4f").c_str());
   std::printf("  halved steps      %s\n",
               c.halved_steps < 0 ? "?" : std::to_string(c.halved_steps).c_str());
@@ -284,11 +318,15 @@ void show_clip(const ShowArgs& a) {
   db::Garment garment;
   if (reader.garment(&garment, &err) != db::Status::Ok) throw std::runtime_error(err.message);
   const int n = int(garment.vertex_count());
-  int model_vertices = n;
-  const auto body = clip_body(reader, t, c, a.scene, &model_vertices);
-  if (model_vertices != n)
-    throw std::runtime_error(a.file + ": the scene's garment no longer has " + std::to_string(n) +
-                             " vertices");
+  const ClipScene cs = clip_scene(reader, t, c, a.scene, garment.vertex_count());
+  std::vector<std::vector<CapsuleCollider>> body;
+  if (cs.edge) {
+    body = character_space_capsules(cs.scene->scene, cs.edge->poses);
+    std::vector<FrameQuality> per_frame;
+    measure_clip(cs.scene->scene, cs.edge->poses, frames, &per_frame);
+    write_frame_plot(a.svg, c.id, per_frame);
+    std::printf("per-frame plot %s\n", a.svg.c_str());
+  }
   std::vector<std::array<int, 3>> triangles(garment.triangles.size() / 3);
   for (size_t k = 0; k < triangles.size(); ++k)
     triangles[k] = {int(garment.triangles[3 * k]), int(garment.triangles[3 * k + 1]),
@@ -308,11 +346,15 @@ void show_clip(const ShowArgs& a) {
     all.conservativeResize(3, all.cols() + m.cols());
     all.rightCols(m.cols()) = m;
   }
-  const PreviewCamera cam = frame_points(all, 1.6);
   double floor = all.row(1).minCoeff();
-  for (const auto& caps : body)
-    for (const auto& cap : caps)
+  for (int f : shown)
+    for (const auto& cap : body.empty() ? std::vector<CapsuleCollider>{} : body[size_t(f)]) {
       floor = std::min({floor, cap.a.y() - cap.radius, cap.b.y() - cap.radius});
+      all.conservativeResize(3, all.cols() + 2);
+      all.col(all.cols() - 2) = cap.a;
+      all.col(all.cols() - 1) = cap.b;
+    }
+  const PreviewCamera cam = frame_points(all, 1.15);
   std::vector<std::vector<uint8_t>> tiles;
   const int size = a.tile_size;
   for (int f : shown) {
@@ -374,7 +416,10 @@ void register_clip_quality_commands(CLI::App& app) {
   show->add_option("FILE", sa->file, "clothdb database")->required();
   show->add_option("ID", sa->id, "Cloth clip id (see `clothdb clips list`)")->required();
   show->add_option("--png", sa->png, "Write the contact sheet here (default: FILE.clip<ID>.png)");
-  show->add_flag("--no-png", sa->no_png, "Print only; no contact sheet");
+  show->add_flag("--no-png", sa->no_png, "Print only; no contact sheet or plot");
+  show->add_option("--svg", sa->svg,
+                   "Write the per-frame plot of the defects here (default: the PNG's path with "
+                   ".svg; needs the scene)");
   show->add_option(
       "--scene", sa->scene,
       "Scene file the database was made from, if not at its stored path (for the body)");
@@ -390,6 +435,10 @@ void register_clip_quality_commands(CLI::App& app) {
   show->callback([sa] {
     ShowArgs a = *sa;
     if (a.png.empty()) a.png = a.file + ".clip" + std::to_string(a.id) + ".png";
+    if (a.svg.empty()) {
+      const bool ext = a.png.size() > 4 && a.png.substr(a.png.size() - 4) == ".png";
+      a.svg = a.png.substr(0, a.png.size() - (ext ? 4 : 0)) + ".svg";
+    }
     show_clip(a);
   });
 }

@@ -146,6 +146,14 @@ TEST(Quality, NoiseRaisesJitterAndSmoothMotionDoesNot) {
   const ClipQuality qn = measure_clip(model, noisy.data(), frames_n, no_body(frames_n));
   EXPECT_NEAR(qn.jitter, std::sqrt(3.0) * 0.0005, 0.1 * std::sqrt(3.0) * 0.0005);
   EXPECT_GT(qn.jitter, 20 * qs.jitter);
+  // What it cannot tell from flicker: an impact (every free vertex moving at 1 m/s stopped dead in
+  // frame 20) is high-frequency too. Its fourth differences are (1, -2, 1) times the 33 mm
+  // velocity step on frames 19..21: sqrt(6 / 70) of it over the clip's 56 measured frames.
+  const auto impact = clip_of(model, frames_n, [&](int f, int i, int k) {
+    return model.inv_mass[i] > 0 && k == 2 ? std::min(f, 20) * dt : 0.0;
+  });
+  EXPECT_NEAR(measure_clip(model, impact.data(), frames_n, no_body(frames_n)).jitter,
+              dt * std::sqrt(6.0 / 70 / 56), 1e-6);
   // Too short for a fourth difference: 0, not garbage.
   EXPECT_EQ(measure_clip(model, noisy.data(), 4, no_body(4)).jitter, 0.0);
 }

@@ -98,14 +98,26 @@ std::vector<std::vector<CapsuleCollider>> character_space_capsules(
 ClipQuality measure_clip(const CharacterScene& scene,
                          const std::vector<std::vector<JointPose>>& poses,
                          const std::vector<float>& frames, std::vector<FrameQuality>* per_frame) {
-  const size_t expected = poses.size() * static_cast<size_t>(scene.model.vertex_count()) * 3;
-  if (frames.size() != expected)
+  const size_t per = static_cast<size_t>(scene.model.vertex_count()) * 3;
+  if (frames.size() != poses.size() * per)
     throw std::invalid_argument("measure_clip: " + std::to_string(frames.size()) + " floats for " +
                                 std::to_string(poses.size()) + " poses of " +
                                 std::to_string(scene.model.vertex_count()) +
-                                " vertices (expected " + std::to_string(expected) + ")");
-  return measure_clip(scene.model, frames.data(), static_cast<int>(poses.size()),
-                      character_space_capsules(scene, poses), per_frame);
+                                " vertices (expected " + std::to_string(poses.size() * per) + ")");
+  // Back to world space, where the body is and what the viewer sees (header: jitter).
+  std::vector<float> world(frames.size());
+  std::vector<std::vector<CapsuleCollider>> body;
+  body.reserve(poses.size());
+  for (size_t f = 0; f < poses.size(); ++f) {
+    const Eigen::Isometry3d frame = character_frame(scene, poses[f]);
+    for (size_t i = 0; i < per; i += 3) {
+      const Vec3 p =
+          frame * Vec3(frames[f * per + i], frames[f * per + i + 1], frames[f * per + i + 2]);
+      for (int k = 0; k < 3; ++k) world[f * per + i + size_t(k)] = static_cast<float>(p[k]);
+    }
+    body.push_back(body_capsules(scene.body, scene.skeleton, poses[f], poses[f]));
+  }
+  return measure_clip(scene.model, world.data(), static_cast<int>(poses.size()), body, per_frame);
 }
 
 double transition_pop(const float* last, const float* target, size_t vertex_count) {

@@ -15,17 +15,22 @@
 //   none penetrates. Over all pairs it would mostly measure how much of the garment is far from the
 //   body; over the penetrating ones it says how deep a typical contact goes, next to the max that
 //   catches a single spike. Same convention as the per-frame mean_penetration of `simulate`.
-// - jitter: frame-to-frame buzzing, as the RMS over free vertices and frames 2 .. F-3 of the
-//   normalised fourth difference |x[f-2] - 4x[f-1] + 6x[f] - 4x[f+1] + x[f+2]| / sqrt(70), metres.
-//   Why a high-pass rather than "second differences on frames where the body is still": the clips
-//   of a walk graph hardly ever hold still, so that metric would be undefined on most of them,
-//   while cloth that moves smoothly with the body is exactly the motion that must not count. The
-//   fourth difference has gain 16 sin^4(w dt / 2): 16 at the Nyquist frequency (a vertex flipping
-//   back and forth every frame), 2e-3 for a 1 Hz swing at 30 fps (so a 10 cm swing reads 0.02
-//   mm), and it is exactly 0 for any motion that is a cubic in time. sqrt(70) is the root of the
-//   sum of its squared coefficients, so independent per-frame noise of RMS length r per vertex
-//   reads as jitter r: the number is the size of the noise, whatever the smooth motion under it.
-//   0 for clips shorter than 5 frames (no fourth difference exists).
+// - jitter: high-frequency motion, as the RMS over free vertices and frames 2 .. F-3 of the
+//   normalised fourth difference |x[f-2] - 4x[f-1] + 6x[f] - 4x[f+1] + x[f+2]| / sqrt(70),
+//   metres, measured in world space (what the viewer sees; the scene overload below converts).
+//   Why a high-pass rather than "second differences on frames where the body is still": the
+//   clips of a walk graph hardly ever hold still, so that metric would be undefined on most of
+//   them, while cloth that moves smoothly with the body is exactly the motion that must not count.
+//   The fourth difference has gain 16 sin^4(w dt / 2): 16 at the Nyquist frequency (a vertex
+//   flipping back and forth every frame), 2e-3 for a 1 Hz swing at 30 fps (so a 10 cm swing reads
+//   0.02 mm), and it is exactly 0 for any motion that is a cubic in time. sqrt(70) is the root of
+//   the sum of its squared coefficients, so independent per-frame noise of RMS length r per vertex
+//   reads as jitter r. What it cannot tell apart: a genuine impact (a leg hitting the hem changes
+//   the cloth's velocity within a frame) is high-frequency too, so on a walking skirt every clip
+//   reads about 1 to 4 mm; a clip that flickers reads more. (A measure of frame-to-frame
+//   acceleration reversals, which ignores impacts, was tried and dropped: the cloth's smooth
+//   acceleration of several mm per frame squared masks a flicker of the same size.) 0 for clips
+//   shorter than 5 frames.
 // - halved_steps: how many times the solver halved its step to recover (StepReport::
 //   step_halvings summed over the clip; only the Newton solver halves, the others report 0).
 //   Not visible in the frames: measure_clip returns -1 (unknown); whoever ran the solver sets it.
