@@ -101,6 +101,8 @@ struct JobResult {
   std::vector<float> last;     // its last frame as the runtime decodes it (for the pop)
   std::vector<float> end_x, end_v;
   ClipQuality quality;
+  // Thread CPU time of the whole job: the solver, and since the quality metrics (about 0.6 ms per
+  // frame at 2,958 vertices) and the encoding (about 2 ms) moved into the job, those too.
   double cpu_seconds = 0;
 };
 
