@@ -593,6 +593,18 @@ TEST(Database, QualityMetricsRoundTripWithUnknownAsNull) {
   ASSERT_EQ(r.cloth_edges(&edges, &err), Status::Ok);
   EXPECT_DOUBLE_EQ(edges[0].pop, 0.0042);
   EXPECT_TRUE(std::isnan(edges[1].pop));
+  r.close();
+  EXPECT_TRUE(check_database(path).ok());
+  {
+    Writer w = Writer::open(path);
+    ClipMetrics bad = clips[1].metrics();
+    bad.jitter = -0.001;
+    w.set_clip_metrics(f.clip1, bad);
+    w.set_edge_pop(f.edge, -1.0);
+  }
+  const CheckReport check = check_database(path);
+  EXPECT_TRUE(mentions(check, "cloth clip " + std::to_string(f.clip1) + ": negative quality"));
+  EXPECT_TRUE(mentions(check, "cloth edge " + std::to_string(f.edge) + ": negative pop"));
 }
 
 }  // namespace
