@@ -170,9 +170,6 @@ int resolve_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
   return contacts;
 }
 
-namespace {
-
-// Depth of p below the deepest collider surface at pose s (0 if outside all).
 double penetration_depth(const Vec3& p, const Environment& env, double s) {
   s = pose_fraction(env, s);
   double depth = 0.0;
@@ -185,8 +182,6 @@ double penetration_depth(const Vec3& p, const Environment& env, double s) {
   }
   return depth;
 }
-
-}  // namespace
 
 double path_depth_fraction(const Vec3& x0, const Vec3& x1, const CapsuleCollider& c) {
   const double reach =
