@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "bench/character_bench.hpp"
 #include "garment/garment.hpp"
 #include "scene/character_scene.hpp"
 
@@ -36,7 +37,8 @@ void expect_clean_run(const CharacterScene& scene, int frames, double strain_lim
   ClothState state = settle_garment(scene, *solver, clip_pose(clip, 0));
   const double thickness = scene.file.material.thickness;
   for (int f = 1; f < frames; ++f) {
-    const PoseRun run = simulate_poses(scene, *solver, {clip_pose(clip, f - 1), clip_pose(clip, f)}, clip.rate, state);
+    const PoseRun run = simulate_poses(scene, *solver, {clip_pose(clip, f - 1), clip_pose(clip, f)},
+                                       clip.rate, state);
     ASSERT_TRUE(run.stable) << run.message;
     ASSERT_TRUE(state.x.allFinite()) << "frame " << f;
     EXPECT_LE(run.metrics[0].max_penetration, thickness) << "frame " << f;
@@ -58,8 +60,10 @@ TEST(Garment, SkirtPinsFollowTheHipsExactly) {
     // Each pin keeps its offset in the hips' frame: R_bind^T (p_rest - t_bind) = R^T (p - t).
     for (size_t k = 0; k < scene.garment.pins.size(); ++k) {
       const Vec3 rest = scene.garment.mesh.rest.col(scene.garment.pins[k]);
-      const Vec3 local_bind = scene.bind[hips].rotation.inverse() * (rest - scene.bind[hips].position);
-      const Vec3 local_now = pose[hips].rotation.inverse() * (Vec3(pins.col(k)) - pose[hips].position);
+      const Vec3 local_bind =
+          scene.bind[hips].rotation.inverse() * (rest - scene.bind[hips].position);
+      const Vec3 local_now =
+          pose[hips].rotation.inverse() * (Vec3(pins.col(k)) - pose[hips].position);
       EXPECT_LT((local_bind - local_now).norm(), 1e-9);
     }
   }
@@ -131,19 +135,25 @@ TEST(Garment, BadScenesNameFileAndField) {
     } catch (const std::exception& e) {
       const std::string what = e.what();
       EXPECT_NE(what.find(needle), std::string::npos) << what;
-      EXPECT_NE(what.find(std::filesystem::path(path).filename().string()), std::string::npos) << what;
+      EXPECT_NE(what.find(std::filesystem::path(path).filename().string()), std::string::npos)
+          << what;
     }
   };
   expect_error(temp_scene("bad_type.json", "\"garment\": {\"type\": \"hat\"}"), "garment.type");
-  expect_error(temp_scene("bad_vertices.json", "\"garment\": {\"type\": \"skirt\", \"vertices\": -3}"),
-               "garment.vertices");
+  expect_error(
+      temp_scene("bad_vertices.json", "\"garment\": {\"type\": \"skirt\", \"vertices\": -3}"),
+      "garment.vertices");
   expect_error(temp_scene("bad_material.json",
                           "\"garment\": {\"type\": \"skirt\"}, \"material\": {\"density\": 0}"),
                "material.density");
-  expect_error(temp_scene("bad_solver.json", "\"garment\": {\"type\": \"skirt\"}, \"solver\": {\"name\": \"magic\"}"),
+  expect_error(temp_scene("bad_solver.json",
+                          "\"garment\": {\"type\": \"skirt\"}, \"solver\": {\"name\": \"magic\"}"),
                "solver");
-  expect_error(temp_scene("bad_field.json", "\"garment\": {\"type\": \"skirt\"}, \"colour\": 3"), "colour");
-  expect_error(temp_scene("bad_clip.json", "\"garment\": {\"type\": \"skirt\"}, \"clips\": [\"nope\"]"), "clips[0]");
+  expect_error(temp_scene("bad_field.json", "\"garment\": {\"type\": \"skirt\"}, \"colour\": 3"),
+               "colour");
+  expect_error(
+      temp_scene("bad_clip.json", "\"garment\": {\"type\": \"skirt\"}, \"clips\": [\"nope\"]"),
+      "clips[0]");
   expect_error(
       temp_scene("bad_motion.json",
                  "\"garment\": {\"type\": \"skirt\"}, \"colliders\": {\"motion\": \"teleport\"}"),
@@ -151,8 +161,9 @@ TEST(Garment, BadScenesNameFileAndField) {
   expect_error(write_temp("not_json.json", "{ garment: "), "not valid JSON");
   expect_error(write_temp("no_manifest.json", "{\"garment\": {\"type\": \"skirt\"}}"), "manifest");
   // A bone the scene asks for that the skeleton does not have: named at build time.
-  const SceneFile bad_bone = load_scene_file(temp_scene(
-      "bad_bone.json", "\"garment\": {\"type\": \"skirt\", \"bone\": \"Tail\"}, \"clips\": [\"01_01\"]"));
+  const SceneFile bad_bone = load_scene_file(
+      temp_scene("bad_bone.json",
+                 "\"garment\": {\"type\": \"skirt\", \"bone\": \"Tail\"}, \"clips\": [\"01_01\"]"));
   try {
     build_character_scene(bad_bone);
     FAIL();
@@ -163,12 +174,14 @@ TEST(Garment, BadScenesNameFileAndField) {
 
 TEST(Garment, ImportedMeshIsWeldedAndPinned) {
   // Two quads exported as separate objects (seam vertices duplicated), pinned by height band.
-  const std::string obj = write_temp("apron.obj",
-                                     "o left\nv -0.2 1.0 0.2\nv 0 1.0 0.2\nv 0 0.6 0.2\nv -0.2 0.6 0.2\nf 1 4 3 2\n"
-                                     "o right\nv 0 1.0 0.2\nv 0.2 1.0 0.2\nv 0.2 0.6 0.2\nv 0 0.6 0.2\nf 5 8 7 6\n");
+  const std::string obj =
+      write_temp("apron.obj",
+                 "o left\nv -0.2 1.0 0.2\nv 0 1.0 0.2\nv 0 0.6 0.2\nv -0.2 0.6 0.2\nf 1 4 3 2\n"
+                 "o right\nv 0 1.0 0.2\nv 0.2 1.0 0.2\nv 0.2 0.6 0.2\nv 0 0.6 0.2\nf 5 8 7 6\n");
   const SceneFile file = load_scene_file(temp_scene(
-      "apron.json", "\"clips\": [\"01_01\"], \"garment\": {\"type\": \"mesh\", \"file\": \"" + obj +
-                        "\", \"scale\": 1, \"bone\": \"Hips\", \"pins\": {\"height_band\": [0.95, 1.05]}}"));
+      "apron.json",
+      "\"clips\": [\"01_01\"], \"garment\": {\"type\": \"mesh\", \"file\": \"" + obj +
+          "\", \"scale\": 1, \"bone\": \"Hips\", \"pins\": {\"height_band\": [0.95, 1.05]}}"));
   const LoadedMotion motion = load_clip(file.manifest, 0);
   const Garment g = import_garment(motion.skeleton, file.mesh);
   EXPECT_EQ(g.mesh.vertex_count(), 6);  // 8 vertices, 2 welded along the seam
@@ -178,7 +191,8 @@ TEST(Garment, ImportedMeshIsWeldedAndPinned) {
   none.pins.y_max = 6.0;
   EXPECT_THROW(import_garment(motion.skeleton, none), GarmentError);
   // A non-manifold garment (three triangles on one edge) is refused.
-  const std::string fan = write_temp("fan.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nf 1 2 3\nf 2 1 4\nf 1 2 5\n");
+  const std::string fan = write_temp(
+      "fan.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nf 1 2 3\nf 2 1 4\nf 1 2 5\n");
   MeshGarmentSpec bad = file.mesh;
   bad.file = fan;
   bad.pins.y_min = -10;
@@ -256,4 +270,40 @@ TEST(Garment, CommandLineRefusesBadScenesAndFilesAndWritesNothing) {
   expect_refused(scene, {"cli_cut.bvh"});
   // A scene file that is not there.
   expect_refused(testing::TempDir() + "/no_such_scene.json", {"no_such_scene.json", "cannot open"});
+}
+
+TEST(Garment, FastLimbsOnBoxingDoNotTunnel) {
+  // The cape on the first 10 s of Boxing_Toes.bvh. Its fastest capsule moves several radii per
+  // frame; with one projection per frame some vertices end on the far side of a limb (their path
+  // crosses it), while swept capsules, or the scene's 10 sub-steps with interpolated capsules,
+  // keep every vertex on its side and out of every capsule at every frame.
+  const SceneFile file = load_scene_file(kMotions + "cape_boxing.json");
+  ASSERT_EQ(file.collider_motion, ColliderMotion::Interpolated);
+  ASSERT_EQ(file.settings.substeps, 10);
+  const CharacterScene scene = build_character_scene(file);
+  const MotionClip& clip = scene.clips[static_cast<size_t>(scene.clip_index("boxing"))];
+  const CapsuleSpeed fast = fastest_capsule(scene, clip, 300);
+  EXPECT_GT(fast.speed / clip.rate, 2 * fast.radius) << fast.bone << " " << fast.speed << " m/s";
+
+  CharacterBenchOptions options;
+  options.clip = "boxing";
+  options.frames = 300;
+  options.substeps = {1};
+  options.collider_motions = {ColliderMotion::Interpolated, ColliderMotion::Swept};
+  const auto one_step = run_character_bench(file, options);
+  ASSERT_EQ(one_step.size(), 2u);
+  EXPECT_GT(one_step[0].tunnelled, 0)
+      << "one projection per frame: expected vertices through a limb";
+  EXPECT_GT(one_step[0].deepest_path, 0.5);
+  EXPECT_EQ(one_step[1].tunnelled, 0) << "swept";
+  options.substeps = {0};  // the scene's 10
+  options.collider_motions = {ColliderMotion::Interpolated};
+  const auto chosen = run_character_bench(file, options);
+  ASSERT_EQ(chosen.size(), 1u);
+  EXPECT_EQ(chosen[0].tunnelled, 0);
+  for (const auto* r : {&one_step[1], &chosen[0]}) {
+    EXPECT_TRUE(r->stable) << r->message;
+    EXPECT_EQ(r->frames, 299);
+    EXPECT_LE(r->max_penetration, file.material.thickness) << r->solver;  // worst over all frames
+  }
 }
