@@ -66,24 +66,7 @@ void register_precompute(CLI::App& app) {
       graph = build_motion_graph(scene.clips, scene.skeleton, settings);
     }
     if (graph.edges.empty()) throw std::runtime_error(args->scene + ": the motion graph has no edges");
-    ExploreGraph eg;
-    eg.node_count = graph.node_count();
-    eg.rate = scene.clips.front().rate;
-    eg.start_node = graph.edges.front().from;
-    for (size_t e = 0; e < graph.edges.size(); ++e) {
-      const GraphEdge& ge = graph.edges[e];
-      if (ge.clip >= static_cast<int>(scene.clips.size()) || ge.target_clip >= static_cast<int>(scene.clips.size()))
-        throw std::runtime_error(args->graph + ": edge " + std::to_string(e) + " names a clip the scene does not have");
-      ExploreEdge x;
-      x.from_node = ge.from;
-      x.to_node = ge.to;
-      x.name = ge.kind == EdgeKind::clip
-                   ? scene.clips[ge.clip].name + "[" + std::to_string(ge.first_frame) + "-" + std::to_string(ge.last_frame) + "]"
-                   : scene.clips[ge.clip].name + "[" + std::to_string(ge.first_frame) + "]->" +
-                         scene.clips[ge.target_clip].name + "[" + std::to_string(ge.target_frame) + "]";
-      x.poses = edge_poses(graph, scene.clips, static_cast<int>(e));
-      eg.edges.push_back(std::move(x));
-    }
+    ExploreGraph eg = explore_graph(scene, graph, args->graph.empty() ? args->scene : args->graph);
     const bool exists = std::filesystem::exists(args->db);
     db::Writer writer = exists ? db::Writer::open(args->db) : db::Writer::create(args->db);
     prepare_database(writer, scene, eg, motion_graph_to_json(graph).dump());
