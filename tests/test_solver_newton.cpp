@@ -632,9 +632,10 @@ TEST(NewtonSolver, ReportsFailureHonestlyWhenHalvingsAreExhausted) {
 }
 
 // Chord iterations (SolverSettings::newton_reuse_contraction: a factorisation reused while the
-// residual keeps contracting) change the path to the minimum, not the minimum: they agree with the
-// plain loop (a factorisation every iteration) within what the tolerance allows, with fewer
-// factorisations.
+// residual keeps contracting) and the predicted start (newton_guess) change the path to the
+// minimum, not the minimum: they agree with the plain loop (start at x_n, a factorisation every
+// iteration) within what the tolerance allows, and chords need fewer factorisations. (This also
+// caught the plain loop never setting the Rayleigh damping matrix K_n when no pin moves.)
 TEST(NewtonSolver, ChordIterationsReachTheSameSolutionWithFewerFactorisations) {
   // A soft sheet hanging from its whole top edge, sagging and swinging from rest under its own
   // weight: stretched everywhere, so the incremental potential has one minimum per step. (Where
@@ -667,9 +668,11 @@ TEST(NewtonSolver, ChordIterationsReachTheSameSolutionWithFewerFactorisations) {
     }
     return state;
   };
-  int plain_count = 0, chord_count = 0;
+  int plain_count = 0, chord_count = 0, guess_count = 0;
   const ClothState plain = run(SolverSettings::Guess::Start, 0.0, plain_count);
   const ClothState chord = run(SolverSettings::Guess::Start, 0.5, chord_count);
+  const ClothState guessed = run(SolverSettings::Guess::Extrapolate, 0.0, guess_count);
+  EXPECT_LT((plain.x - guessed.x).cwiseAbs().maxCoeff(), 1e-7) << guess_count;
   // The residual tolerance 1e-8 m g over the mass term m / dt^2 is about 1e-10 m per step.
   EXPECT_LT((plain.x - chord.x).cwiseAbs().maxCoeff(), 1e-7);
   EXPECT_LT(chord_count, plain_count);

@@ -715,7 +715,13 @@ class NewtonSolver final : public Solver {
       if (!solved) {
         if (!hessian_current && !stale_hessian) {
           evaluate(x, true, true, &grad);
-          assemble_stiffness(exact, projected);
+          if (!have_damping) {
+            // Still at x_n (nothing moved before the first Hessian): this is K_n.
+            start_damping(ctx, x, exact, projected);
+            have_damping = true;
+          } else {
+            assemble_stiffness(exact, projected);
+          }
           update_tolerance();
           hessian_current = true;
           if (rnorm < tolerance) continue;  // converged once rounding is accounted for
