@@ -70,7 +70,7 @@ void register_bench_solvers(CLI::App& bench) {
 
 void register_bench_newton(CLI::App& bench) {
   struct Args {
-    std::string scenes = "seed004-fall,seed004-529", out = "out/bench-newton";
+    std::string scenes = "seed004-fall,seed004-529", out = "out/bench-newton", only;
     int frames = 30, repeat = 1;
   };
   auto args = std::make_shared<Args>();
@@ -90,6 +90,9 @@ void register_bench_newton(CLI::App& bench) {
          "Runs per variant; the fastest (CPU time) is kept, against a shared machine's noise")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
+  cmd->add_option("--only", args->only,
+                  "Comma-separated substrings: run only the variants whose label contains one, "
+                  "e.g. 'ldlt tol=1e-06'");
   cmd->add_option("--out", args->out, "Output directory")->capture_default_str();
   cmd->callback([args] {
     const std::vector<std::string> scenes = split_list(args->scenes);
@@ -97,8 +100,8 @@ void register_bench_newton(CLI::App& bench) {
     for (const auto& s : scenes) make_bench_scene(s, check);  // unknown names fail before any work
     make_directories(args->out);
     const auto start = std::chrono::steady_clock::now();
-    const auto rows =
-        run_newton_study(scenes, args->frames, args->repeat, [&](const std::string& line) {
+    const auto rows = run_newton_study(
+        scenes, args->frames, args->repeat, split_list(args->only), [&](const std::string& line) {
           const double s =
               std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
           std::fprintf(stderr, "[%6.1fs] %s\n", s, line.c_str());

@@ -262,7 +262,7 @@ std::vector<BenchConfig> newton_study_configs() {
 }
 
 std::vector<BenchRow> run_newton_study(const std::vector<std::string>& scenes, int frames,
-                                       int repeat,
+                                       int repeat, const std::vector<std::string>& only,
                                        const std::function<void(const std::string&)>& progress) {
   std::vector<BenchRow> rows;
   SolverBenchOptions options;
@@ -274,6 +274,10 @@ std::vector<BenchRow> run_newton_study(const std::vector<std::string>& scenes, i
     const RunResult reference = run_scene(scene, *ref_solver, n, true);
     if (progress) progress(name + ": reference " + ref_config.label);
     for (const BenchConfig& c : newton_study_configs()) {
+      if (!only.empty() && std::none_of(only.begin(), only.end(), [&](const std::string& o) {
+            return c.label.find(o) != std::string::npos;
+          }))
+        continue;
       BenchRow best;
       for (int k = 0; k < std::max(1, repeat); ++k) {
         BenchRow row = measure_config(scene, c, n, reference);

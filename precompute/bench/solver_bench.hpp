@@ -82,8 +82,9 @@ std::vector<BenchRow> run_solver_bench(const SolverBenchOptions& options,
 // predicted start, chord iterations, a looser tolerance, CHOLMOD and PCG with warm starts.
 std::vector<BenchConfig> newton_study_configs();
 // Runs every study configuration `repeat` times and keeps the fastest (by CPU time) of each.
+// `only`: when not empty, only the variants whose label contains one of these strings.
 std::vector<BenchRow> run_newton_study(const std::vector<std::string>& scenes, int frames,
-                                       int repeat,
+                                       int repeat, const std::vector<std::string>& only,
                                        const std::function<void(const std::string&)>& progress);
 // Markdown table with Newton iterations and factorisations per frame.
 std::string newton_study_markdown(const std::vector<BenchRow>& rows);
