@@ -47,15 +47,21 @@ struct SolverOptions {
   SolverSettings settings;
   void add_to(CLI::App& cmd) {
     cmd.add_option("--solver", solver, "mass-spring | pbd | xpbd | newton")->capture_default_str();
-    cmd.add_option("--substeps", settings.substeps, "Sub-steps per frame")->capture_default_str()
+    cmd.add_option("--substeps", settings.substeps, "Sub-steps per frame")
+        ->capture_default_str()
         ->check(CLI::PositiveNumber);
-    cmd.add_option("--iterations", settings.iterations, "Constraint iterations per sub-step (PBD, XPBD)")
-        ->capture_default_str()->check(CLI::PositiveNumber);
-    cmd.add_option("--tolerance", settings.newton_tolerance, "Newton force tolerance (relative to max m g)")
+    cmd.add_option("--iterations", settings.iterations,
+                   "Constraint iterations per sub-step (PBD, XPBD)")
+        ->capture_default_str()
+        ->check(CLI::PositiveNumber);
+    cmd.add_option("--tolerance", settings.newton_tolerance,
+                   "Newton force tolerance (relative to max m g)")
         ->capture_default_str();
-    cmd.add_option("--linear-solver", linear_solver, "Newton's linear solver: ldlt | cholmod | pcg")
+    cmd.add_option("--linear-solver", linear_solver,
+                   "Newton's linear solver: ldlt | cholmod | pcg | pcg-ic")
         ->capture_default_str();
-    cmd.add_option("--threads", settings.threads, "OpenMP threads")->capture_default_str()
+    cmd.add_option("--threads", settings.threads, "OpenMP threads")
+        ->capture_default_str()
         ->check(CLI::PositiveNumber);
   }
   SolverKind kind() const { return parse_solver_kind(solver); }

@@ -26,14 +26,18 @@ void register_bench_solvers(CLI::App& bench) {
                   "Comma-separated scenes (default: all hard cases, seed004-529, large-sheet)");
   cmd->add_option("--solvers", args->solvers, "Comma-separated solvers (default: all four)");
   cmd->add_option("--frames", args->options.frames, "Frames per run at 30 fps")
-      ->capture_default_str()->check(CLI::PositiveNumber);
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   cmd->add_option("--resolution", args->options.resolution,
-                  "Nodes per side of the hard-case sheets (0: scene default)")->capture_default_str();
+                  "Nodes per side of the hard-case sheets (0: scene default)")
+      ->capture_default_str();
   cmd->add_option("--large-vertices", args->options.large_vertices,
-                  "Vertices of the large-sheet scene")->capture_default_str();
+                  "Vertices of the large-sheet scene")
+      ->capture_default_str();
   cmd->add_option("--threads", args->threads, "Comma-separated thread counts, e.g. 1,2")
       ->capture_default_str();
-  cmd->add_flag("--quick", args->options.quick, "Two settings per solver instead of the full sweep");
+  cmd->add_flag("--quick", args->options.quick,
+                "Two settings per solver instead of the full sweep");
   cmd->add_option("--out", args->out, "Output directory")->capture_default_str();
   cmd->callback([args] {
     SolverBenchOptions options = args->options;
@@ -45,7 +49,8 @@ void register_bench_solvers(CLI::App& bench) {
     make_directories(args->out);
     const auto start = std::chrono::steady_clock::now();
     const auto rows = run_solver_bench(options, [&](const std::string& line) {
-      const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      const double s =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
       std::fprintf(stderr, "[%6.1fs] %s\n", s, line.c_str());
     });
     write_file_atomic(args->out + "/solvers.csv", bench_rows_csv(rows));
@@ -53,10 +58,59 @@ void register_bench_solvers(CLI::App& bench) {
     write_file_atomic(args->out + "/solvers.md", bench_rows_markdown(rows));
     std::vector<std::string> scenes;
     for (const auto& r : rows)
-      if (std::find(scenes.begin(), scenes.end(), r.scene) == scenes.end()) scenes.push_back(r.scene);
-    for (const auto& s : scenes) write_file_atomic(args->out + "/" + s + ".svg", render_svg(bench_plot(rows, s)));
+      if (std::find(scenes.begin(), scenes.end(), r.scene) == scenes.end())
+        scenes.push_back(r.scene);
+    for (const auto& s : scenes)
+      write_file_atomic(args->out + "/" + s + ".svg", render_svg(bench_plot(rows, s)));
     std::printf("%s", bench_rows_markdown(rows).c_str());
-    std::printf("\nwrote %s/solvers.{csv,json,md} and %zu SVG plots\n", args->out.c_str(), scenes.size());
+    std::printf("\nwrote %s/solvers.{csv,json,md} and %zu SVG plots\n", args->out.c_str(),
+                scenes.size());
+  });
+}
+
+void register_bench_newton(CLI::App& bench) {
+  struct Args {
+    std::string scenes = "seed004-fall,seed004-529", out = "out/bench-newton", only;
+    int frames = 30, repeat = 1;
+  };
+  auto args = std::make_shared<Args>();
+  CLI::App* cmd = bench.add_subcommand(
+      "newton",
+      "The Newton solver's speed study on seed 004's 529-node grid: the original loop against "
+      "the predicted start, chord iterations (factorisation reuse), looser tolerances, CHOLMOD "
+      "and warm-started PCG (Jacobi and incomplete Cholesky), one thread, each measured against "
+      "the reference (Newton, 8 sub-steps, tolerance 1e-9). Writes newton.csv, newton.json and "
+      "newton.md.");
+  cmd->add_option("--scenes", args->scenes, "Comma-separated scenes")->capture_default_str();
+  cmd->add_option("--frames", args->frames, "Frames per run at 30 fps")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  cmd->add_option(
+         "--repeat", args->repeat,
+         "Runs per variant; the fastest (CPU time) is kept, against a shared machine's noise")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  cmd->add_option("--only", args->only,
+                  "Comma-separated substrings: run only the variants whose label contains one, "
+                  "e.g. 'ldlt tol=1e-06'");
+  cmd->add_option("--out", args->out, "Output directory")->capture_default_str();
+  cmd->callback([args] {
+    const std::vector<std::string> scenes = split_list(args->scenes);
+    SolverBenchOptions check;
+    for (const auto& s : scenes) make_bench_scene(s, check);  // unknown names fail before any work
+    make_directories(args->out);
+    const auto start = std::chrono::steady_clock::now();
+    const auto rows = run_newton_study(
+        scenes, args->frames, args->repeat, split_list(args->only), [&](const std::string& line) {
+          const double s =
+              std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+          std::fprintf(stderr, "[%6.1fs] %s\n", s, line.c_str());
+        });
+    write_file_atomic(args->out + "/newton.csv", bench_rows_csv(rows));
+    write_file_atomic(args->out + "/newton.json", bench_rows_json(rows));
+    write_file_atomic(args->out + "/newton.md", newton_study_markdown(rows));
+    std::printf("%s", newton_study_markdown(rows).c_str());
+    std::printf("\nwrote %s/newton.{csv,json,md}\n", args->out.c_str());
   });
 }
 

@@ -29,23 +29,30 @@ void append_floats(const Eigen::Matrix3Xd& x, std::vector<float>& out) {
 void register_simulate(CLI::App& app) {
   struct Args {
     std::string scene, clip, out, solver, linear_solver;
-    int frames = 0, preview_every = 30, substeps = 0, iterations = 0, threads = 0, width = 480, height = 360;
+    int frames = 0, preview_every = 30, substeps = 0, iterations = 0, threads = 0, width = 480,
+        height = 360;
   };
   auto args = std::make_shared<Args>();
   CLI::App* cmd = app.add_subcommand(
       "simulate",
-      "Simulates one clip of a scene and writes DIR/garment.obj + DIR/cloth.pc2 (Blender: import the "
+      "Simulates one clip of a scene and writes DIR/garment.obj + DIR/cloth.pc2 (Blender: import "
+      "the "
       "OBJ, add a Mesh Cache modifier with the PC2), DIR/body.obj + DIR/body.pc2 (the colliding "
       "capsules), DIR/metrics.csv, DIR/summary.json and PNG previews in DIR/previews/.");
-  cmd->add_option("SCENE", args->scene, "Scene file (JSON), e.g. motions/skirt_walk.json")->required();
+  cmd->add_option("SCENE", args->scene, "Scene file (JSON), e.g. motions/skirt_walk.json")
+      ->required();
   cmd->add_option("--clip", args->clip, "Clip name (default: the scene's first clip)");
   cmd->add_option("--out", args->out, "Output directory")->required();
-  cmd->add_option("--frames", args->frames, "Simulate only the first N frames (0: all)")->capture_default_str();
-  cmd->add_option("--preview-every", args->preview_every, "A PNG preview every N frames (0: none)")->capture_default_str();
-  cmd->add_option("--solver", args->solver, "Override the scene's solver: mass-spring | pbd | xpbd | newton");
+  cmd->add_option("--frames", args->frames, "Simulate only the first N frames (0: all)")
+      ->capture_default_str();
+  cmd->add_option("--preview-every", args->preview_every, "A PNG preview every N frames (0: none)")
+      ->capture_default_str();
+  cmd->add_option("--solver", args->solver,
+                  "Override the scene's solver: mass-spring | pbd | xpbd | newton");
   cmd->add_option("--substeps", args->substeps, "Override the scene's sub-steps");
   cmd->add_option("--iterations", args->iterations, "Override the scene's iterations");
-  cmd->add_option("--linear-solver", args->linear_solver, "Override Newton's linear solver: ldlt | cholmod | pcg");
+  cmd->add_option("--linear-solver", args->linear_solver,
+                  "Override Newton's linear solver: ldlt | cholmod | pcg | pcg-ic");
   cmd->add_option("--threads", args->threads, "Override the scene's OpenMP threads");
   cmd->add_option("--width", args->width, "Preview width")->capture_default_str();
   cmd->add_option("--height", args->height, "Preview height")->capture_default_str();
@@ -55,48 +62,60 @@ void register_simulate(CLI::App& app) {
     if (args->substeps > 0) file.settings.substeps = args->substeps;
     if (args->iterations > 0) file.settings.iterations = args->iterations;
     if (args->threads > 0) file.settings.threads = args->threads;
-    if (!args->linear_solver.empty()) file.settings.linear_solver = parse_linear_solver_kind(args->linear_solver);
+    if (!args->linear_solver.empty())
+      file.settings.linear_solver = parse_linear_solver_kind(args->linear_solver);
     const CharacterScene scene = build_character_scene(file);
     const MotionClip& clip = scene.clips[args->clip.empty() ? 0 : scene.clip_index(args->clip)];
     auto solver = make_solver(file.solver, scene.model, file.settings);
-    std::fprintf(stderr, "%s: %s, %d cloth vertices, %zu colliding capsules, clip '%s' (%d frames at %g Hz), %s\n",
-                 file.path.c_str(), scene.garment.name.c_str(), scene.model.vertex_count(),
-                 scene.body.capsules.size(), clip.name.c_str(), clip.frame_count, clip.rate,
-                 solver->describe().c_str());
+    std::fprintf(
+        stderr,
+        "%s: %s, %d cloth vertices, %zu colliding capsules, clip '%s' (%d frames at %g Hz), %s\n",
+        file.path.c_str(), scene.garment.name.c_str(), scene.model.vertex_count(),
+        scene.body.capsules.size(), clip.name.c_str(), clip.frame_count, clip.rate,
+        solver->describe().c_str());
 
     ClothState state = settle_garment(scene, *solver, clip_pose(clip, 0));
-    const int frames = args->frames > 0 ? std::min(args->frames, clip.frame_count) : clip.frame_count;
+    const int frames =
+        args->frames > 0 ? std::min(args->frames, clip.frame_count) : clip.frame_count;
     std::vector<float> cloth, body;
     append_floats(state.x, cloth);
     auto capsules_at = [&](int f) {
-      return body_capsules(scene.body, scene.skeleton, clip_pose(clip, std::max(f - 1, 0)), clip_pose(clip, f));
+      return body_capsules(scene.body, scene.skeleton, clip_pose(clip, std::max(f - 1, 0)),
+                           clip_pose(clip, f));
     };
     append_capsule_mesh_positions(capsules_at(0), body);
     std::ostringstream csv;
-    csv << "frame,max_strain,max_penetration_mm,mean_penetration_mm,kinetic_energy_J,step_halvings\n";
+    csv << "frame,max_strain,max_penetration_mm,mean_penetration_mm,kinetic_energy_J,step_"
+           "halvings\n";
     FrameMetrics worst;
     const auto start = std::chrono::steady_clock::now();
     double solver_seconds = 0;
     std::vector<std::pair<int, Eigen::Matrix3Xd>> preview_frames;
     if (args->preview_every > 0) preview_frames.push_back({0, state.x});
     for (int f = 1; f < frames; ++f) {
-      const PoseRun run = simulate_poses(scene, *solver, {clip_pose(clip, f - 1), clip_pose(clip, f)}, clip.rate, state);
-      if (!run.stable) throw std::runtime_error(clip.name + ": frame " + std::to_string(f) + ": " + run.message);
+      const PoseRun run = simulate_poses(
+          scene, *solver, {clip_pose(clip, f - 1), clip_pose(clip, f)}, clip.rate, state);
+      if (!run.stable)
+        throw std::runtime_error(clip.name + ": frame " + std::to_string(f) + ": " + run.message);
       solver_seconds += run.seconds;
       const FrameMetrics& m = run.metrics.front();
-      csv << f << ',' << m.max_strain << ',' << 1e3 * m.max_penetration << ',' << 1e3 * m.mean_penetration << ','
-          << m.kinetic_energy << ',' << m.step_halvings << '\n';
+      csv << f << ',' << m.max_strain << ',' << 1e3 * m.max_penetration << ','
+          << 1e3 * m.mean_penetration << ',' << m.kinetic_energy << ',' << m.step_halvings << '\n';
       worst.max_strain = std::max(worst.max_strain, m.max_strain);
       worst.max_penetration = std::max(worst.max_penetration, m.max_penetration);
       worst.mean_penetration = std::max(worst.mean_penetration, m.mean_penetration);
       worst.step_halvings += m.step_halvings;
       append_floats(state.x, cloth);
       append_capsule_mesh_positions(capsules_at(f), body);
-      if (args->preview_every > 0 && f % args->preview_every == 0) preview_frames.push_back({f, state.x});
-      const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-      std::fprintf(stderr, "\r  frame %d/%d  %.1f ms/frame  max strain %.2f%%  max penetration %.2f mm  ETA %.0f s   ",
-                   f + 1, frames, 1e3 * solver_seconds / f, 100 * m.max_strain, 1e3 * m.max_penetration,
-                   elapsed / f * (frames - 1 - f));
+      if (args->preview_every > 0 && f % args->preview_every == 0)
+        preview_frames.push_back({f, state.x});
+      const double elapsed =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      std::fprintf(stderr,
+                   "\r  frame %d/%d  %.1f ms/frame  max strain %.2f%%  max penetration %.2f mm  "
+                   "ETA %.0f s   ",
+                   f + 1, frames, 1e3 * solver_seconds / f, 100 * m.max_strain,
+                   1e3 * m.max_penetration, elapsed / f * (frames - 1 - f));
     }
     std::fprintf(stderr, "\n");
 
@@ -132,20 +151,28 @@ void register_simulate(CLI::App& app) {
         ps.floor_height = 0.0;
         char name[64];
         std::snprintf(name, sizeof name, "/previews/frame_%04d.png", f);
-        write_png(args->out + name, render_preview(ps, cam, args->width, args->height), args->width, args->height);
+        write_png(args->out + name, render_preview(ps, cam, args->width, args->height), args->width,
+                  args->height);
       }
     }
-    nlohmann::json summary = {
-        {"scene", file.path.string()},          {"clip", clip.name},
-        {"solver", solver->describe()},         {"vertices", scene.model.vertex_count()},
-        {"capsules", scene.body.capsules.size()}, {"frames", frames},
-        {"rate", clip.rate},                    {"ms_per_frame", 1e3 * solver_seconds / std::max(frames - 1, 1)},
-        {"max_strain", worst.max_strain},       {"max_penetration_mm", 1e3 * worst.max_penetration},
-        {"max_mean_penetration_mm", 1e3 * worst.mean_penetration}, {"thickness_mm", 1e3 * file.material.thickness},
-        {"step_halvings", worst.step_halvings}};
+    nlohmann::json summary = {{"scene", file.path.string()},
+                              {"clip", clip.name},
+                              {"solver", solver->describe()},
+                              {"vertices", scene.model.vertex_count()},
+                              {"capsules", scene.body.capsules.size()},
+                              {"frames", frames},
+                              {"rate", clip.rate},
+                              {"ms_per_frame", 1e3 * solver_seconds / std::max(frames - 1, 1)},
+                              {"max_strain", worst.max_strain},
+                              {"max_penetration_mm", 1e3 * worst.max_penetration},
+                              {"max_mean_penetration_mm", 1e3 * worst.mean_penetration},
+                              {"thickness_mm", 1e3 * file.material.thickness},
+                              {"step_halvings", worst.step_halvings}};
     write_file_atomic(args->out + "/summary.json", summary.dump(2) + "\n");
-    std::printf("%s\nwrote %s/{garment.obj,cloth.pc2,body.obj,body.pc2,metrics.csv,summary.json} and %zu previews\n",
-                summary.dump(2).c_str(), args->out.c_str(), preview_frames.size());
+    std::printf(
+        "%s\nwrote %s/{garment.obj,cloth.pc2,body.obj,body.pc2,metrics.csv,summary.json} and %zu "
+        "previews\n",
+        summary.dump(2).c_str(), args->out.c_str(), preview_frames.size());
   });
 }
 

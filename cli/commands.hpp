@@ -8,19 +8,22 @@
 namespace clothdb::cli {
 
 void register_bench_solvers(CLI::App& bench);  // cmd_bench_solvers.cpp
+void register_bench_newton(CLI::App& bench);   // cmd_bench_solvers.cpp: `clothdb bench newton`
 void register_scene_commands(CLI::App& app);   // cmd_scene.cpp: `clothdb scene run|list`
+// cmd_simulate.cpp: `clothdb simulate`
 void register_simulate(CLI::App& app);
-void register_precompute(CLI::App& app);       // cmd_precompute.cpp: `clothdb precompute`         // cmd_simulate.cpp: `clothdb simulate`
+// cmd_precompute.cpp: `clothdb precompute`
+void register_precompute(CLI::App& app);
 void register_motion_commands(CLI::App& app);  // cmd_motion.cpp: `clothdb motion info`
 void register_graph_commands(CLI::App& app);   // cmd_graph.cpp: `clothdb graph build|show`
 
-void register_db_commands(CLI::App& app);     // cmd_db.cpp: `clothdb db info|check`
-void register_bench_codec(CLI::App& bench);   // cmd_bench_codec.cpp: `clothdb bench codec`
+void register_db_commands(CLI::App& app);    // cmd_db.cpp: `clothdb db info|check`
+void register_bench_codec(CLI::App& bench);  // cmd_bench_codec.cpp: `clothdb bench codec`
 
-void register_play_commands(CLI::App& app);     // cmd_play.cpp: `clothdb play`
+void register_play_commands(CLI::App& app);          // cmd_play.cpp: `clothdb play`
 void register_clip_quality_commands(CLI::App& app);  // cmd_clips.cpp: `clothdb clips list`, `clip show`
-void register_bench_runtime(CLI::App& bench);   // cmd_play.cpp: `clothdb bench runtime`
-void register_bench_character(
-    CLI::App& bench);  // cmd_bench_character.cpp: `clothdb bench character`
+void register_bench_runtime(CLI::App& bench);        // cmd_play.cpp: `clothdb bench runtime`
+// cmd_bench_character.cpp: `clothdb bench character`
+void register_bench_character(CLI::App& bench);
 
 }  // namespace clothdb::cli

@@ -15,6 +15,7 @@ int main(int argc, char** argv) {
   bench->require_subcommand(1);
 
   clothdb::cli::register_bench_solvers(*bench);
+  clothdb::cli::register_bench_newton(*bench);
   clothdb::cli::register_bench_codec(*bench);
   clothdb::cli::register_bench_runtime(*bench);
   clothdb::cli::register_bench_character(*bench);

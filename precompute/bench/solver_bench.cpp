@@ -19,7 +19,9 @@ BenchConfig config(SolverKind kind, int substeps, int iterations, double toleran
   c.settings.linear_solver = linear;
   char buf[96];
   switch (kind) {
-    case SolverKind::MassSpring: std::snprintf(buf, sizeof buf, "substeps=%d", substeps); break;
+    case SolverKind::MassSpring:
+      std::snprintf(buf, sizeof buf, "substeps=%d", substeps);
+      break;
     case SolverKind::Pbd:
     case SolverKind::Xpbd:
       std::snprintf(buf, sizeof buf, "substeps=%d iterations=%d", substeps, iterations);
@@ -45,24 +47,35 @@ std::string csv_field(const std::string& s) {
 std::vector<BenchConfig> bench_configs(SolverKind kind, bool quick) {
   using L = LinearSolverKind;
   switch (kind) {
-    case SolverKind::MassSpring:
-      // Explicit: stable only below ~2 sqrt(m/k); the sweep crosses that limit on purpose.
-      if (quick) return {config(kind, 50, 1), config(kind, 200, 1)};
-      return {config(kind, 25, 1), config(kind, 50, 1), config(kind, 100, 1), config(kind, 200, 1),
-              config(kind, 400, 1)};
+    case SolverKind::MassSpring: {
+      // Explicit integration is stable only below mass_spring_critical_dt (the stiffest spring
+      // mode with Rayleigh damping, mass_spring.cpp), which depends on the scene's mesh and
+      // material: the sub-steps are multiples of the count it asks for, so every row is stable
+      // by construction (the solver's own check still runs).
+      std::vector<BenchConfig> out;
+      for (double multiple : quick ? std::vector<double>{1} : std::vector<double>{1, 2}) {
+        out.push_back(config(kind, 1, 1));
+        out.back().critical_multiple = multiple;
+      }
+      return out;
+    }
     case SolverKind::Pbd:
       if (quick) return {config(kind, 1, 10), config(kind, 4, 20)};
       return {config(kind, 1, 10), config(kind, 1, 50), config(kind, 4, 10), config(kind, 4, 20),
               config(kind, 10, 20)};
     case SolverKind::Xpbd:
       if (quick) return {config(kind, 1, 20), config(kind, 20, 1)};
-      return {config(kind, 1, 10), config(kind, 1, 50), config(kind, 5, 4),
-              config(kind, 10, 1), config(kind, 20, 1), config(kind, 40, 1), config(kind, 80, 1)};
+      return {config(kind, 1, 10), config(kind, 1, 50), config(kind, 5, 4), config(kind, 10, 1),
+              config(kind, 20, 1), config(kind, 40, 1), config(kind, 80, 1)};
     case SolverKind::Newton:
       if (quick) return {config(kind, 1, 0, 1e-4), config(kind, 1, 0, 1e-6, L::ConjugateGradient)};
-      return {config(kind, 1, 0, 1e-3), config(kind, 1, 0, 1e-5), config(kind, 2, 0, 1e-5),
-              config(kind, 4, 0, 1e-5), config(kind, 1, 0, 1e-5, L::Cholmod),
-              config(kind, 1, 0, 1e-5, L::ConjugateGradient)};
+      return {config(kind, 1, 0, 1e-3),
+              config(kind, 1, 0, 1e-5),
+              config(kind, 2, 0, 1e-5),
+              config(kind, 4, 0, 1e-5),
+              config(kind, 1, 0, 1e-5, L::Cholmod),
+              config(kind, 1, 0, 1e-5, L::ConjugateGradient),
+              config(kind, 1, 0, 1e-5, L::ConjugateGradientIC)};
   }
   return {};
 }
@@ -74,7 +87,71 @@ BenchConfig reference_config() {
 ClothScene make_bench_scene(const std::string& name, const SolverBenchOptions& options) {
   if (name == "large-sheet") return make_large_sheet(options.large_vertices);
   if (name == "seed004-529") return make_seed004_grid();
+  if (name == "seed004-fall") return make_seed004_fall();
   return make_hard_case(name, options.resolution);
+}
+
+bool resolve_config(BenchConfig& c, const ClothScene& scene, const SolverBenchOptions& options,
+                    std::string& why) {
+  if (c.kind != SolverKind::MassSpring || !(c.critical_multiple > 0)) return true;
+  const double critical = mass_spring_critical_dt(scene.model);
+  const double needed = std::isfinite(critical) ? std::ceil(scene.frame_dt / critical) : 1.0;
+  const double substeps = std::ceil(c.critical_multiple * needed);
+  char buf[160];
+  std::snprintf(buf, sizeof buf, "substeps=%.0f (%gx critical)", substeps, c.critical_multiple);
+  c.label = buf;
+  if (substeps > options.max_mass_spring_substeps) {
+    std::snprintf(buf, sizeof buf,
+                  "needs %.0f sub-steps per frame for stability (critical dt %.3g s), over the "
+                  "cap of %d",
+                  substeps, critical, options.max_mass_spring_substeps);
+    why = buf;
+    return false;
+  }
+  c.settings.substeps = static_cast<int>(substeps);
+  return true;
+}
+
+BenchRow measure_config(const ClothScene& scene, const BenchConfig& c, int frames,
+                        const RunResult& reference) {
+  auto solver = make_solver(c.kind, scene.model, c.settings);
+  const RunResult run = run_scene(scene, *solver, frames, true);
+  BenchRow row;
+  row.scene = scene.name;
+  row.vertices = scene.model.vertex_count();
+  row.solver = solver_name(c.kind);
+  row.settings = c.label;
+  row.threads = c.settings.threads;
+  row.frames = static_cast<int>(run.metrics.size()) - 1;
+  row.ms_per_frame = row.frames > 0 ? 1e3 * run.seconds / row.frames : NAN;
+  row.cpu_ms_per_frame = row.frames > 0 ? 1e3 * run.cpu_seconds / row.frames : NAN;
+  row.stable = run.stable;
+  row.message = run.message;
+  double sum2 = 0, worst = 0;
+  long count = 0;
+  const size_t compared = std::min(run.frames.size(), reference.frames.size());
+  for (size_t f = 1; f < compared; ++f) {
+    const Eigen::Matrix3Xd d = run.frames[f] - reference.frames[f];
+    sum2 += d.colwise().squaredNorm().sum();
+    worst = std::max(worst, d.colwise().norm().maxCoeff());
+    count += d.cols();
+  }
+  const bool comparable = reference.stable && run.stable && count > 0;
+  row.rms_error_mm = comparable ? 1e3 * std::sqrt(sum2 / count) : NAN;
+  row.max_error_mm = comparable ? 1e3 * worst : NAN;
+  long iterations = 0, factorizations = 0;
+  for (const auto& m : run.metrics) {
+    row.max_strain = std::max(row.max_strain, m.max_strain);
+    row.max_penetration_mm = std::max(row.max_penetration_mm, 1e3 * m.max_penetration);
+    row.step_halvings += m.step_halvings;
+    iterations += m.iterations;
+    factorizations += m.factorizations;
+  }
+  if (row.frames > 0) {
+    row.iterations_per_frame = static_cast<double>(iterations) / row.frames;
+    row.factorizations_per_frame = static_cast<double>(factorizations) / row.frames;
+  }
+  return row;
 }
 
 std::vector<BenchRow> run_solver_bench(const SolverBenchOptions& options,
@@ -83,6 +160,7 @@ std::vector<BenchRow> run_solver_bench(const SolverBenchOptions& options,
   if (scenes.empty()) {
     scenes = hard_case_names();
     scenes.push_back("seed004-529");
+    scenes.push_back("seed004-fall");
     scenes.push_back("large-sheet");
   }
   std::vector<SolverKind> kinds;
@@ -107,41 +185,32 @@ std::vector<BenchRow> run_solver_bench(const SolverBenchOptions& options,
         for (int threads : options.threads) {
           BenchConfig c = base;
           c.settings.threads = threads;
-          auto solver = make_solver(c.kind, scene.model, c.settings);
-          const RunResult run = run_scene(scene, *solver, frames, true);
+          std::string why;
           BenchRow row;
-          row.scene = scene_name;
-          row.vertices = scene.model.vertex_count();
-          row.solver = solver_name(kind);
-          row.settings = c.label;
-          row.threads = threads;
-          row.frames = static_cast<int>(run.metrics.size()) - 1;
-          row.ms_per_frame = row.frames > 0 ? 1e3 * run.seconds / row.frames : NAN;
-          row.stable = run.stable;
-          row.message = run.message;
-          double sum2 = 0, worst = 0;
-          long count = 0;
-          const size_t compared = std::min(run.frames.size(), reference.frames.size());
-          for (size_t f = 1; f < compared; ++f) {
-            const Eigen::Matrix3Xd d = run.frames[f] - reference.frames[f];
-            sum2 += d.colwise().squaredNorm().sum();
-            worst = std::max(worst, d.colwise().norm().maxCoeff());
-            count += d.cols();
-          }
-          const bool comparable = reference.stable && run.stable && count > 0;
-          row.rms_error_mm = comparable ? 1e3 * std::sqrt(sum2 / count) : NAN;
-          row.max_error_mm = comparable ? 1e3 * worst : NAN;
-          for (const auto& m : run.metrics) {
-            row.max_strain = std::max(row.max_strain, m.max_strain);
-            row.max_penetration_mm = std::max(row.max_penetration_mm, 1e3 * m.max_penetration);
-            row.step_halvings += m.step_halvings;
+          if (resolve_config(c, scene, options, why)) {
+            row = measure_config(scene, c, frames, reference);
+          } else {
+            row.scene = scene_name;
+            row.vertices = scene.model.vertex_count();
+            row.solver = solver_name(kind);
+            row.settings = c.label;
+            row.threads = threads;
+            row.ms_per_frame = row.cpu_ms_per_frame = row.rms_error_mm = row.max_error_mm = NAN;
+            row.stable = false;
+            row.run = false;
+            row.message = why;
           }
           rows.push_back(row);
           if (progress) {
-            char buf[256];
-            std::snprintf(buf, sizeof buf, "%s: %-11s %-28s threads=%d  %8.2f ms/frame  rms %8.3f mm  %s",
-                          scene_name.c_str(), row.solver.c_str(), row.settings.c_str(), threads,
-                          row.ms_per_frame, row.rms_error_mm, row.stable ? "stable" : "UNSTABLE");
+            char buf[512];
+            std::snprintf(
+                buf, sizeof buf,
+                "%s: %-11s %-34s threads=%d  %8.2f ms/frame (cpu %8.2f)  rms %8.3f mm  %s",
+                scene_name.c_str(), row.solver.c_str(), row.settings.c_str(), threads,
+                row.ms_per_frame, row.cpu_ms_per_frame, row.rms_error_mm,
+                !row.run     ? ("not run: " + row.message).c_str()
+                : row.stable ? "stable"
+                             : "UNSTABLE");
             progress(buf);
           }
         }
@@ -151,22 +220,123 @@ std::vector<BenchRow> run_solver_bench(const SolverBenchOptions& options,
   return rows;
 }
 
+std::vector<BenchConfig> newton_study_configs() {
+  using L = LinearSolverKind;
+  using G = SolverSettings::Guess;
+  auto variant = [](L linear, double tolerance, G guess, double contraction, bool exact = true,
+                    int substeps = 1) {
+    BenchConfig c = config(SolverKind::Newton, substeps, 0, tolerance, linear);
+    c.settings.newton_guess = guess;
+    c.settings.newton_reuse_contraction = contraction;
+    c.settings.newton_exact_hessian = exact;
+    const char* guess_name = guess == G::Start ? "x_n" : guess == G::Inertial ? "x+hv" : "x+hv+h2a";
+    char buf[160];
+    std::snprintf(buf, sizeof buf, "%s tol=%.0e start=%s chord=%s hessian=%s%s",
+                  linear_solver_name(linear), tolerance, guess_name, contraction > 0 ? "yes" : "no",
+                  exact ? "exact" : "projected",
+                  substeps > 1 ? (" substeps=" + std::to_string(substeps)).c_str() : "");
+    c.label = buf;
+    return c;
+  };
+  return {
+      variant(L::SimplicialLDLT, 1e-6, G::Start, 0),  // the loop before this study
+      variant(L::SimplicialLDLT, 1e-6, G::Inertial, 0),
+      variant(L::SimplicialLDLT, 1e-6, G::Extrapolate, 0),
+      variant(L::SimplicialLDLT, 1e-6, G::Start, 0.5),
+      variant(L::SimplicialLDLT, 1e-6, G::Extrapolate, 0.5),
+      variant(L::SimplicialLDLT, 1e-4, G::Extrapolate, 0.5),
+      variant(L::SimplicialLDLT, 1e-3, G::Extrapolate, 0.5),
+      variant(L::SimplicialLDLT, 1e-2, G::Extrapolate, 0.5),
+      variant(L::SimplicialLDLT, 1e-3, G::Extrapolate, 0.5, false),
+      variant(L::SimplicialLDLT, 1e-3, G::Extrapolate, 0, false),
+      variant(L::SimplicialLDLT, 1e-3, G::Extrapolate, 0.5, false, 2),
+      variant(L::Cholmod, 1e-6, G::Start, 0),
+      variant(L::Cholmod, 1e-3, G::Extrapolate, 0.5),
+      variant(L::ConjugateGradient, 1e-6, G::Start, 0),
+      variant(L::ConjugateGradient, 1e-3, G::Extrapolate, 0),
+      variant(L::ConjugateGradient, 1e-3, G::Extrapolate, 0.5),
+      variant(L::ConjugateGradientIC, 1e-6, G::Start, 0),
+      variant(L::ConjugateGradientIC, 1e-3, G::Extrapolate, 0),
+      variant(L::ConjugateGradientIC, 1e-3, G::Extrapolate, 0.5),
+  };
+}
+
+std::vector<BenchRow> run_newton_study(const std::vector<std::string>& scenes, int frames,
+                                       int repeat, const std::vector<std::string>& only,
+                                       const std::function<void(const std::string&)>& progress) {
+  std::vector<BenchRow> rows;
+  SolverBenchOptions options;
+  for (const auto& name : scenes) {
+    const ClothScene scene = make_bench_scene(name, options);
+    const int n = frames > 0 ? frames : scene.frames;
+    const BenchConfig ref_config = reference_config();
+    auto ref_solver = make_solver(ref_config.kind, scene.model, ref_config.settings);
+    const RunResult reference = run_scene(scene, *ref_solver, n, true);
+    if (progress) progress(name + ": reference " + ref_config.label);
+    for (const BenchConfig& c : newton_study_configs()) {
+      if (!only.empty() && std::none_of(only.begin(), only.end(), [&](const std::string& o) {
+            return c.label.find(o) != std::string::npos;
+          }))
+        continue;
+      BenchRow best;
+      for (int k = 0; k < std::max(1, repeat); ++k) {
+        BenchRow row = measure_config(scene, c, n, reference);
+        if (k == 0 || row.cpu_ms_per_frame < best.cpu_ms_per_frame) best = row;
+      }
+      rows.push_back(best);
+      if (progress) {
+        char buf[512];
+        std::snprintf(buf, sizeof buf,
+                      "%s: %-40s %8.2f ms/frame (cpu %8.2f)  %5.2f it  %5.2f fact  %d halvings  "
+                      "rms %9.4f mm %s",
+                      name.c_str(), best.settings.c_str(), best.ms_per_frame, best.cpu_ms_per_frame,
+                      best.iterations_per_frame, best.factorizations_per_frame, best.step_halvings,
+                      best.rms_error_mm, best.stable ? "" : ("UNSTABLE: " + best.message).c_str());
+        progress(buf);
+      }
+    }
+  }
+  return rows;
+}
+
+std::string newton_study_markdown(const std::vector<BenchRow>& rows) {
+  std::ostringstream o;
+  o << "| scene | variant | ms/frame | CPU ms/frame | Newton it./frame | factorisations/frame | "
+       "RMS err "
+       "mm | max err mm | halvings | stable |\n|---|---|---|---|---|---|---|---|---|---|\n";
+  char buf[512];
+  for (const auto& r : rows) {
+    std::snprintf(buf, sizeof buf,
+                  "| %s | %s | %.2f | %.2f | %.2f | %.2f | %.3g | %.3g | %d | %s |\n",
+                  r.scene.c_str(), r.settings.c_str(), r.ms_per_frame, r.cpu_ms_per_frame,
+                  r.iterations_per_frame, r.factorizations_per_frame, r.rms_error_mm,
+                  r.max_error_mm, r.step_halvings, r.stable ? "yes" : "no");
+    o << buf;
+  }
+  return o.str();
+}
+
 std::string bench_rows_csv(const std::vector<BenchRow>& rows) {
   std::ostringstream o;
-  o << "scene,vertices,solver,settings,threads,frames,ms_per_frame,rms_error_mm,max_error_mm,"
-       "max_strain,max_penetration_mm,step_halvings,stable,message\n";
+  o << "scene,vertices,solver,settings,threads,frames,ms_per_frame,cpu_ms_per_frame,rms_error_mm,"
+       "max_error_mm,max_strain,max_penetration_mm,step_halvings,iterations_per_frame,"
+       "factorizations_per_frame,stable,run,message\n";
   for (const auto& r : rows) {
     o << csv_field(r.scene) << ',' << r.vertices << ',' << r.solver << ',' << csv_field(r.settings)
-      << ',' << r.threads << ',' << r.frames << ',' << r.ms_per_frame << ',' << r.rms_error_mm
-      << ',' << r.max_error_mm << ',' << r.max_strain << ',' << r.max_penetration_mm << ','
-      << r.step_halvings << ',' << (r.stable ? "yes" : "no") << ',' << csv_field(r.message) << '\n';
+      << ',' << r.threads << ',' << r.frames << ',' << r.ms_per_frame << ',' << r.cpu_ms_per_frame
+      << ',' << r.rms_error_mm << ',' << r.max_error_mm << ',' << r.max_strain << ','
+      << r.max_penetration_mm << ',' << r.step_halvings << ',' << r.iterations_per_frame << ','
+      << r.factorizations_per_frame << ',' << (r.stable ? "yes" : "no") << ','
+      << (r.run ? "yes" : "no") << ',' << csv_field(r.message) << '\n';
   }
   return o.str();
 }
 
 std::string bench_rows_json(const std::vector<BenchRow>& rows) {
   nlohmann::json j = nlohmann::json::array();
-  auto num = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); };
+  auto num = [](double v) {
+    return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr);
+  };
   for (const auto& r : rows) {
     j.push_back({{"scene", r.scene},
                  {"vertices", r.vertices},
@@ -175,6 +345,10 @@ std::string bench_rows_json(const std::vector<BenchRow>& rows) {
                  {"threads", r.threads},
                  {"frames", r.frames},
                  {"ms_per_frame", num(r.ms_per_frame)},
+                 {"cpu_ms_per_frame", num(r.cpu_ms_per_frame)},
+                 {"iterations_per_frame", r.iterations_per_frame},
+                 {"factorizations_per_frame", r.factorizations_per_frame},
+                 {"run", r.run},
                  {"rms_error_mm", num(r.rms_error_mm)},
                  {"max_error_mm", num(r.max_error_mm)},
                  {"max_strain", num(r.max_strain)},
@@ -188,14 +362,22 @@ std::string bench_rows_json(const std::vector<BenchRow>& rows) {
 
 std::string bench_rows_markdown(const std::vector<BenchRow>& rows) {
   std::ostringstream o;
-  o << "| scene | verts | solver | settings | thr | ms/frame | RMS err mm | max err mm | max strain "
-       "| pen. mm | stable |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
-  char buf[512];
+  o << "| scene | verts | solver | settings | thr | ms/frame | CPU ms/frame | RMS err mm | max err "
+       "mm "
+       "| max strain | pen. mm | stable |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  char buf[768];
   for (const auto& r : rows) {
-    std::snprintf(buf, sizeof buf, "| %s | %d | %s | %s | %d | %.2f | %.3g | %.3g | %.2f%% | %.2f | %s |\n",
-                  r.scene.c_str(), r.vertices, r.solver.c_str(), r.settings.c_str(), r.threads,
-                  r.ms_per_frame, r.rms_error_mm, r.max_error_mm, 100 * r.max_strain,
-                  r.max_penetration_mm, r.stable ? "yes" : "no");
+    if (!r.run) {
+      std::snprintf(buf, sizeof buf, "| %s | %d | %s | %s | %d | not run: %s | | | | | | |\n",
+                    r.scene.c_str(), r.vertices, r.solver.c_str(), r.settings.c_str(), r.threads,
+                    r.message.c_str());
+    } else {
+      std::snprintf(buf, sizeof buf,
+                    "| %s | %d | %s | %s | %d | %.2f | %.2f | %.3g | %.3g | %.2f%% | %.2f | %s |\n",
+                    r.scene.c_str(), r.vertices, r.solver.c_str(), r.settings.c_str(), r.threads,
+                    r.ms_per_frame, r.cpu_ms_per_frame, r.rms_error_mm, r.max_error_mm,
+                    100 * r.max_strain, r.max_penetration_mm, r.stable ? "yes" : "no");
+    }
     o << buf;
   }
   return o.str();
@@ -218,7 +400,8 @@ PlotSpec bench_plot(const std::vector<BenchRow>& rows, const std::string& scene)
         continue;
       s.x.push_back(r.ms_per_frame);
       s.y.push_back(std::max(r.rms_error_mm, 1e-6));
-      s.point_labels.push_back(r.settings + (r.threads > 1 ? " t" + std::to_string(r.threads) : ""));
+      s.point_labels.push_back(r.settings +
+                               (r.threads > 1 ? " t" + std::to_string(r.threads) : ""));
       all_x.push_back(s.x.back());
       all_y.push_back(s.y.back());
     }

@@ -20,12 +20,19 @@ struct SolverBenchOptions {
   int large_vertices = 10000;        // vertex count of "large-sheet"
   std::vector<int> threads{1};       // thread counts to run (the speed-up is reported per row)
   bool quick = false;                // fewer settings per solver (for tests and a fast look)
+  // Mass-spring rows whose stable sub-step count exceeds this are listed as not run (with the
+  // count they need) instead of being simulated.
+  int max_mass_spring_substeps = 200000;
 };
 
 struct BenchConfig {
   SolverKind kind;
   SolverSettings settings;
   std::string label;  // e.g. "substeps=20 iterations=1"
+  // Mass-spring: when > 0, the sub-steps are this multiple of the scene's stability count,
+  // ceil(frame dt / mass_spring_critical_dt(model)), so that the row is stable by construction
+  // (resolved per scene by resolve_config).
+  double critical_multiple = 0;
 };
 
 struct BenchRow {
@@ -41,7 +48,11 @@ struct BenchRow {
   double max_strain = 0;    // max over frames of the max edge strain
   double max_penetration_mm = 0;
   int step_halvings = 0;
+  double cpu_ms_per_frame = 0;          // process CPU time (all threads) per frame
+  double iterations_per_frame = 0;      // StepReport::iterations, mean over frames
+  double factorizations_per_frame = 0;  // Newton's StepReport::factorizations, mean
   bool stable = true;
+  bool run = true;  // false: not simulated (mass-spring needing more sub-steps than allowed)
   std::string message;
 };
 
@@ -49,6 +60,15 @@ struct BenchRow {
 std::vector<BenchConfig> bench_configs(SolverKind kind, bool quick);
 // The reference configuration: Newton, LDLT, 8 sub-steps, tolerance 1e-9.
 BenchConfig reference_config();
+// A configuration's settings for one scene: resolves mass-spring's critical multiple into
+// sub-steps (and the label). Returns false when that exceeds options.max_mass_spring_substeps,
+// with `why` saying how many it would need.
+bool resolve_config(BenchConfig& config, const ClothScene& scene, const SolverBenchOptions& options,
+                    std::string& why);
+// Runs one configuration on `scene` and measures it against `reference` (the reference run's
+// frames).
+BenchRow measure_config(const ClothScene& scene, const BenchConfig& config, int frames,
+                        const RunResult& reference);
 
 // Builds a benchmark scene by name (hard cases, "large-sheet", "seed004-529").
 ClothScene make_bench_scene(const std::string& name, const SolverBenchOptions& options);
@@ -56,6 +76,18 @@ ClothScene make_bench_scene(const std::string& name, const SolverBenchOptions& o
 // Runs the sweep; `progress` gets one line per finished run.
 std::vector<BenchRow> run_solver_bench(const SolverBenchOptions& options,
                                        const std::function<void(const std::string&)>& progress);
+
+// The Newton study (`clothdb bench newton`): the same scene under Newton variants, from the
+// original loop (start at x_n, a factorisation every iteration, tight tolerance) through the
+// predicted start, chord iterations, a looser tolerance, CHOLMOD and PCG with warm starts.
+std::vector<BenchConfig> newton_study_configs();
+// Runs every study configuration `repeat` times and keeps the fastest (by CPU time) of each.
+// `only`: when not empty, only the variants whose label contains one of these strings.
+std::vector<BenchRow> run_newton_study(const std::vector<std::string>& scenes, int frames,
+                                       int repeat, const std::vector<std::string>& only,
+                                       const std::function<void(const std::string&)>& progress);
+// Markdown table with Newton iterations and factorisations per frame.
+std::string newton_study_markdown(const std::vector<BenchRow>& rows);
 
 std::string bench_rows_csv(const std::vector<BenchRow>& rows);
 std::string bench_rows_json(const std::vector<BenchRow>& rows);

@@ -36,15 +36,21 @@ ClothScene make_large_sheet(int vertices);
 // Seed 004's grid: an equilateral-triangle sheet of 23 x 23 = 529 nodes (side 22 edges, 1 m),
 // hanging from its two top corners; the Newton solver's speed target is measured on it.
 ClothScene make_seed004_grid();
+// The same grid laid flat (horizontal) and pinned at the two corners of one edge, so that it
+// falls and swings for its first second: the moving case, where Newton needs several iterations
+// per frame (the hanging grid above settles and then costs one gradient per frame).
+ClothScene make_seed004_fall();
 
 // Per-frame diagnostics of a run.
 struct FrameMetrics {
-  double max_strain = 0;       // max (l - l0) / l0 over edges
-  double max_penetration = 0;  // m
-  double mean_penetration = 0; // m
-  double kinetic_energy = 0;   // J
-  double total_energy = 0;     // kinetic + gravity potential (relative to the start), J
+  double max_strain = 0;        // max (l - l0) / l0 over edges
+  double max_penetration = 0;   // m
+  double mean_penetration = 0;  // m
+  double kinetic_energy = 0;    // J
+  double total_energy = 0;      // kinetic + gravity potential (relative to the start), J
   int step_halvings = 0;
+  int iterations = 0;      // the solver's StepReport::iterations for the frame
+  int factorizations = 0;  // Newton's StepReport::factorizations for the frame
   bool stable = true;
 };
 
@@ -54,6 +60,7 @@ struct RunResult {
   bool stable = true;                    // false if any step blew up (the run stops there)
   std::string message;                   // the first instability message
   double seconds = 0;                    // wall time spent in solver steps
+  double cpu_seconds = 0;                // process CPU time spent in solver steps (all threads)
 };
 
 // Runs `scene` for `frames` output frames (0 = scene.frames) with `solver`, one solver step per

@@ -99,18 +99,25 @@ std::string compact_number(double v) {
   return mantissa + "e" + sign + exponent;
 }
 
-// The three linear solvers behind one interface. `solve` returns false when the matrix is not
-// positive definite or the solve failed; `why` then says which.
+// The linear solvers behind one interface. `factorize` factorises the matrix (direct solvers) or
+// builds the preconditioner (PCG); `solve` then solves with it, and may be called again after
+// later Newton iterations without a new factorisation (chord iterations: the direct solvers keep
+// their factors, PCG keeps the matrix and preconditioner it was given). Both return false when
+// the matrix is not positive definite or the solve failed; `why` then says which.
 class LinearSolver {
  public:
   LinearSolver(LinearSolverKind kind, const SpMat& pattern) : kind_(kind) {
     switch (kind_) {
       case LinearSolverKind::SimplicialLDLT:
+        // The fill-reducing ordering and the elimination tree depend only on the pattern, which
+        // is fixed: analysed once here, refactorised numerically every time.
         ldlt_.analyzePattern(pattern);
         break;
       case LinearSolverKind::Cholmod:
 #ifdef CLOTHDB_HAVE_CHOLMOD
         // LL^T (not LDL^T) so that an indefinite matrix is reported rather than factorised.
+        // Simplicial: measured within a few percent of SimplicialLDLT at 1,587 unknowns
+        // (docs/BENCHMARKS.md); the supernodal mode was not measured.
         cholmod_.setMode(Eigen::CholmodSimplicialLLt);
         // Indefinite systems are expected (and handled): no warnings on stderr.
         cholmod_.cholmod().print = 0;
@@ -121,16 +128,17 @@ class LinearSolver {
             "newton: linear solver 'cholmod' requested but clothdb was built without CHOLMOD");
 #endif
       case LinearSolverKind::ConjugateGradient:
+        cg_.analyzePattern(pattern);
+        break;
+      case LinearSolverKind::ConjugateGradientIC:
+        cg_ic_.analyzePattern(pattern);  // the AMD ordering of the incomplete factor, once
         break;
     }
   }
 
-  // Solves A d = b. `guess` (may be empty) warm-starts PCG; `relative_tolerance` is PCG's
-  // |A d - b| / |b| target.
-  bool solve(const SpMat& a, const Eigen::VectorXd& b, const Eigen::VectorXd& guess,
-             double relative_tolerance, Eigen::VectorXd& d, std::string& why) {
+  bool factorize(const SpMat& a, std::string& why) {
     switch (kind_) {
-      case LinearSolverKind::SimplicialLDLT: {
+      case LinearSolverKind::SimplicialLDLT:
         ldlt_.factorize(a);
         if (ldlt_.info() != Eigen::Success) {
           why = "LDLT factorisation failed (singular matrix)";
@@ -142,37 +150,49 @@ class LinearSolver {
           why = "system matrix is indefinite (LDLT pivot <= 0)";
           return false;
         }
-        d = ldlt_.solve(b);
-        break;
-      }
-      case LinearSolverKind::Cholmod: {
+        return true;
+      case LinearSolverKind::Cholmod:
 #ifdef CLOTHDB_HAVE_CHOLMOD
         cholmod_.factorize(a);
         if (cholmod_.info() != Eigen::Success) {
           why = "CHOLMOD factorisation failed (matrix not positive definite)";
           return false;
         }
+#endif
+        return true;
+      case LinearSolverKind::ConjugateGradient:
+        cg_.factorize(a);
+        return true;
+      case LinearSolverKind::ConjugateGradientIC:
+        cg_ic_.factorize(a);
+        if (cg_ic_.preconditioner().info() != Eigen::Success) {
+          why = "incomplete Cholesky preconditioner failed";
+          return false;
+        }
+        return true;
+    }
+    return false;
+  }
+
+  // Solves A d = b with the last factorisation. `guess` (may be empty) warm-starts PCG;
+  // `relative_tolerance` is PCG's |A d - b| / |b| target.
+  bool solve(const Eigen::VectorXd& b, const Eigen::VectorXd& guess, double relative_tolerance,
+             Eigen::VectorXd& d, std::string& why) {
+    switch (kind_) {
+      case LinearSolverKind::SimplicialLDLT:
+        d = ldlt_.solve(b);
+        break;
+      case LinearSolverKind::Cholmod:
+#ifdef CLOTHDB_HAVE_CHOLMOD
         d = cholmod_.solve(b);
 #endif
         break;
-      }
-      case LinearSolverKind::ConjugateGradient: {
-        cg_.setTolerance(relative_tolerance);
-        cg_.compute(a);
-        d = guess.size() == b.size() ? Eigen::VectorXd(cg_.solveWithGuess(b, guess))
-                                     : Eigen::VectorXd(cg_.solve(b));
-        if (cg_.info() != Eigen::Success) {
-          why = "PCG did not converge in " + std::to_string(cg_.iterations()) + " iterations";
-          return false;
-        }
-        // CG on an indefinite matrix can return a non-descent direction: b = -r, so descent means
-        // d . b > 0.
-        if (!(d.dot(b) > 0.0)) {
-          why = "system matrix is indefinite (PCG direction is not a descent direction)";
-          return false;
-        }
+      case LinearSolverKind::ConjugateGradient:
+        if (!cg_solve(cg_, b, guess, relative_tolerance, d, why)) return false;
         break;
-      }
+      case LinearSolverKind::ConjugateGradientIC:
+        if (!cg_solve(cg_ic_, b, guess, relative_tolerance, d, why)) return false;
+        break;
     }
     if (!d.allFinite()) {
       why = "linear solve produced NaN";
@@ -182,12 +202,36 @@ class LinearSolver {
   }
 
  private:
+  template <class Cg>
+  static bool cg_solve(Cg& cg, const Eigen::VectorXd& b, const Eigen::VectorXd& guess,
+                       double relative_tolerance, Eigen::VectorXd& d, std::string& why) {
+    cg.setTolerance(relative_tolerance);
+    d = guess.size() == b.size() ? Eigen::VectorXd(cg.solveWithGuess(b, guess))
+                                 : Eigen::VectorXd(cg.solve(b));
+    if (cg.info() != Eigen::Success) {
+      why = "PCG did not converge in " + std::to_string(cg.iterations()) + " iterations";
+      return false;
+    }
+    // CG on an indefinite matrix can return a non-descent direction: b = -r, so descent means
+    // d . b > 0.
+    if (!(d.dot(b) > 0.0)) {
+      why = "system matrix is indefinite (PCG direction is not a descent direction)";
+      return false;
+    }
+    return true;
+  }
+
   LinearSolverKind kind_;
   Eigen::SimplicialLDLT<SpMat, Eigen::Lower> ldlt_;
 #ifdef CLOTHDB_HAVE_CHOLMOD
   Eigen::CholmodDecomposition<SpMat, Eigen::Lower> cholmod_;
 #endif
+  // The CG solvers keep a reference to the system matrix (the solver's a_, whose values the
+  // Newton loop overwrites in place before every factorize()).
   Eigen::ConjugateGradient<SpMat, Eigen::Lower, Eigen::DiagonalPreconditioner<double>> cg_;
+  Eigen::ConjugateGradient<SpMat, Eigen::Lower,
+                           Eigen::IncompleteCholesky<double, Eigen::Lower, Eigen::AMDOrdering<int>>>
+      cg_ic_;
 };
 
 class NewtonSolver final : public Solver {
@@ -564,11 +608,12 @@ class NewtonSolver final : public Solver {
     }
   }
 
-  // Minimises Phi from x = x_n (kinematic vertices already at their end-of-substep positions).
-  // Returns false with `why` on NaN, a system that is not positive definite even with projected
-  // element Hessians, a failed line search, or no convergence within newton_max_iterations.
-  bool newton(const SubstepContext& ctx, Eigen::Matrix3Xd& x, StepReport& report,
-              std::string& why) {
+  // Minimises Phi from x = x_n (kinematic vertices already at their end-of-substep positions),
+  // or from `guess` (positions of the free vertices) when Phi is lower there. Returns false with
+  // `why` on NaN, a system that is not positive definite even with projected element Hessians, a
+  // failed line search, or no convergence within newton_max_iterations.
+  bool newton(const SubstepContext& ctx, Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd* guess,
+              StepReport& report, std::string& why) {
     Eigen::VectorXd grad, r, d, b, trial_grad, exact, projected;
     Eigen::Matrix3Xd trial;
 
@@ -576,11 +621,11 @@ class NewtonSolver final : public Solver {
     // kinematic vertices do not move the residual needs no Hessian, and a cloth at rest costs one
     // gradient evaluation per step.
     const bool kinematic_moving = kinematic_moved(x, ctx.x_n);
-    const bool need_start_hessian = kinematic_moving && ctx.beta > 0.0;
-    double elastic = evaluate(x, true, need_start_hessian, &grad);
-    bool have_hessian = need_start_hessian;
+    bool hessian_current = kinematic_moving && ctx.beta > 0.0;  // exact/projected are at x
+    double elastic = evaluate(x, true, hessian_current, &grad);
+    bool have_damping = hessian_current;  // K_n (stiffness_start_) is set
     kinematic_load_.setZero(3 * free_count_);
-    if (have_hessian) start_damping(ctx, x, exact, projected);
+    if (have_damping) start_damping(ctx, x, exact, projected);
     residual(ctx, x, grad, r);
     double phi = elastic + extra_potential(ctx, x);
     double rnorm = r.lpNorm<Eigen::Infinity>();
@@ -597,9 +642,50 @@ class NewtonSolver final : public Solver {
       tolerance = std::max(base_tolerance, 16.0 * std::numeric_limits<double>::epsilon() *
                                                max_stiffness * x.cwiseAbs().maxCoeff());
     };
-    if (have_hessian) update_tolerance();
-    bool at_start = true;
-    int skip_exact = 0;  // iterations left that go straight to the projected Hessian
+    if (hessian_current) update_tolerance();
+
+    // The predicted start (SolverSettings::newton_guess), tried only when x_n is not already
+    // converged. It needs K_n first (the residual away from x_n includes the damping force); the
+    // Hessian evaluated for that at x_n then also serves as the first Newton matrix at the
+    // prediction (a chord step) when chord iterations are on.
+    const bool chords = settings_.newton_reuse_contraction > 0.0;
+    bool stale_hessian = false;  // exact/projected are from x_n while x is the prediction
+    if (guess != nullptr && std::isfinite(rnorm) && !(rnorm < tolerance)) {
+      if (!have_damping) {
+        evaluate(x, true, true, &grad);
+        start_damping(ctx, x, exact, projected);
+        update_tolerance();
+        have_damping = hessian_current = true;
+      }
+      trial = x;
+      for (int i = 0; i < x.cols(); ++i)
+        if (free_index_[i] >= 0) trial.col(i) = guess->col(i);
+      const double trial_elastic = evaluate(trial, true, false, &trial_grad);
+      const double trial_phi = trial_elastic + extra_potential(ctx, trial);
+      if (std::isfinite(trial_phi) && trial_phi < phi) {
+        x.swap(trial);
+        grad.swap(trial_grad);
+        phi = trial_phi;
+        elastic = trial_elastic;
+        residual(ctx, x, grad, r);
+        rnorm = r.lpNorm<Eigen::Infinity>();
+        stale_hessian = chords;
+        hessian_current = false;
+      }
+    }
+
+    int skip_exact = 0;         // iterations left that go straight to the projected Hessian
+    bool factor_valid = false;  // linear_ holds a factorisation a chord iteration may reuse
+    bool contracted = false;    // the last iteration cut the residual by the contraction factor
+    std::string solve_why;
+    // Builds A from the stiffness values, factorises and solves A d = -r.
+    auto factor_and_solve = [&](const Eigen::VectorXd& stiffness, const Eigen::VectorXd& cg_guess,
+                                double rel_tol) {
+      build_system(ctx, stiffness);
+      ++report.factorizations;
+      return linear_->factorize(a_, solve_why) &&
+             linear_->solve(b, cg_guess, rel_tol, d, solve_why);
+    };
 
     for (int it = 0;; ++it) {
       if (!std::isfinite(rnorm) || !std::isfinite(phi)) {
@@ -618,44 +704,52 @@ class NewtonSolver final : public Solver {
         why = buf;
         return false;
       }
-      if (!have_hessian) {
-        evaluate(x, true, true, &grad);
-        if (at_start) {
-          start_damping(ctx, x, exact, projected);
-        } else {
-          assemble_stiffness(exact, projected);
-        }
-        update_tolerance();
-        if (rnorm < tolerance) continue;  // converged once rounding is accounted for
-      }
-      have_hessian = false;
       b = -r;
       // PCG: inexact Newton, asking for a linear residual a tenth of the nonlinear tolerance.
       const double rel_tol = std::clamp(0.1 * tolerance / std::max(b.norm(), 1e-300), 1e-14, 1e-2);
-      const Eigen::VectorXd& guess = it == 0 ? cg_guess_ : empty_;
-      // The exact Hessian first (quadratic convergence near a minimum, where it is positive
-      // definite); if the system is indefinite (compressed edges, folded hinges far from
-      // equilibrium), the projected element Hessians, which always give a descent direction.
-      std::string solve_why;
-      // An indefinite exact system costs a wasted factorisation, so after one the next two
-      // iterations go straight to the projected Hessian.
-      bool solved = false;
-      if (skip_exact > 0) {
-        --skip_exact;
-      } else {
-        build_system(ctx, exact);
-        solved = linear_->solve(a_, b, guess, rel_tol, d, solve_why);
-        if (!solved) skip_exact = 2;
-      }
+      const Eigen::VectorXd& cg_guess = it == 0 ? cg_guess_ : empty_;
+      // A chord iteration: the last factorisation again, no Hessian evaluation.
+      const bool chord = chords && factor_valid && contracted;
+      bool solved = chord && linear_->solve(b, cg_guess, rel_tol, d, solve_why);
+      const bool fresh = !solved && !stale_hessian;
       if (!solved) {
-        build_system(ctx, projected);
-        if (!linear_->solve(a_, b, guess, rel_tol, d, solve_why)) {
+        if (!hessian_current && !stale_hessian) {
+          evaluate(x, true, true, &grad);
+          if (!have_damping) {
+            // Still at x_n (nothing moved before the first Hessian): this is K_n.
+            start_damping(ctx, x, exact, projected);
+            have_damping = true;
+          } else {
+            assemble_stiffness(exact, projected);
+          }
+          update_tolerance();
+          hessian_current = true;
+          if (rnorm < tolerance) continue;  // converged once rounding is accounted for
+        }
+        // The exact Hessian first (quadratic convergence near a minimum, where it is positive
+        // definite); if the system is indefinite (compressed edges, folded hinges far from
+        // equilibrium), the projected element Hessians, which always give a descent direction.
+        // An indefinite exact system costs a wasted factorisation, so after one the next two
+        // iterations go straight to the projected Hessian.
+        if (!settings_.newton_exact_hessian) {
+          // projected only
+        } else if (skip_exact > 0) {
+          --skip_exact;
+        } else {
+          solved = factor_and_solve(exact, cg_guess, rel_tol);
+          if (!solved) skip_exact = 2;
+        }
+        if (!solved && !factor_and_solve(projected, cg_guess, rel_tol)) {
           why = solve_why;
           return false;
         }
+        factor_valid = true;
       }
+      stale_hessian = false;
       ++report.iterations;
-      if (it == 0 && settings_.linear_solver == LinearSolverKind::ConjugateGradient) cg_guess_ = d;
+      if (it == 0 && (settings_.linear_solver == LinearSolverKind::ConjugateGradient ||
+                      settings_.linear_solver == LinearSolverKind::ConjugateGradientIC))
+        cg_guess_ = d;
 
       // Backtracking line search on Phi. Near convergence the decrease of Phi falls below its
       // rounding error, so a step that leaves Phi within rounding of its value is accepted too.
@@ -675,18 +769,24 @@ class NewtonSolver final : public Solver {
           phi = trial_phi;
           elastic = trial_elastic;
           accepted = true;
-          at_start = false;
+          hessian_current = false;
           break;
         }
       }
       if (!accepted) {
+        if (!fresh) {  // a stale matrix's direction: retry with the Hessian at x
+          contracted = false;
+          continue;
+        }
         char buf[160];
         std::snprintf(buf, sizeof buf, "line search failed (residual %.3g N)", rnorm);
         why = buf;
         return false;
       }
+      const double previous = rnorm;
       residual(ctx, x, grad, r);
       rnorm = r.lpNorm<Eigen::Infinity>();
+      contracted = rnorm <= settings_.newton_reuse_contraction * previous;
     }
   }
 
@@ -724,10 +824,21 @@ class NewtonSolver final : public Solver {
     ctx.gravity = iv.inputs->env->gravity;
     ctx.drag = iv.inputs->env->air_drag;
     ctx.beta = model_.material.damping;
+    // Newton's predicted start (SolverSettings::newton_guess): the inertial position, plus the
+    // last sub-step's acceleration when this call continues from the state that sub-step produced
+    // (bitwise, so the prediction depends only on this solver's own call sequence).
+    const Eigen::Matrix3Xd* guess = nullptr;
+    if (settings_.newton_guess != SolverSettings::Guess::Start) {
+      predicted_ = state.x + ctx.h * state.v;
+      if (settings_.newton_guess == SolverSettings::Guess::Extrapolate && have_previous_ &&
+          state.x == previous_x_ && state.v == previous_v_)
+        predicted_ += ctx.h * ctx.h * previous_a_;
+      guess = &predicted_;
+    }
     // Kinematic vertices are not unknowns: they sit at their end-of-substep positions.
     place_kinematic(model_, *iv.kin_start, *iv.inputs, s1, iv.dt, state);
     last_residual_ = 0.0;
-    if (free_count_ > 0 && !newton(ctx, state.x, report, why)) return false;
+    if (free_count_ > 0 && !newton(ctx, state.x, guess, report, why)) return false;
     // Collisions: a position projection after the implicit solve (contacts are not part of Phi),
     // then backward Euler's velocity v = (x - x_n) / h, which also accounts for the correction.
     resolve_collisions(state.x, ctx.x_n, model_.inv_mass, *iv.inputs->env, s1, s0);
@@ -737,6 +848,10 @@ class NewtonSolver final : public Solver {
       why = "state became non-finite or too fast";
       return false;
     }
+    previous_a_ = (state.v - ctx.v_n) / ctx.h;
+    previous_x_ = state.x;
+    previous_v_ = state.v;
+    have_previous_ = true;
     return true;
   }
 
@@ -759,6 +874,9 @@ class NewtonSolver final : public Solver {
   Eigen::VectorXd kinematic_load_;   // K_n(free, kinematic) (x - x_n)(kinematic)
   Eigen::VectorXd dx_free_, tmp_, cg_guess_, empty_;
   double last_residual_ = 0.0;
+  // The last sub-step's result and acceleration, for the extrapolated Newton start.
+  Eigen::Matrix3Xd previous_x_, previous_v_, previous_a_, predicted_;
+  bool have_previous_ = false;
   std::unique_ptr<LinearSolver> linear_;
 };
 

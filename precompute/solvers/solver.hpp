@@ -25,8 +25,9 @@ const char* solver_name(SolverKind kind);  // "mass-spring", "pbd", "xpbd", "new
 // Parses a name as above; throws std::invalid_argument naming the accepted values.
 SolverKind parse_solver_kind(const std::string& name);
 
-enum class LinearSolverKind { SimplicialLDLT, Cholmod, ConjugateGradient };
-const char* linear_solver_name(LinearSolverKind kind);  // "ldlt", "cholmod", "pcg"
+// ConjugateGradient: Jacobi (diagonal) preconditioner; ConjugateGradientIC: incomplete Cholesky.
+enum class LinearSolverKind { SimplicialLDLT, Cholmod, ConjugateGradient, ConjugateGradientIC };
+const char* linear_solver_name(LinearSolverKind kind);  // "ldlt", "cholmod", "pcg", "pcg-ic"
 LinearSolverKind parse_linear_solver_kind(const std::string& name);
 
 struct SolverSettings {
@@ -43,6 +44,26 @@ struct SolverSettings {
   double newton_tolerance = 1e-6;
   int newton_max_iterations = 25;
   int newton_max_halvings = 6;
+  // Newton's first iterate (seed 004 Algorithm 1 line 22 starts from x_n): Start is x_n;
+  // Inertial is x_n + h v_n; Extrapolate is x_n + h v_n + h^2 a with a the acceleration of the
+  // previous sub-step this solver produced (when it continues from that state, otherwise as
+  // Inertial). Whichever candidate has the lower incremental potential Phi is used, so a bad
+  // prediction never costs more than starting from x_n. Off (Start) by default: on a stretched
+  // hanging sheet it ended 2e-5 m from the plain loop's solution after six frames, more than the
+  // tolerance explains, which is not understood yet (docs/BENCHMARKS.md, Newton study).
+  enum class Guess { Start, Inertial, Extrapolate };
+  Guess newton_guess = Guess::Start;
+  // Chord (modified) Newton: keep the last factorisation while each iteration still reduces the
+  // force residual to at most this fraction of the previous one; 0 refactorises every iteration.
+  // The stale matrix is positive definite, so its direction is still a descent direction and the
+  // line search still guarantees progress; only the convergence rate changes (linear, not
+  // quadratic), and the tolerance test is the same. Off by default: on seed 004's grids it cost
+  // more CPU time than it saved (`clothdb bench newton`, docs/BENCHMARKS.md).
+  double newton_reuse_contraction = 0.0;
+  // Try the exact Hessian first (quadratic convergence near a minimum) and fall back to the
+  // projected element Hessians when it is indefinite; false: the projected ones only (no wasted
+  // factorisation of an indefinite matrix when the cloth is compressed or buckling).
+  bool newton_exact_hessian = true;
   LinearSolverKind linear_solver = LinearSolverKind::SimplicialLDLT;
   int threads = 1;  // OpenMP threads; results are identical whatever this is
   // XPBD: long-range attachments (Kim, Chentanez & Mueller 2012): each free vertex may be no
@@ -59,11 +80,12 @@ struct StepInputs {
 };
 
 struct StepReport {
-  bool stable = true;       // false: the step blew up (NaN/Inf or runaway); state was restored
-  int step_halvings = 0;    // Newton: how many times the step was halved to recover
-  int iterations = 0;       // Newton iterations or constraint iterations actually run
-  double residual = 0.0;    // Newton: final force residual (N); others: 0
-  std::string message;      // why it was unstable or halved, for the user
+  bool stable = true;      // false: the step blew up (NaN/Inf or runaway); state was restored
+  int step_halvings = 0;   // Newton: how many times the step was halved to recover
+  int iterations = 0;      // Newton iterations or constraint iterations actually run
+  int factorizations = 0;  // Newton: matrix factorisations (or preconditioner builds for PCG)
+  double residual = 0.0;   // Newton: final force residual (N); others: 0
+  std::string message;     // why it was unstable or halved, for the user
 };
 
 class Solver {

@@ -15,16 +15,21 @@ ClothState rest_state(const ClothModel& model) {
 
 const char* solver_name(SolverKind kind) {
   switch (kind) {
-    case SolverKind::MassSpring: return "mass-spring";
-    case SolverKind::Pbd: return "pbd";
-    case SolverKind::Xpbd: return "xpbd";
-    case SolverKind::Newton: return "newton";
+    case SolverKind::MassSpring:
+      return "mass-spring";
+    case SolverKind::Pbd:
+      return "pbd";
+    case SolverKind::Xpbd:
+      return "xpbd";
+    case SolverKind::Newton:
+      return "newton";
   }
   return "unknown";
 }
 
 SolverKind parse_solver_kind(const std::string& name) {
-  for (SolverKind k : {SolverKind::MassSpring, SolverKind::Pbd, SolverKind::Xpbd, SolverKind::Newton})
+  for (SolverKind k :
+       {SolverKind::MassSpring, SolverKind::Pbd, SolverKind::Xpbd, SolverKind::Newton})
     if (name == solver_name(k)) return k;
   throw std::invalid_argument("unknown solver '" + name +
                               "' (expected mass-spring, pbd, xpbd or newton)");
@@ -32,18 +37,25 @@ SolverKind parse_solver_kind(const std::string& name) {
 
 const char* linear_solver_name(LinearSolverKind kind) {
   switch (kind) {
-    case LinearSolverKind::SimplicialLDLT: return "ldlt";
-    case LinearSolverKind::Cholmod: return "cholmod";
-    case LinearSolverKind::ConjugateGradient: return "pcg";
+    case LinearSolverKind::SimplicialLDLT:
+      return "ldlt";
+    case LinearSolverKind::Cholmod:
+      return "cholmod";
+    case LinearSolverKind::ConjugateGradient:
+      return "pcg";
+    case LinearSolverKind::ConjugateGradientIC:
+      return "pcg-ic";
   }
   return "unknown";
 }
 
 LinearSolverKind parse_linear_solver_kind(const std::string& name) {
-  for (LinearSolverKind k : {LinearSolverKind::SimplicialLDLT, LinearSolverKind::Cholmod,
-                             LinearSolverKind::ConjugateGradient})
+  for (LinearSolverKind k :
+       {LinearSolverKind::SimplicialLDLT, LinearSolverKind::Cholmod,
+        LinearSolverKind::ConjugateGradient, LinearSolverKind::ConjugateGradientIC})
     if (name == linear_solver_name(k)) return k;
-  throw std::invalid_argument("unknown linear solver '" + name + "' (expected ldlt, cholmod or pcg)");
+  throw std::invalid_argument("unknown linear solver '" + name +
+                              "' (expected ldlt, cholmod, pcg or pcg-ic)");
 }
 
 bool state_is_sane(const ClothState& state, double max_speed) {
@@ -56,7 +68,8 @@ bool state_is_sane(const ClothState& state, double max_speed) {
 
 void place_kinematic(const ClothModel& model, const Eigen::Matrix3Xd& start,
                      const StepInputs& inputs, double s, double dt, ClothState& state) {
-  const bool moving = inputs.kinematic_targets.cols() == static_cast<Eigen::Index>(model.kinematic.size());
+  const bool moving =
+      inputs.kinematic_targets.cols() == static_cast<Eigen::Index>(model.kinematic.size());
   for (size_t k = 0; k < model.kinematic.size(); ++k) {
     const int i = model.kinematic[k];
     const Eigen::Index kk = static_cast<Eigen::Index>(k);
