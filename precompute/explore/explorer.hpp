@@ -30,6 +30,9 @@ struct ExploreEdge {
   std::string name;
   std::vector<std::vector<JointPose>> poses;  // frame 0 at from_node, last at to_node
   int64_t db_clip = 0;                        // its primary_clips id
+  // How often the game takes this edge relative to the most taken one, in (0, 1] (edge_reach in
+  // graph/motion_graph.hpp): a dead end's priority is its error times this.
+  double reach = 1.0;
 };
 
 struct ExploreGraph {
@@ -46,6 +49,7 @@ struct ExploreOptions {
   int threads = 1;            // OpenMP threads across jobs (each job's solver runs on one)
   int batch = 8;              // dead ends per batch (fixed: the result does not depend on threads)
   bool progress = true;       // a progress bar on stderr
+  std::string run_settings;   // more JSON members for the run row, e.g. "\"auto_solver\": true"
 };
 
 struct CurvePoint {
@@ -79,7 +83,9 @@ Eigen::Isometry3d character_frame(const CharacterScene& scene, const std::vector
 double state_distance(const std::vector<float>& xa, const std::vector<float>& va,
                       const std::vector<float>& xb, const std::vector<float>& vb, double tau);
 
-// Writes the garment, scene and graph metadata into a new database (no-op for what is there).
+// Writes the garment, scene and graph metadata into a new database (no-op for what is there). A
+// primary graph already in the database (`clothdb graph build --db`) must be `graph_json`
+// (explore/primary_graph.hpp); the motion files it records must not have changed.
 void prepare_database(db::Writer& writer, const CharacterScene& scene, ExploreGraph& graph,
                       const std::string& graph_json);
 
