@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
@@ -28,7 +29,7 @@ struct Args {
   long frames = 0;
   int threads = 0, batch = 16;
   bool quiet = false;
-  bool automatic = false, auto_quick = false;
+  bool automatic = false, auto_quick = false, auto_newton = false;
   std::string auto_solvers;
   double auto_fraction = 0.5;
   int auto_frames = 15;
@@ -84,6 +85,7 @@ std::string choose_solver(const Args& args, CharacterScene& scene, const Explore
   o.frames = args.auto_frames;
   o.epsilon = 1e-3 * args.epsilon_mm;
   o.fraction = args.auto_fraction;
+  o.newton_reference = args.auto_newton;
   // The calibration clip: the start of the first edge out of the start node (where the
   // exploration itself starts).
   const ExploreEdge* first = nullptr;
@@ -98,7 +100,8 @@ std::string choose_solver(const Args& args, CharacterScene& scene, const Explore
   if (chosen < 0)
     throw std::runtime_error(
         "--auto: no candidate is stable with an error within " +
-        std::to_string(1e3 * o.fraction * o.epsilon) + " mm on " + scene.file.path.string() +
+        std::to_string(std::lround(1e6 * o.fraction * o.epsilon)) + " um on " +
+        scene.file.path.string() +
         "; raise --epsilon or --auto-fraction, or add solvers with --auto-solvers");
   scene.file.solver = cal.candidates[chosen].config.kind;
   scene.file.settings = cal.candidates[chosen].config.settings;
@@ -147,9 +150,9 @@ void register_precompute(CLI::App& app) {
   cmd->add_flag(
       "--auto", args->automatic,
       "Choose the solver setting: simulate the garment along the first --auto-frames frames of the "
-      "start edge with each setting of the solver benchmark's sweep and with its reference "
-      "(Newton, 8 "
-      "sub-steps, tolerance 1e-9); take the cheapest (CPU time) whose error is within "
+      "start edge with each setting of the solver benchmark's sweep and with a reference (the "
+      "first solver's finest setting with 4x the sub-steps); take the cheapest (CPU time) whose "
+      "error is within "
       "--auto-fraction x epsilon. Prints the table; the database records the choice and a resumed "
       "run reuses it");
   cmd->add_option("--auto-solvers", args->auto_solvers,
@@ -163,6 +166,9 @@ void register_precompute(CLI::App& app) {
       ->check(CLI::PositiveNumber);
   cmd->add_flag("--auto-quick", args->auto_quick,
                 "--auto: the benchmark's quick sweep (fewer settings)");
+  cmd->add_flag("--auto-newton-reference", args->auto_newton,
+                "--auto: measure against the benchmark's Newton reference instead (also counts the "
+                "difference between the solvers' material models)");
   cmd->callback([args] {
     const SceneFile file = load_scene_file(args->scene);
     CharacterScene scene = build_character_scene(file);

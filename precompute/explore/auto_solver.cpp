@@ -7,6 +7,7 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <stdexcept>
+#include <utility>
 
 #include "explore/explorer.hpp"
 
@@ -59,6 +60,23 @@ Trial simulate(const CharacterScene& scene, const BenchConfig& c, const ClothSta
 
 }  // namespace
 
+BenchConfig calibration_reference(SolverKind kind, bool newton_reference) {
+  if (newton_reference || kind == SolverKind::Newton) return reference_config();
+  // The finest setting of the sweep (most sub-steps, then most iterations) with 4 times the
+  // sub-steps: XPBD/PBD/mass-spring converge to their own model's motion as the step shrinks.
+  BenchConfig finest = bench_configs(kind, false).front();
+  for (const BenchConfig& c : bench_configs(kind, false))
+    if (std::pair(c.settings.substeps, c.settings.iterations) >
+        std::pair(finest.settings.substeps, finest.settings.iterations))
+      finest = c;
+  finest.settings.substeps *= 4;
+  finest.label = "substeps=" + std::to_string(finest.settings.substeps) +
+                 (kind == SolverKind::MassSpring
+                      ? ""
+                      : " iterations=" + std::to_string(finest.settings.iterations));
+  return finest;
+}
+
 AutoCalibration calibrate_solvers(const CharacterScene& scene,
                                   const std::vector<std::vector<JointPose>>& edge_poses,
                                   double rate, const AutoSolverOptions& options) {
@@ -71,7 +89,10 @@ AutoCalibration calibrate_solvers(const CharacterScene& scene,
   AutoCalibration cal;
   cal.frames = static_cast<int>(count) - 1;
   cal.vertices = scene.model.vertex_count();
-  cal.reference = on_scene(reference_config(), scene.file.settings);
+  std::vector<SolverKind> kinds = options.kinds;
+  if (kinds.empty()) kinds.push_back(scene.file.solver);
+  cal.reference =
+      on_scene(calibration_reference(kinds.front(), options.newton_reference), scene.file.settings);
   // Every run starts from the garment settled by the reference solver.
   auto settler = make_solver(cal.reference.kind, scene.model, cal.reference.settings);
   const ClothState start = settle_garment(scene, *settler, poses.front());
@@ -81,8 +102,6 @@ AutoCalibration calibrate_solvers(const CharacterScene& scene,
                              cal.reference.label + ") is unstable: " + ref.run.message);
   cal.reference_cpu_ms_per_frame = 1e3 * ref.cpu / cal.frames;
   const std::vector<float> ref_x = flat(ref.end.x), ref_v = flat(ref.end.v);
-  std::vector<SolverKind> kinds = options.kinds;
-  if (kinds.empty()) kinds.push_back(scene.file.solver);
   for (SolverKind kind : kinds)
     for (const BenchConfig& base : bench_configs(kind, options.quick)) {
       AutoCandidate cand;
