@@ -209,7 +209,7 @@ void register_precompute(CLI::App& app) {
       where = args->scene;
     }
     if (graph_json.empty()) graph_json = motion_graph_to_json(graph).dump();
-    ExploreGraph eg = make_explore_graph(graph, scene.clips, where);
+    ExploreGraph eg = explore_graph(scene, graph, where);
     const bool resuming = !stored_solver(args->db).empty();  // a garment: an earlier precompute
     const std::string auto_table_text = choose_solver(*args, scene, eg);
     db::Writer writer = exists ? db::Writer::open(args->db) : db::Writer::create(args->db);

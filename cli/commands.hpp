@@ -18,6 +18,7 @@ void register_db_commands(CLI::App& app);     // cmd_db.cpp: `clothdb db info|ch
 void register_bench_codec(CLI::App& bench);   // cmd_bench_codec.cpp: `clothdb bench codec`
 
 void register_play_commands(CLI::App& app);     // cmd_play.cpp: `clothdb play`
+void register_clip_quality_commands(CLI::App& app);  // cmd_clips.cpp: `clothdb clips list`, `clip show`
 void register_bench_runtime(CLI::App& bench);   // cmd_play.cpp: `clothdb bench runtime`
 
 }  // namespace clothdb::cli

@@ -24,6 +24,7 @@ int main(int argc, char** argv) {
   clothdb::cli::register_motion_commands(app);
   clothdb::cli::register_graph_commands(app);
   clothdb::cli::register_play_commands(app);
+  clothdb::cli::register_clip_quality_commands(app);
 
   try {
     app.parse(argc, argv);

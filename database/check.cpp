@@ -144,6 +144,20 @@ CheckReport check_database(const std::string& path) {
           "SELECT printf('cloth clip %d: status ''%s'' is not ok, flagged or edited', id, status) "
           "FROM cloth_clip WHERE status NOT IN ('ok', 'flagged', 'edited')",
           report, "graph");
+  // Quality metrics are lengths and counts: never negative (NULL: not measured). Version 1 files
+  // have only the first two.
+  collect(db,
+          reader.schema_version() >= 2
+              ? "SELECT printf('cloth clip %d: negative quality metric (strain %g, penetration "
+                "%g, mean penetration %g, jitter %g)', id, max_strain, max_penetration, "
+                "mean_penetration, jitter) FROM cloth_clip WHERE max_strain < 0 OR "
+                "max_penetration < 0 OR mean_penetration < 0 OR jitter < 0 "
+                "UNION ALL SELECT printf('cloth edge %d: negative pop %g', id, pop) FROM "
+                "cloth_edge WHERE pop < 0"
+              : "SELECT printf('cloth clip %d: negative quality metric (strain %g, penetration "
+                "%g)', id, max_strain, max_penetration) FROM cloth_clip WHERE max_strain < 0 OR "
+                "max_penetration < 0",
+          report, "metrics");
   report.rows_checked = count(db,
                               "SELECT (SELECT count(*) FROM cloth_edge) + "
                               "(SELECT count(*) FROM cloth_clip) + "

@@ -84,13 +84,18 @@ CREATE TABLE cloth_clip(
   max_strain REAL NOT NULL,
   max_penetration REAL NOT NULL,
   status TEXT NOT NULL CHECK (status IN ('ok', 'flagged', 'edited')),
-  run INTEGER REFERENCES run(id)
+  run INTEGER REFERENCES run(id),
+  mean_penetration REAL,
+  jitter REAL,
+  halved_steps INTEGER CHECK (halved_steps >= 0),
+  worst_frame INTEGER CHECK (worst_frame >= 0 AND worst_frame < frame_count)
 );
 CREATE TABLE cloth_edge(
   id INTEGER PRIMARY KEY,
   from_clip INTEGER NOT NULL REFERENCES cloth_clip(id),
   to_state INTEGER NOT NULL REFERENCES cloth_state(id),
-  blend_error REAL NOT NULL
+  blend_error REAL NOT NULL,
+  pop REAL
 );
 CREATE TABLE edit_log(
   id INTEGER PRIMARY KEY,
@@ -109,6 +114,17 @@ CREATE INDEX cloth_state_at ON cloth_state(primary_clip, frame);
 CREATE INDEX cloth_clip_from ON cloth_clip(start_state);
 CREATE INDEX cloth_edge_from ON cloth_edge(from_clip);
 CREATE INDEX edit_log_clip ON edit_log(clip);
+)sql";
+
+// Version 1 -> 2: the quality metrics, as the columns kSchemaSql ends its tables with (NULL:
+// unknown). ADD COLUMN keeps every row and id as it is; the CHECKs are the same as for new files.
+constexpr const char* kMigrateTo2Sql = R"sql(
+ALTER TABLE cloth_clip ADD COLUMN mean_penetration REAL;
+ALTER TABLE cloth_clip ADD COLUMN jitter REAL;
+ALTER TABLE cloth_clip ADD COLUMN halved_steps INTEGER CHECK (halved_steps >= 0);
+ALTER TABLE cloth_clip ADD COLUMN worst_frame INTEGER
+  CHECK (worst_frame >= 0 AND worst_frame < frame_count);
+ALTER TABLE cloth_edge ADD COLUMN pop REAL;
 )sql";
 
 constexpr const char* kNow = "strftime('%Y-%m-%dT%H:%M:%fZ', 'now')";
@@ -144,6 +160,21 @@ class Stmt {
     sqlite3_bind_blob64(s_, i, data, sqlite3_uint64(size), SQLITE_STATIC);
     return *this;
   }
+  // Unknown metrics (NaN, or a negative count) are stored as NULL.
+  Stmt& bind_metric(int i, double v) {
+    if (v != v)
+      sqlite3_bind_null(s_, i);
+    else
+      sqlite3_bind_double(s_, i, v);
+    return *this;
+  }
+  Stmt& bind_count(int i, int64_t v) {
+    if (v < 0)
+      sqlite3_bind_null(s_, i);
+    else
+      sqlite3_bind_int64(s_, i, v);
+    return *this;
+  }
   Stmt& bind_id_or_null(int i, int64_t id) {
     if (id == 0)
       sqlite3_bind_null(s_, i);
@@ -161,6 +192,8 @@ class Stmt {
              : std::string();
   }
   bool is_null(int c) { return sqlite3_column_type(s_, c) == SQLITE_NULL; }
+  double metric(int c) { return is_null(c) ? kUnknownMetric : f64(c); }
+  int32_t count(int c) { return is_null(c) ? -1 : int32_t(i64(c)); }
   size_t bytes(int c) { return size_t(sqlite3_column_bytes(s_, c)); }
 
  private:
@@ -369,7 +402,22 @@ Writer Writer::open(const std::string& path) {
   w.exec("PRAGMA journal_mode=WAL");
   w.exec("PRAGMA synchronous=FULL");
   w.exec("PRAGMA foreign_keys=ON");
+  if (version < kSchemaVersion) w.migrate(version);
   return w;
+}
+
+void Writer::migrate(int from_version) {
+  // One transaction: a process killed here leaves the file at the old version, which both the
+  // reader and the next Writer::open still accept. The version is re-read under the write lock in
+  // case another writer migrated it meanwhile.
+  Transaction t(*this);
+  Stmt v(db_, "PRAGMA user_version");
+  if (!v.ok() || v.step() != SQLITE_ROW) throw_sql("reading the schema version");
+  if (v.i64(0) != from_version) return;  // rolled back by t's destructor: nothing to do
+  if (from_version < 2) exec(kMigrateTo2Sql);
+  exec(("PRAGMA user_version=" + std::to_string(kSchemaVersion)).c_str());
+  set_meta("format_version", std::to_string(kSchemaVersion));
+  t.commit();
 }
 
 Writer::Transaction::Transaction(Writer& writer) : writer_(&writer) {
@@ -492,7 +540,8 @@ void Writer::finish_run(int64_t run, double cpu_seconds, const std::string& note
 }
 
 std::vector<uint8_t> Writer::encode_frames(const float* frames, uint32_t frame_count,
-                                           uint32_t vertex_count, double bound, double* max_error) {
+                                           uint32_t vertex_count, double bound,
+                                           double* max_error) const {
   codec::EncodeSettings s;
   s.bound = bound;
   s.key_interval = codec_.key_interval;
@@ -523,12 +572,16 @@ int64_t Writer::add_cloth_state(int64_t primary_clip, int32_t frame, const float
   return sqlite3_last_insert_rowid(db_);
 }
 
+std::vector<uint8_t> Writer::encode_clip(const float* frames, uint32_t frame_count,
+                                         uint32_t vertex_count, double* max_error) const {
+  return encode_frames(frames, frame_count, vertex_count, codec_.position_bound, max_error);
+}
+
 int64_t Writer::add_cloth_clip(const NewClothClip& clip, const float* frames, uint32_t frame_count,
                                uint32_t vertex_count) {
   check_vertex_count(vertex_count, "the cloth clip");
   double max_error = 0;
-  const auto blob =
-      encode_frames(frames, frame_count, vertex_count, codec_.position_bound, &max_error);
+  const auto blob = encode_clip(frames, frame_count, vertex_count, &max_error);
   return add_cloth_clip_blob(clip, blob, max_error);
 }
 
@@ -542,21 +595,44 @@ int64_t Writer::add_cloth_clip_blob(const NewClothClip& clip, const std::vector<
   Stmt s(db_,
          "INSERT INTO cloth_clip(start_state, primary_clip, first_frame, frame_count, "
          "vertex_count, frames, error_bound, max_error, max_strain, max_penetration, status, "
-         "run) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+         "run, mean_penetration, jitter, halved_steps, worst_frame) "
+         "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
   s.bind(1, clip.start_state).bind(2, clip.primary_clip).bind(3, int64_t(clip.first_frame));
   s.bind(4, int64_t(info.frame_count)).bind(5, int64_t(info.vertex_count));
   s.bind_blob(6, blob.data(), blob.size()).bind(7, info.bound).bind(8, max_error);
   s.bind(9, clip.max_strain).bind(10, clip.max_penetration);
   s.bind(11, clip_status_name(clip.status)).bind_id_or_null(12, clip.run);
+  s.bind_metric(13, clip.mean_penetration).bind_metric(14, clip.jitter);
+  s.bind_count(15, clip.halved_steps).bind_count(16, clip.worst_frame);
   if (!s.ok() || s.step() != SQLITE_DONE) throw_sql("adding a cloth clip");
   return sqlite3_last_insert_rowid(db_);
 }
 
-int64_t Writer::add_cloth_edge(int64_t from_clip, int64_t to_state, double blend_error) {
-  Stmt s(db_, "INSERT INTO cloth_edge(from_clip, to_state, blend_error) VALUES(?, ?, ?)");
-  if (!s.ok() || s.bind(1, from_clip).bind(2, to_state).bind(3, blend_error).step() != SQLITE_DONE)
-    throw_sql("adding a cloth edge");
+int64_t Writer::add_cloth_edge(int64_t from_clip, int64_t to_state, double blend_error,
+                               double pop) {
+  Stmt s(db_, "INSERT INTO cloth_edge(from_clip, to_state, blend_error, pop) VALUES(?, ?, ?, ?)");
+  s.bind(1, from_clip).bind(2, to_state).bind(3, blend_error).bind_metric(4, pop);
+  if (!s.ok() || s.step() != SQLITE_DONE) throw_sql("adding a cloth edge");
   return sqlite3_last_insert_rowid(db_);
+}
+
+void Writer::set_clip_metrics(int64_t clip, const ClipMetrics& m) {
+  Stmt s(db_,
+         "UPDATE cloth_clip SET max_strain = ?, max_penetration = ?, mean_penetration = ?, "
+         "jitter = ?, halved_steps = ?, worst_frame = ? WHERE id = ?");
+  s.bind(1, m.max_strain).bind(2, m.max_penetration).bind_metric(3, m.mean_penetration);
+  s.bind_metric(4, m.jitter).bind_count(5, m.halved_steps).bind_count(6, m.worst_frame);
+  if (!s.ok() || s.bind(7, clip).step() != SQLITE_DONE) throw_sql("setting clip metrics");
+  if (sqlite3_changes(db_) != 1)
+    throw ClothdbError(Status::NotFound, path_ + ": no cloth clip " + std::to_string(clip));
+}
+
+void Writer::set_edge_pop(int64_t edge, double pop) {
+  Stmt s(db_, "UPDATE cloth_edge SET pop = ? WHERE id = ?");
+  if (!s.ok() || s.bind_metric(1, pop).bind(2, edge).step() != SQLITE_DONE)
+    throw_sql("setting an edge's pop");
+  if (sqlite3_changes(db_) != 1)
+    throw ClothdbError(Status::NotFound, path_ + ": no cloth edge " + std::to_string(edge));
 }
 
 int64_t Writer::set_clip_status(int64_t clip, ClipStatus status, const std::string& author,
@@ -837,9 +913,15 @@ Status Reader::cloth_states(std::vector<ClothState>* out, Error* err) {
                       });
 }
 
-static constexpr const char* kClipColumns =
-    "SELECT id, start_state, primary_clip, first_frame, frame_count, error_bound, max_error, "
-    "max_strain, max_penetration, status, run, length(frames) FROM cloth_clip";
+// Version 1 files have no metric columns: they read as NULL (unknown).
+static std::string clip_columns(int schema_version) {
+  return std::string(
+             "SELECT id, start_state, primary_clip, first_frame, frame_count, error_bound, "
+             "max_error, max_strain, max_penetration, status, run, length(frames), ") +
+         (schema_version >= 2 ? "mean_penetration, jitter, halved_steps, worst_frame"
+                              : "NULL, NULL, NULL, NULL") +
+         " FROM cloth_clip";
+}
 
 static ClothClip clip_from_row(Stmt& s) {
   ClothClip c;
@@ -855,18 +937,22 @@ static ClothClip clip_from_row(Stmt& s) {
   parse_clip_status(s.text(9), &c.status);
   c.run = s.i64(10);
   c.blob_bytes = size_t(s.i64(11));
+  c.mean_penetration = s.metric(12);
+  c.jitter = s.metric(13);
+  c.halved_steps = s.count(14);
+  c.worst_frame = s.count(15);
   return c;
 }
 
 Status Reader::cloth_clips(std::vector<ClothClip>* out, Error* err) {
   out->clear();
-  const std::string sql = std::string(kClipColumns) + " ORDER BY id";
+  const std::string sql = clip_columns(schema_version_) + " ORDER BY id";
   return for_each_row(db_, path_, sql.c_str(), err,
                       [&](Stmt& s) { out->push_back(clip_from_row(s)); });
 }
 
 Status Reader::cloth_clip(int64_t id, ClothClip* out, Error* err) {
-  const std::string sql = std::string(kClipColumns) + " WHERE id = " + std::to_string(id);
+  const std::string sql = clip_columns(schema_version_) + " WHERE id = " + std::to_string(id);
   bool found = false;
   const Status st = for_each_row(db_, path_, sql.c_str(), err, [&](Stmt& s) {
     *out = clip_from_row(s);
@@ -880,11 +966,14 @@ Status Reader::cloth_clip(int64_t id, ClothClip* out, Error* err) {
 
 Status Reader::cloth_edges(std::vector<ClothEdge>* out, Error* err) {
   out->clear();
-  return for_each_row(db_, path_,
-                      "SELECT id, from_clip, to_state, blend_error FROM cloth_edge ORDER BY id",
-                      err, [&](Stmt& s) {
-                        out->push_back({s.i64(0), s.i64(1), s.i64(2), s.f64(3)});
-                      });
+  const char* sql = schema_version_ >= 2
+                        ? "SELECT id, from_clip, to_state, blend_error, pop FROM cloth_edge "
+                          "ORDER BY id"
+                        : "SELECT id, from_clip, to_state, blend_error, NULL FROM cloth_edge "
+                          "ORDER BY id";
+  return for_each_row(db_, path_, sql, err, [&](Stmt& s) {
+    out->push_back({s.i64(0), s.i64(1), s.i64(2), s.f64(3), s.metric(4)});
+  });
 }
 
 Status Reader::runs(std::vector<Run>* out, Error* err) {

@@ -12,6 +12,7 @@
 #pragma once
 
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -23,7 +24,10 @@ struct sqlite3_stmt;
 
 namespace clothdb::db {
 
-constexpr int kSchemaVersion = 1;
+// Version 2 added the quality metrics (cloth_clip: mean_penetration, jitter, halved_steps,
+// worst_frame; cloth_edge: pop). Writer::open migrates a version 1 file in one transaction; the
+// Reader reads version 1 files as they are, with those metrics unknown.
+constexpr int kSchemaVersion = 2;
 constexpr int32_t kApplicationId = 0x434C4442;  // "CLDB"
 
 enum class ClipStatus { Ok, Flagged, Edited };
@@ -82,6 +86,21 @@ struct ClothState {
   size_t velocities_bytes = 0;
 };
 
+// A metric that was not measured (a file of schema version 1, or a clip written without it) is
+// NaN (doubles) or -1 (counts) in memory and NULL in the file.
+constexpr double kUnknownMetric = std::numeric_limits<double>::quiet_NaN();
+
+// Quality of a cloth clip; precompute/quality/clip_quality.hpp defines and measures each one
+// (docs/DATABASE.md). Lengths in metres.
+struct ClipMetrics {
+  double max_strain = 0;                     // max (l - l0) / l0 over edges and frames
+  double max_penetration = 0;                // m, deepest free vertex inside a body capsule
+  double mean_penetration = kUnknownMetric;  // m, mean over penetrating vertex-frames
+  double jitter = kUnknownMetric;            // m, RMS high-pass (4th difference) motion
+  int32_t halved_steps = -1;                 // times the solver halved its step
+  int32_t worst_frame = -1;                  // frame of the clip where it looks worst
+};
+
 // A cloth clip: frames simulated from a cloth state along one primary clip.
 struct ClothClip {
   int64_t id = 0;
@@ -91,11 +110,19 @@ struct ClothClip {
   int32_t frame_count = 0;
   double error_bound = 0;      // codec bound the frames were stored with, m
   double max_error = 0;        // largest codec error actually measured, m
-  double max_strain = 0;       // max (l - l0) / l0 over edges and frames
+  double max_strain = 0;       // the quality metrics: ClipMetrics
   double max_penetration = 0;  // m
   ClipStatus status = ClipStatus::Ok;
   int64_t run = 0;
   size_t blob_bytes = 0;
+  double mean_penetration = kUnknownMetric;  // m
+  double jitter = kUnknownMetric;            // m
+  int32_t halved_steps = -1;
+  int32_t worst_frame = -1;
+
+  ClipMetrics metrics() const {
+    return {max_strain, max_penetration, mean_penetration, jitter, halved_steps, worst_frame};
+  }
 };
 
 // The end of a cloth clip continues into a cloth state (possibly a blend from a different one).
@@ -103,7 +130,10 @@ struct ClothEdge {
   int64_t id = 0;
   int64_t from_clip = 0;
   int64_t to_state = 0;
-  double blend_error = 0;  // m, e.g. max vertex distance between the clip's end and the state
+  double blend_error = 0;  // m, state distance between the clip's end and the state (explorer)
+  // m: the jump the runtime's offset blend absorbs at this edge, max over vertices of
+  // |clip's last frame - state's positions| (clip_quality.hpp); kUnknownMetric if not measured.
+  double pop = kUnknownMetric;
 };
 
 struct Run {
@@ -132,10 +162,23 @@ struct NewClothClip {
   int64_t start_state = 0;
   int64_t primary_clip = 0;
   int32_t first_frame = 0;
-  double max_strain = 0;
+  double max_strain = 0;  // the quality metrics: ClipMetrics
   double max_penetration = 0;
   ClipStatus status = ClipStatus::Ok;
   int64_t run = 0;
+  double mean_penetration = kUnknownMetric;  // m
+  double jitter = kUnknownMetric;            // m
+  int32_t halved_steps = -1;
+  int32_t worst_frame = -1;
+
+  void set_metrics(const ClipMetrics& m) {
+    max_strain = m.max_strain;
+    max_penetration = m.max_penetration;
+    mean_penetration = m.mean_penetration;
+    jitter = m.jitter;
+    halved_steps = m.halved_steps;
+    worst_frame = m.worst_frame;
+  }
 };
 
 class Writer {
@@ -170,10 +213,20 @@ class Writer {
   // frames: frame_count * vertex_count * 3 floats, encoded with the file's codec settings.
   int64_t add_cloth_clip(const NewClothClip& clip, const float* frames, uint32_t frame_count,
                          uint32_t vertex_count);
+  // Encodes clip frames with the file's codec settings, exactly as add_cloth_clip would; touches
+  // no SQLite state, so worker threads may call it concurrently. max_error: measured after
+  // decoding.
+  std::vector<uint8_t> encode_clip(const float* frames, uint32_t frame_count, uint32_t vertex_count,
+                                   double* max_error) const;
   // The same with a blob already encoded (e.g. on worker threads outside the write lock).
   int64_t add_cloth_clip_blob(const NewClothClip& clip, const std::vector<uint8_t>& blob,
                               double max_error);
-  int64_t add_cloth_edge(int64_t from_clip, int64_t to_state, double blend_error);
+  int64_t add_cloth_edge(int64_t from_clip, int64_t to_state, double blend_error,
+                         double pop = kUnknownMetric);
+  // Replaces a clip's quality metrics (e.g. after its frames were edited or re-simulated) and an
+  // edge's pop. Not logged: an edit that changes frames records the change itself.
+  void set_clip_metrics(int64_t clip, const ClipMetrics& metrics);
+  void set_edge_pop(int64_t edge, double pop);
 
   // Edits, each logged with what it replaced so undo_edit can restore it.
   int64_t set_clip_status(int64_t clip, ClipStatus status, const std::string& author,
@@ -204,9 +257,10 @@ class Writer {
  private:
   Writer(sqlite3* db, std::string path);
   void exec(const char* sql);
+  void migrate(int from_version);
   [[noreturn]] void throw_sql(const char* what);
   std::vector<uint8_t> encode_frames(const float* frames, uint32_t frame_count,
-                                     uint32_t vertex_count, double bound, double* max_error);
+                                     uint32_t vertex_count, double bound, double* max_error) const;
   uint32_t garment_vertices();  // 0 if no garment yet
   void check_vertex_count(uint32_t vertex_count, const char* what);
 

@@ -552,5 +552,60 @@ TEST(Database, WriterKilledAtRandomMomentsLeavesCommittedClips) {
   std::printf("writer killed 4 times after %zu committed clips in all\n", committed);
 }
 
+TEST(Database, QualityMetricsRoundTripWithUnknownAsNull) {
+  TempDir dir;
+  const std::string path = dir.file("metrics.clothdb");
+  Fixture f;
+  {
+    Writer w = Writer::create(path);
+    f = populate(w);
+    ClipMetrics m;
+    m.max_strain = 0.031;
+    m.max_penetration = 0.002;
+    m.mean_penetration = 0.0007;
+    m.jitter = 0.00012;
+    m.halved_steps = 3;
+    m.worst_frame = 17;
+    w.set_clip_metrics(f.clip0, m);
+    w.set_edge_pop(f.edge, 0.0042);
+    m.worst_frame = 40;  // clip 0 has frames 0..39
+    EXPECT_THROW(w.set_clip_metrics(f.clip0, m), ClothdbError);
+    EXPECT_THROW(w.set_clip_metrics(12345, ClipMetrics{}), ClothdbError);
+    EXPECT_THROW(w.set_edge_pop(12345, 0.0), ClothdbError);
+  }
+  Reader r;
+  Error err;
+  ASSERT_EQ(r.open(path, &err), Status::Ok) << err.message;
+  std::vector<ClothClip> clips;
+  ASSERT_EQ(r.cloth_clips(&clips, &err), Status::Ok);
+  ASSERT_EQ(clips.size(), 2u);
+  EXPECT_DOUBLE_EQ(clips[0].max_strain, 0.031);
+  EXPECT_DOUBLE_EQ(clips[0].mean_penetration, 0.0007);
+  EXPECT_DOUBLE_EQ(clips[0].jitter, 0.00012);
+  EXPECT_EQ(clips[0].halved_steps, 3);
+  EXPECT_EQ(clips[0].worst_frame, 17);
+  // Written without them: unknown, not 0.
+  EXPECT_TRUE(std::isnan(clips[1].mean_penetration));
+  EXPECT_TRUE(std::isnan(clips[1].jitter));
+  EXPECT_EQ(clips[1].halved_steps, -1);
+  EXPECT_EQ(clips[1].worst_frame, -1);
+  std::vector<ClothEdge> edges;
+  ASSERT_EQ(r.cloth_edges(&edges, &err), Status::Ok);
+  EXPECT_DOUBLE_EQ(edges[0].pop, 0.0042);
+  EXPECT_TRUE(std::isnan(edges[1].pop));
+  r.close();
+  EXPECT_TRUE(check_database(path).ok());
+  {
+    Writer w = Writer::open(path);
+    ClipMetrics bad = clips[1].metrics();
+    bad.jitter = -0.001;
+    w.set_clip_metrics(f.clip1, bad);
+    w.set_edge_pop(f.edge, -1.0);
+  }
+  const CheckReport check = check_database(path);
+  EXPECT_TRUE(mentions(check, "cloth clip " + std::to_string(f.clip1) + ": negative quality"));
+  EXPECT_TRUE(mentions(check, "cloth edge " + std::to_string(f.edge) + ": negative pop"));
+}
+
 }  // namespace
 }  // namespace clothdb::db

@@ -101,9 +101,6 @@ int resolve_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
   return contacts;
 }
 
-namespace {
-
-// Depth of p below the deepest collider surface at pose s (0 if outside all).
 double penetration_depth(const Vec3& p, const Environment& env, double s) {
   double depth = 0.0;
   for (const auto& c : env.planes) depth = std::max(depth, -plane_point(c, p).distance);
@@ -115,8 +112,6 @@ double penetration_depth(const Vec3& p, const Environment& env, double s) {
   }
   return depth;
 }
-
-}  // namespace
 
 double max_penetration(const Eigen::Matrix3Xd& x, const Eigen::VectorXd& inv_mass,
                        const Environment& env, double s) {

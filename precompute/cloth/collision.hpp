@@ -56,6 +56,11 @@ int resolve_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
                        const Eigen::VectorXd& inv_mass, const Environment& env, double s,
                        double s_start = -1.0);
 
+// Depth of p below the deepest collider surface at pose fraction `s`: metres inside, 0 if outside
+// every collider. The margin is not counted. The one measure of penetration every report uses
+// (max_penetration, mean_penetration, precompute/quality/clip_quality.hpp).
+double penetration_depth(const Vec3& p, const Environment& env, double s = 1.0);
+
 // Deepest penetration of any vertex (with inv_mass > 0, or all if inv_mass is empty) into any
 // collider surface at pose fraction `s`: metres inside the surface, 0 if none. The margin is not
 // counted: a vertex resting at the margin has penetration 0.

@@ -7,6 +7,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <limits>
 #include <map>
@@ -17,6 +18,8 @@
 #include "database/codec.hpp"
 #include "explore/auto_solver.hpp"
 #include "explore/primary_graph.hpp"
+#include "graph/motion_graph.hpp"
+#include "quality/clip_quality.hpp"
 #include "report/svg_plot.hpp"
 
 namespace clothdb {
@@ -81,15 +84,21 @@ struct Job {
 struct JobResult {
   bool stable = true;
   std::string message;
-  std::vector<float> frames;   // frame_count * V * 3, character space
+  uint32_t frame_count = 0;
+  std::vector<uint8_t> blob;   // the clip's frames, encoded (character space)
+  double max_error = 0;        // codec error of the blob
+  std::vector<float> last;     // its last frame as the runtime decodes it (for the pop)
   std::vector<float> end_x, end_v;
-  double max_strain = 0, max_penetration = 0;
+  ClipQuality quality;
+  // Thread CPU time of the simulation (the budget counts simulations; measuring the quality, about
+  // 0.6 ms per frame at 2,958 vertices, and encoding are not counted, as before).
   double cpu_seconds = 0;
-  int halvings = 0;
 };
 
+// Simulates one dead end, measures the clip's quality and encodes it (worker threads: encoding
+// touches no SQLite state, and the blob is the same as encoding at integration would give).
 JobResult simulate_job(const CharacterScene& scene, const ExploreEdge& edge, const StateRec& start,
-                       double rate) {
+                       double rate, const db::Writer& writer) {
   JobResult r;
   const double t0 = thread_cpu_seconds();
   SolverSettings settings = scene.file.settings;
@@ -110,18 +119,34 @@ JobResult simulate_job(const CharacterScene& scene, const ExploreEdge& edge, con
     return r;
   }
   const size_t per_frame = start.x.size();
-  r.frames.reserve(per_frame * edge.poses.size());
-  r.frames.insert(r.frames.end(), start.x.begin(), start.x.end());
+  std::vector<float> frames;  // frame_count * V * 3, character space
+  frames.reserve(per_frame * edge.poses.size());
+  frames.insert(frames.end(), start.x.begin(), start.x.end());
   for (size_t f = 0; f < run.frames.size(); ++f) {
     const std::vector<float> local = to_local(run.frames[f], character_frame(scene, edge.poses[f + 1]), false);
-    r.frames.insert(r.frames.end(), local.begin(), local.end());
-    r.max_strain = std::max(r.max_strain, run.metrics[f].max_strain);
-    r.max_penetration = std::max(r.max_penetration, run.metrics[f].max_penetration);
+    frames.insert(frames.end(), local.begin(), local.end());
   }
   const Eigen::Isometry3d frame_end = character_frame(scene, edge.poses.back());
-  r.end_x.assign(r.frames.end() - static_cast<long>(per_frame), r.frames.end());
+  r.end_x.assign(frames.end() - static_cast<long>(per_frame), frames.end());
   r.end_v = to_local(state.v, frame_end, true);
-  r.halvings = run.step_halvings;
+  // On a worker thread an exception would end the process: a clip that cannot be measured or
+  // encoded (e.g. non-finite coordinates) is reported and left as a dead end, like an unstable one.
+  try {
+    r.quality = measure_clip(scene, edge.poses, frames);
+    r.quality.halved_steps = run.step_halvings;
+    const uint32_t vertices = static_cast<uint32_t>(per_frame / 3);
+    r.frame_count = static_cast<uint32_t>(edge.poses.size());
+    r.blob = writer.encode_clip(frames.data(), r.frame_count, vertices, &r.max_error);
+    r.last.resize(per_frame);
+    codec::DecodeScratch scratch;
+    db::Error err;
+    if (codec::decode_frames(r.blob.data(), r.blob.size(), r.frame_count - 1, 1, r.last.data(), r.last.size(),
+                             scratch, &err) != db::Status::Ok)
+      throw std::runtime_error(std::string("decoding a clip just encoded: ") + err.message);
+  } catch (const std::exception& e) {
+    r.stable = false;
+    r.message = e.what();
+  }
   return r;
 }
 
@@ -158,6 +183,51 @@ double state_distance(const std::vector<float>& xa, const std::vector<float>& va
     sum += dx * dx + tau * tau * dv * dv;
   }
   return n > 0 ? std::sqrt(sum / n) : 0.0;
+}
+
+ExploreGraph explore_graph(const CharacterScene& scene, const MotionGraph& graph, const std::string& where) {
+  return make_explore_graph(graph, scene.clips, where);
+}
+
+DatabaseScene load_database_scene(db::Reader& reader, const std::string& scene_file) {
+  const std::string& path = reader.path();
+  db::Error err;
+  auto meta = [&](const char* key) {
+    std::string value;
+    if (reader.meta(key, &value, &err) != db::Status::Ok)
+      throw std::runtime_error(path + ": no meta '" + key + "': not made by `clothdb precompute`, so its scene is unknown");
+    return value;
+  };
+  const std::string scene_path = scene_file.empty() ? meta("scene_path") : scene_file;
+  const std::string scene_hash = meta("scene_hash");
+  if (!std::filesystem::exists(scene_path))
+    throw std::runtime_error(path + ": its scene file " + scene_path +
+                             " does not exist (a relative path is relative to where `precompute` ran; "
+                             "give the scene file explicitly)");
+  const SceneFile file = load_scene_file(scene_path);
+  const std::string now = content_hash(file.text);
+  if (now != scene_hash)
+    throw std::runtime_error(path + ": the scene file " + scene_path + " changed since this database was made (" +
+                             scene_hash + ", now " + now + ")");
+  DatabaseScene out{build_character_scene(file), {}};
+  nlohmann::json graph_json;
+  try {
+    graph_json = nlohmann::json::parse(meta("motion_graph"));
+  } catch (const nlohmann::json::parse_error& e) {
+    throw std::runtime_error(path + ": meta motion_graph: not valid JSON: " + e.what());
+  }
+  const MotionGraph graph = motion_graph_from_json(graph_json, path + ": meta motion_graph");
+  out.graph = explore_graph(out.scene, graph, path + ": meta motion_graph");
+  std::vector<db::PrimaryClip> clips;
+  if (reader.primary_clips(&clips, &err) != db::Status::Ok) throw std::runtime_error(err.message);
+  std::map<std::string, int64_t> ids;
+  for (const auto& c : clips) ids[c.name] = c.id;
+  for (auto& e : out.graph.edges) {
+    if (!ids.count(e.name))
+      throw std::runtime_error(path + ": has no primary clip '" + e.name + "' of its own motion graph");
+    e.db_clip = ids[e.name];
+  }
+  return out;
 }
 
 void prepare_database(db::Writer& writer, const CharacterScene& scene, ExploreGraph& graph,
@@ -350,7 +420,7 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
 #pragma omp parallel for schedule(dynamic, 1) num_threads(std::max(1, options.threads))
     for (size_t k = 0; k < order.size(); ++k) {
       const size_t b = order[k];
-      results[b] = simulate_job(scene, graph.edges[batch[b].edge], states[batch[b].state], graph.rate);
+      results[b] = simulate_job(scene, graph.edges[batch[b].edge], states[batch[b].state], graph.rate, writer);
     }
 
     db::Writer::Transaction tx(writer);
@@ -367,15 +437,14 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
       }
       const ExploreEdge& edge = graph.edges[job.edge];
       db::NewClothClip clip;
+      clip.set_metrics(to_clip_metrics(r.quality));
       clip.start_state = start_id;
       clip.primary_clip = edge.db_clip;
       clip.first_frame = 0;
-      clip.max_strain = r.max_strain;
-      clip.max_penetration = r.max_penetration;
       clip.run = run_id;
       const uint32_t vertices = static_cast<uint32_t>(states[job.state].x.size() / 3);
-      const uint32_t frame_count = static_cast<uint32_t>(r.frames.size() / (3 * vertices));
-      const int64_t clip_id = writer.add_cloth_clip(clip, r.frames.data(), frame_count, vertices);
+      const uint32_t frame_count = r.frame_count;
+      const int64_t clip_id = writer.add_cloth_clip_blob(clip, r.blob, r.max_error);
       done.insert({start_id, job.edge});
       report.frames += frame_count;
       report.frames_this_run += frame_count;
@@ -389,7 +458,8 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
         if (d < best) best = d, best_state = static_cast<int>(s);
       }
       if (best_state >= 0 && best <= options.epsilon) {
-        writer.add_cloth_edge(clip_id, states[best_state].id, best);
+        writer.add_cloth_edge(clip_id, states[best_state].id, best,
+                              transition_pop(r.last.data(), states[best_state].x.data(), vertices));
         report.worst_blend_error = std::max(report.worst_blend_error, best);
       } else {
         StateRec rec;
@@ -398,7 +468,7 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
         rec.v = std::move(end_v);
         rec.priority = best_state >= 0 ? best : kNoNeighbour;
         rec.id = writer.add_cloth_state(node_anchor(rec.node), 0, r.end_x.data(), r.end_v.data(), vertices, run_id, clip_id);
-        writer.add_cloth_edge(clip_id, rec.id, 0.0);
+        writer.add_cloth_edge(clip_id, rec.id, 0.0, transition_pop(r.last.data(), rec.x.data(), vertices));
         states.push_back(std::move(rec));
       }
     }

@@ -24,6 +24,8 @@
 
 namespace clothdb {
 
+struct MotionGraph;
+
 // One edge of the primary motion graph, as the explorer needs it.
 struct ExploreEdge {
   int from_node = 0, to_node = 0;
@@ -82,6 +84,26 @@ Eigen::Isometry3d character_frame(const CharacterScene& scene, const std::vector
 // RMS over vertices of sqrt(|dx|^2 + (tau |dv|)^2), metres.
 double state_distance(const std::vector<float>& xa, const std::vector<float>& va,
                       const std::vector<float>& xb, const std::vector<float>& vb, double tau);
+
+// The explorer's view of a motion graph built from the scene's clips: one edge per graph edge,
+// named as its primary clip in the database ("clip[first-last]" or "clip[frame]->clip[frame]"),
+// with its poses and reach (make_explore_graph in explore/primary_graph.hpp). Throws
+// std::runtime_error naming `where` if the graph's clips are not the scene's.
+ExploreGraph explore_graph(const CharacterScene& scene, const MotionGraph& graph,
+                           const std::string& where);
+
+// The scene and primary graph a database was made from, rebuilt from its meta: the scene file at
+// meta `scene_path` (refused if its hash is not meta `scene_hash`: the file changed since) and
+// the motion graph in meta `motion_graph`; each edge's db_clip is set from the primary clips.
+// What tools that re-simulate or draw a stored clip with its body need. Throws
+// std::runtime_error naming the database and what is missing or different.
+struct DatabaseScene {
+  CharacterScene scene;
+  ExploreGraph graph;
+};
+// scene_file (optional): read the scene from this path instead of meta `scene_path` (which is
+// as given to `precompute`, so relative to where it ran); the hash must still match.
+DatabaseScene load_database_scene(db::Reader& reader, const std::string& scene_file = "");
 
 // Writes the garment, scene and graph metadata into a new database (no-op for what is there). A
 // primary graph already in the database (`clothdb graph build --db`) must be `graph_json`

@@ -769,9 +769,10 @@ std::vector<double> edge_reach(int node_count, const std::vector<std::pair<int, 
                                const std::vector<double>& weights) {
   std::vector<double> out_weight(node_count, 0.0);
   for (size_t e = 0; e < edges.size(); ++e) out_weight[edges[e].first] += weights[e];
+  // An unpruned graph (--no-prune) may have nodes with no way out: the game's chain then has no
+  // stationary distribution over the whole graph, so every edge counts as equally likely.
   for (int v = 0; v < node_count; ++v)
-    if (!(out_weight[v] > 0))
-      throw GraphError("edge_reach: node " + std::to_string(v) + " has no edge out (prune the graph)");
+    if (!(out_weight[v] > 0)) return std::vector<double>(edges.size(), 1.0);
   // Power iteration on the lazy chain pi <- (pi + pi P) / 2 from the uniform distribution.
   std::vector<double> pi(node_count, 1.0 / node_count), next(node_count);
   for (int it = 0; it < 100000; ++it) {

@@ -278,8 +278,8 @@ void set_edge_weights(MotionGraph& graph, const std::vector<double>& clip_weight
 // the graph is periodic. Edge e's reach is pi(from(e)) p(e), the long-run fraction of
 // transitions that are e, divided by the largest. Deterministic (fixed order and iteration).
 std::vector<double> edge_reach(const MotionGraph& graph);
-// The same for any directed graph given as (from, to) per edge with weights (all nodes must have
-// an edge out).
+// The same for any directed graph given as (from, to) per edge with weights. If a node has no edge
+// out (an unpruned graph) there is no stationary chain: every edge gets reach 1.
 std::vector<double> edge_reach(int node_count, const std::vector<std::pair<int, int>>& edges,
                                const std::vector<double>& weights);
 

@@ -181,6 +181,42 @@ void write_png(const std::string& path, const std::vector<std::uint8_t>& rgba, i
   write_file_atomic(path, bytes);
 }
 
+void draw_border(std::vector<std::uint8_t>& rgba, int width, int height, int thickness,
+                 std::array<std::uint8_t, 3> color) {
+  for (int y = 0; y < height; ++y)
+    for (int x = 0; x < width; ++x) {
+      if (x >= thickness && x < width - thickness && y >= thickness && y < height - thickness) continue;
+      std::uint8_t* p = &rgba[(static_cast<size_t>(y) * width + x) * 4];
+      p[0] = color[0], p[1] = color[1], p[2] = color[2], p[3] = 255;
+    }
+}
+
+void draw_number(std::vector<std::uint8_t>& rgba, int width, int height, int x0, int y0, long number,
+                 int scale, std::array<std::uint8_t, 3> color) {
+  // 3 x 5 bitmaps, one row per 3 bits (top row first), for 0..9.
+  static const std::uint16_t kDigits[10] = {0x7B6F, 0x2C97, 0x73E7, 0x73CF, 0x5BC9,
+                                            0x79CF, 0x79EF, 0x7249, 0x7BEF, 0x7BCF};
+  const std::string text = std::to_string(std::max(0L, number));
+  const int box_w = (static_cast<int>(text.size()) * 4 + 1) * scale, box_h = 7 * scale;
+  auto put = [&](int x, int y, std::array<std::uint8_t, 3> c) {
+    if (x < 0 || y < 0 || x >= width || y >= height) return;
+    std::uint8_t* p = &rgba[(static_cast<size_t>(y) * width + x) * 4];
+    p[0] = c[0], p[1] = c[1], p[2] = c[2], p[3] = 255;
+  };
+  for (int y = 0; y < box_h; ++y)
+    for (int x = 0; x < box_w; ++x) put(x0 + x, y0 + y, {255, 255, 255});
+  for (size_t d = 0; d < text.size(); ++d) {
+    const std::uint16_t bits = kDigits[text[d] - '0'];
+    for (int row = 0; row < 5; ++row)
+      for (int col = 0; col < 3; ++col) {
+        if (!((bits >> (14 - 3 * row - col)) & 1)) continue;
+        for (int sy = 0; sy < scale; ++sy)
+          for (int sx = 0; sx < scale; ++sx)
+            put(x0 + (1 + 4 * static_cast<int>(d) + col) * scale + sx, y0 + (1 + row) * scale + sy, color);
+      }
+  }
+}
+
 std::vector<std::uint8_t> contact_sheet(const std::vector<std::vector<std::uint8_t>>& tiles,
                                         int width, int height, int columns) {
   const int rows = static_cast<int>((tiles.size() + columns - 1) / columns);

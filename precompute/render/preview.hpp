@@ -43,6 +43,14 @@ std::vector<std::uint8_t> render_preview(const PreviewScene& scene, const Previe
 void write_png(const std::string& path, const std::vector<std::uint8_t>& rgba, int width,
                int height);
 
+// Marks an RGBA image (rows top to bottom): a frame `thickness` pixels wide around its edge.
+void draw_border(std::vector<std::uint8_t>& rgba, int width, int height, int thickness,
+                 std::array<std::uint8_t, 3> color);
+// Writes a non-negative integer at pixel (x, y) (top left of the text) in a 3 x 5 pixel digit
+// font scaled by `scale`, on a white box so it reads on any background. Clipped to the image.
+void draw_number(std::vector<std::uint8_t>& rgba, int width, int height, int x, int y, long number,
+                 int scale, std::array<std::uint8_t, 3> color);
+
 // Pastes `tiles` (all width x height RGBA) into a grid `columns` wide; unused cells are white.
 std::vector<std::uint8_t> contact_sheet(const std::vector<std::vector<std::uint8_t>>& tiles,
                                         int width, int height, int columns);
