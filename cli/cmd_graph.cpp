@@ -1,8 +1,11 @@
-// `clothdb graph build MANIFEST --out graph.json` finds transitions between the clips of a motion
-// manifest (Kovar et al. 2002) and writes the pruned motion graph; `clothdb graph show
+// `clothdb graph build MANIFEST --out graph.json --db FILE.db` finds transitions between the clips
+// of a motion manifest (Kovar et al. 2002) and writes the pruned motion graph (JSON, and/or into a
+// database for `clothdb precompute`); `clothdb graph show
 // graph.json` prints it and draws it (built-in SVG, or Graphviz DOT).
 #include <chrono>
 #include <cstdio>
+#include <filesystem>
+#include <fstream>
 #include <memory>
 #include <optional>
 #include <string>
@@ -10,7 +13,7 @@
 #include "cli_util.hpp"
 #include "commands.hpp"
 #include "database/schema.hpp"
-#include <fstream>
+#include "explore/primary_graph.hpp"
 #include "graph/graph_svg.hpp"
 #include "graph/motion_graph.hpp"
 #include "report/output.hpp"
@@ -20,7 +23,7 @@ namespace clothdb::cli {
 namespace {
 
 struct BuildArgs {
-  std::string manifest, out, clips;
+  std::string manifest, out, db, clips;
   GraphSettings settings;
   std::optional<double> threshold, percentile;
   bool no_prune = false;
@@ -52,7 +55,7 @@ void print_summary(const MotionGraph& g) {
   }
 }
 
-MotionGraph build_graph(const BuildArgs& a) {
+MotionGraph build_graph(const BuildArgs& a, GraphInput& input) {
   GraphSettings s = a.settings;
   if (a.threshold) {
     s.threshold_mode = ThresholdMode::absolute;
@@ -62,9 +65,11 @@ MotionGraph build_graph(const BuildArgs& a) {
     s.threshold = *a.percentile;
   }
   s.prune = !a.no_prune;
-  const GraphInput input = load_graph_input(a.manifest, split_list(a.clips));
+  input = load_graph_input(a.manifest, split_list(a.clips));
   try {
-    return build_motion_graph(input.clips, input.skeleton, s, input.transitions);
+    MotionGraph g = build_motion_graph(input.clips, input.skeleton, s, input.transitions);
+    set_edge_weights(g, input.clip_weights, input.transitions);
+    return g;
   } catch (const GraphError& e) {
     // Messages about a declared transition already name the manifest; the others get it here.
     const std::string what = e.what();
@@ -75,6 +80,30 @@ MotionGraph build_graph(const BuildArgs& a) {
 
 void write_graph_json(const MotionGraph& g, const std::string& path) {
   write_file_atomic(path, motion_graph_to_json(g).dump(1) + "\n");
+}
+
+// The graph into a database (new, or one that holds no graph yet or this very graph): its edges as
+// primary clips and transitions, the JSON in meta (docs/SECONDARY_GRAPH.md). One transaction.
+void write_graph_db(const MotionGraph& g, const GraphInput& input, const std::string& path,
+                    const std::string& manifest) {
+  ExploreGraph eg = make_explore_graph(g, input.clips, manifest);
+  const std::string json = motion_graph_to_json(g).dump();
+  const bool exists = std::filesystem::exists(path);
+  db::Writer writer = exists ? db::Writer::open(path) : db::Writer::create(path);
+  db::Reader reader;
+  db::Error err;
+  if (reader.open(path, &err) != db::Status::Ok)
+    throw std::runtime_error(path + ": " + std::string(err.message));
+  if (attach_primary_graph(reader, eg, json)) {
+    std::printf("%s already holds this motion graph\n", path.c_str());
+    return;
+  }
+  std::vector<db::ClothState> states;
+  reader.cloth_states(&states, &err);
+  if (!states.empty())
+    throw std::runtime_error(path + ": holds cloth states but no motion graph; use a new database");
+  write_primary_graph(writer, eg, json, input.files);
+  std::printf("wrote the motion graph into %s (%d primary clips)\n", path.c_str(), g.edge_count());
 }
 
 void print_graph(const MotionGraph& g) {
@@ -110,10 +139,12 @@ MotionGraph load_graph_or_database(const std::string& path) {
   if (std::string(magic, 15) != "SQLite format 3") return load_motion_graph(path);
   db::Reader reader;
   db::Error err;
-  if (reader.open(path, &err) != db::Status::Ok) throw std::runtime_error(path + ": " + std::string(err.message));
+  if (reader.open(path, &err) != db::Status::Ok)
+    throw std::runtime_error(path + ": " + std::string(err.message));
   std::string text;
   if (reader.meta("motion_graph", &text, &err) != db::Status::Ok)
-    throw std::runtime_error(path + ": holds no motion graph (run `clothdb precompute` on it first)");
+    throw std::runtime_error(path +
+                             ": holds no motion graph (run `clothdb precompute` on it first)");
   return motion_graph_from_json(nlohmann::json::parse(text), path + ": meta motion_graph");
 }
 
@@ -130,7 +161,11 @@ void register_graph_commands(CLI::App& app) {
       "windows of poses, local minima under a threshold), adds the manifest's declared ones, "
       "prunes to the largest strongly connected component and writes the graph as JSON.");
   b->add_option("MANIFEST", build->manifest, "Motion manifest (.json)")->required();
-  b->add_option("--out", build->out, "Graph file to write (.json)")->required();
+  b->add_option("--out", build->out, "Graph file to write (.json)");
+  b->add_option(
+      "--db", build->db,
+      "Database to write the graph into (created if missing; `clothdb precompute SCENE --db "
+      "FILE` then explores on this graph)");
   b->add_option("--clips", build->clips, "Comma-separated clip names (default: every clip)");
   b->add_option("--window", build->settings.window, "Frames per window of the distance")
       ->capture_default_str()
@@ -161,13 +196,20 @@ void register_graph_commands(CLI::App& app) {
   b->add_flag("--no-prune", build->no_prune,
               "Keep every node (do not prune to the largest strongly connected component)");
   b->callback([build] {
+    if (build->out.empty() && build->db.empty())
+      throw std::runtime_error("graph build: give --out FILE.json, --db FILE.db, or both");
     const auto start = std::chrono::steady_clock::now();
-    const MotionGraph g = build_graph(*build);
+    GraphInput input;
+    const MotionGraph g = build_graph(*build, input);
     const double seconds =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    write_graph_json(g, build->out);
     print_summary(g);
-    std::printf("built in %.2f s (loading included); wrote %s\n", seconds, build->out.c_str());
+    std::printf("built in %.2f s (loading included)\n", seconds);
+    if (!build->out.empty()) {
+      write_graph_json(g, build->out);
+      std::printf("wrote %s\n", build->out.c_str());
+    }
+    if (!build->db.empty()) write_graph_db(g, input, build->db, build->manifest);
   });
 
   struct ShowArgs {
@@ -177,7 +219,8 @@ void register_graph_commands(CLI::App& app) {
   auto show = std::make_shared<ShowArgs>();
   CLI::App* s = graph->add_subcommand(
       "show", "Prints a motion graph (nodes, edges, clips, transitions) and draws it as SVG");
-  s->add_option("FILE", show->file, "Graph file (.json, from graph build) or clothdb database")->required();
+  s->add_option("FILE", show->file, "Graph file (.json, from graph build) or clothdb database")
+      ->required();
   s->add_option("--svg", show->svg, "Write the built-in drawing (one lane per clip) to this SVG");
   s->add_option("--dot", show->dot, "Write the graph in Graphviz DOT to this file");
   s->add_option("--dot-svg", show->dot_svg,

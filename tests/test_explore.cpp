@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
+#include <map>
 
 #include "database/check.hpp"
 #include "database/checksum.hpp"
@@ -73,8 +74,10 @@ std::string temp_db(const std::string& name) {
   return path;
 }
 
-ExploreReport run(const CharacterScene& scene, const std::string& path, ExploreOptions options) {
+ExploreReport run(const CharacterScene& scene, const std::string& path, ExploreOptions options,
+                  double hold_reach = 1.0) {
   ExploreGraph graph = small_graph(scene);
+  graph.edges[0].reach = hold_reach;
   db::Writer writer = std::filesystem::exists(path) ? db::Writer::open(path) : db::Writer::create(path);
   prepare_database(writer, scene, graph, "{}");
   options.progress = std::getenv("CLOTHDB_PROGRESS") != nullptr;
@@ -179,6 +182,55 @@ TEST(Explore, StoppedRunResumesToTheSameContent) {
   EXPECT_TRUE(second.resumed);
   EXPECT_TRUE(second.converged);
   EXPECT_EQ(content(db_path("whole")), content(path));
+}
+
+// Clips in the order they were explored: (start state, primary clip) by clip id.
+std::vector<std::pair<int64_t, int64_t>> clip_order(const std::string& path) {
+  db::Reader r;
+  db::Error err;
+  EXPECT_EQ(r.open(path, &err), db::Status::Ok) << err.message;
+  std::vector<db::ClothClip> clips;
+  r.cloth_clips(&clips, &err);
+  std::vector<std::pair<int64_t, int64_t>> out;
+  for (const auto& c : clips) out.emplace_back(c.start_state, c.primary_clip);
+  return out;
+}
+
+// For each state with clips along both edges: is the "hold" clip (primary clip 1) explored first?
+std::vector<bool> hold_first(const std::vector<std::pair<int64_t, int64_t>>& order) {
+  std::map<int64_t, std::vector<int64_t>> by_state;
+  for (const auto& [state, primary] : order) by_state[state].push_back(primary);
+  std::vector<bool> out;
+  for (const auto& [state, primaries] : by_state)
+    if (primaries.size() == 2) out.push_back(primaries[0] == 1);
+  return out;
+}
+
+TEST(Explore, RarelyTakenEdgesAreExpandedLater) {
+  // The two dead ends of a state have the same unresolved error (the state's); with equal reach
+  // the tie goes to the lower edge ("hold"), so the order is decided by reach alone when "hold"
+  // is rarely taken.
+  const CharacterScene scene = small_scene();
+  ExploreOptions options;
+  options.epsilon = 0.02;
+  options.batch = 1;
+  options.max_frames = 800;
+  run(scene, temp_db("reach_equal"), options, 1.0);
+  run(scene, temp_db("reach_rare"), options, 0.05);
+  const std::vector<bool> equal = hold_first(clip_order(db_path("reach_equal")));
+  const std::vector<bool> rare = hold_first(clip_order(db_path("reach_rare")));
+  ASSERT_GE(equal.size(), 3u);
+  ASSERT_GE(rare.size(), 3u);
+  for (bool b : equal) EXPECT_TRUE(b);
+  for (bool b : rare) EXPECT_FALSE(b);
+  // And a rare dead end waits behind likely ones of other states with a smaller error: in the
+  // weighted run, some "sway" clip of a later state comes before an earlier state's "hold".
+  const auto order = clip_order(db_path("reach_rare"));
+  bool overtaken = false;
+  for (size_t i = 0; i < order.size(); ++i)
+    for (size_t j = i + 1; j < order.size(); ++j)
+      overtaken |= order[i].second == 2 && order[j].second == 1 && order[i].first > order[j].first;
+  EXPECT_TRUE(overtaken);
 }
 
 TEST(Explore, RefusesAChangedScene) {

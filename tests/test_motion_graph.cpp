@@ -2,6 +2,7 @@
 // pruning, blended edge poses and their continuity, JSON, and the CMU demo manifest.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -489,6 +490,51 @@ TEST(Graph, DeclaredTransitionsAreKeptAndChecked) {
   }
 }
 
+TEST(Graph, DeclaredWeightsMakeTheGameTakeEdgesMoreOrLessOften) {
+  const Rig rig = make_rig();
+  const int joints = rig.skeleton.joint_count();
+  const std::vector<MotionClip> clips = {make_clip(rig, "walk", 150, walk(joints, 31.7)),
+                                         make_clip(rig, "walk_b", 140, wander(joints))};
+  GraphSettings s;
+  s.threshold_mode = ThresholdMode::absolute;
+  s.threshold = 0.0;
+  const std::vector<ManifestTransition> declared = {
+      {"walk", 100, "walk", 36, "m.json: transitions[0]", 5.0},
+      {"walk", 120, "walk_b", 20, "m.json: transitions[1]"},
+      {"walk_b", 60, "walk", 10, "m.json: transitions[2]"}};
+  MotionGraph g = build_motion_graph(clips, rig.skeleton, s, declared);
+  set_edge_weights(g, {1.0, 0.5}, declared);
+  for (const GraphEdge& e : g.edges) {
+    if (e.kind == EdgeKind::transition && e.first_frame == 100) EXPECT_EQ(e.weight, 5.0);  // its own
+    else EXPECT_EQ(e.weight, e.target_clip == 1 ? 0.5 : 1.0);  // the clip it plays into
+  }
+  // The chain's stationary flow: into every node as much as out of it (pi = pi P), and the most
+  // taken edge has reach 1.
+  const std::vector<double> reach = edge_reach(g);
+  std::vector<double> in(g.node_count(), 0.0), out(g.node_count(), 0.0);
+  double largest = 0;
+  for (int k = 0; k < g.edge_count(); ++k) {
+    in[g.edges[k].to] += reach[k];
+    out[g.edges[k].from] += reach[k];
+    largest = std::max(largest, reach[k]);
+  }
+  for (int v = 0; v < g.node_count(); ++v) EXPECT_NEAR(in[v], out[v], 1e-9) << "node " << v;
+  EXPECT_DOUBLE_EQ(largest, 1.0);
+  // Known by hand: a loop of weight 3 and a way out of weight 1 at node 0, back from node 1.
+  // p(0->0) = 3/4, p(0->1) = 1/4, pi = (4/5, 1/5): flows 3/5, 1/5, 1/5.
+  const std::vector<double> r = edge_reach(2, {{0, 0}, {0, 1}, {1, 0}}, {3.0, 1.0, 1.0});
+  EXPECT_NEAR(r[0], 1.0, 1e-9);
+  EXPECT_NEAR(r[1], 1.0 / 3, 1e-9);
+  EXPECT_NEAR(r[2], 1.0 / 3, 1e-9);
+  // Periodic (a 2-cycle): the lazy chain still converges.
+  const std::vector<double> c = edge_reach(2, {{0, 1}, {1, 0}}, {1.0, 1.0});
+  EXPECT_NEAR(c[0], 1.0, 1e-9);
+  EXPECT_NEAR(c[1], 1.0, 1e-9);
+  // Weights survive the JSON form (what the database stores).
+  const MotionGraph back = motion_graph_from_json(motion_graph_to_json(g), "test");
+  for (int k = 0; k < g.edge_count(); ++k) EXPECT_EQ(back.edges[k].weight, g.edges[k].weight);
+}
+
 TEST(Graph, ManifestTransitionsField) {
   const std::filesystem::path dir =
       std::filesystem::path(CLOTHDB_BINARY_DIR) / "test_motion_graph_tmp";
@@ -518,6 +564,20 @@ TEST(Graph, ManifestTransitionsField) {
   write(R"({"clips": [{"name": "a", "file": "a.bvh"}],
            "transitions": [{"from": "a", "frame": 12, "to": "a"}]})");
   EXPECT_THROW(load_manifest(file), MotionError);
+  write(R"({"clips": [{"name": "a", "file": "a.bvh", "weight": 2}],
+           "transitions": [{"from": "a", "frame": 12, "to": "a", "to_frame": 1, "weight": 0.25}]})");
+  const MotionManifest weighted = load_manifest(file);
+  EXPECT_EQ(weighted.clips[0].weight, 2.0);
+  EXPECT_EQ(weighted.transitions[0].weight, 0.25);
+  write(R"({"clips": [{"name": "a", "file": "a.bvh", "weight": 0}]})");
+  try {
+    load_manifest(file);
+    FAIL() << "a zero weight was accepted";
+  } catch (const MotionError& e) {
+    EXPECT_NE(std::string(e.what()).find(file.string() + ": clips[0].weight: expected a positive number"),
+              std::string::npos)
+        << e.what();
+  }
   std::filesystem::remove_all(dir);
 }
 

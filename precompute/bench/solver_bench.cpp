@@ -44,6 +44,24 @@ std::string csv_field(const std::string& s) {
 
 }  // namespace
 
+FrameErrors compare_frames(const std::vector<Eigen::Matrix3Xd>& run,
+                           const std::vector<Eigen::Matrix3Xd>& reference, size_t first) {
+  FrameErrors out;
+  double sum2 = 0, worst = 0, worst_frame = 0;
+  long count = 0;
+  const size_t compared = std::min(run.size(), reference.size());
+  for (size_t f = first; f < compared; ++f) {
+    const Eigen::Matrix3Xd d = run[f] - reference[f];
+    const double frame2 = d.colwise().squaredNorm().sum();
+    sum2 += frame2;
+    worst = std::max(worst, d.colwise().norm().maxCoeff());
+    worst_frame = std::max(worst_frame, std::sqrt(frame2 / std::max<Eigen::Index>(1, d.cols())));
+    count += d.cols();
+  }
+  if (count > 0) out = {std::sqrt(sum2 / count), worst, worst_frame};
+  return out;
+}
+
 std::vector<BenchConfig> bench_configs(SolverKind kind, bool quick) {
   using L = LinearSolverKind;
   switch (kind) {
@@ -127,18 +145,11 @@ BenchRow measure_config(const ClothScene& scene, const BenchConfig& c, int frame
   row.cpu_ms_per_frame = row.frames > 0 ? 1e3 * run.cpu_seconds / row.frames : NAN;
   row.stable = run.stable;
   row.message = run.message;
-  double sum2 = 0, worst = 0;
-  long count = 0;
-  const size_t compared = std::min(run.frames.size(), reference.frames.size());
-  for (size_t f = 1; f < compared; ++f) {
-    const Eigen::Matrix3Xd d = run.frames[f] - reference.frames[f];
-    sum2 += d.colwise().squaredNorm().sum();
-    worst = std::max(worst, d.colwise().norm().maxCoeff());
-    count += d.cols();
-  }
-  const bool comparable = reference.stable && run.stable && count > 0;
-  row.rms_error_mm = comparable ? 1e3 * std::sqrt(sum2 / count) : NAN;
-  row.max_error_mm = comparable ? 1e3 * worst : NAN;
+  const FrameErrors errors = compare_frames(run.frames, reference.frames, 1);
+  const bool comparable = reference.stable && run.stable && std::isfinite(errors.rms) &&
+                          std::min(run.frames.size(), reference.frames.size()) > 1;
+  row.rms_error_mm = comparable ? 1e3 * errors.rms : NAN;
+  row.max_error_mm = comparable ? 1e3 * errors.max : NAN;
   long iterations = 0, factorizations = 0;
   for (const auto& m : run.metrics) {
     row.max_strain = std::max(row.max_strain, m.max_strain);

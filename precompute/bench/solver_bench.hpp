@@ -2,6 +2,7 @@
 // measured against a reference (the Newton solver at a small step with a tight tolerance).
 #pragma once
 
+#include <cmath>
 #include <functional>
 #include <string>
 #include <vector>
@@ -55,6 +56,15 @@ struct BenchRow {
   bool run = true;  // false: not simulated (mass-spring needing more sub-steps than allowed)
   std::string message;
 };
+
+// Positions of a run against a reference run, frame by frame from frame `first` on (as many as
+// both have): RMS and max over all frames and vertices of |x - x_ref|, and the largest per-frame
+// RMS. Metres; NaN when nothing is compared.
+struct FrameErrors {
+  double rms = NAN, max = NAN, worst_frame_rms = NAN;
+};
+FrameErrors compare_frames(const std::vector<Eigen::Matrix3Xd>& run,
+                           const std::vector<Eigen::Matrix3Xd>& reference, size_t first);
 
 // The settings swept for one solver (fewer when quick).
 std::vector<BenchConfig> bench_configs(SolverKind kind, bool quick);

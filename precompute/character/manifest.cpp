@@ -109,7 +109,7 @@ MotionManifest load_manifest(const std::filesystem::path& file) {
     if (!clip.is_object()) reader.fail(prefix, "expected an object");
     reader.only_known_keys(clip,
                            {"name", "file", "first_frame", "last_frame", "source_rate", "scale",
-                            "up_axis", "animation"},
+                            "up_axis", "animation", "weight"},
                            prefix + ".");
     MotionClipSpec spec;
     if (!clip.contains("file")) reader.fail(prefix + ".file", "missing (expected a path)");
@@ -158,6 +158,8 @@ MotionManifest load_manifest(const std::filesystem::path& file) {
     }
     if (clip.contains("animation"))
       o.animation = reader.string(clip["animation"], prefix + ".animation");
+    if (clip.contains("weight"))
+      spec.weight = reader.positive_number(clip["weight"], prefix + ".weight");
     manifest.clips.push_back(std::move(spec));
   }
 
@@ -168,7 +170,7 @@ MotionManifest load_manifest(const std::filesystem::path& file) {
       const std::string prefix = "transitions[" + std::to_string(t) + "]";
       const json& item = transitions[t];
       if (!item.is_object()) reader.fail(prefix, "expected an object");
-      reader.only_known_keys(item, {"from", "frame", "to", "to_frame"}, prefix + ".");
+      reader.only_known_keys(item, {"from", "frame", "to", "to_frame", "weight"}, prefix + ".");
       ManifestTransition transition;
       transition.where = where + ": " + prefix;
       for (const char* key : {"from", "frame", "to", "to_frame"})
@@ -183,6 +185,8 @@ MotionManifest load_manifest(const std::filesystem::path& file) {
       transition.to_frame = reader.frame(item["to_frame"], prefix + ".to_frame");
       if (transition.frame < 0) reader.fail(prefix + ".frame", "expected an integer >= 0");
       if (transition.to_frame < 0) reader.fail(prefix + ".to_frame", "expected an integer >= 0");
+      if (item.contains("weight"))
+        transition.weight = reader.positive_number(item["weight"], prefix + ".weight");
       manifest.transitions.push_back(std::move(transition));
     }
   }

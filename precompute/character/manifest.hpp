@@ -7,9 +7,9 @@
 //     "clips": [
 //       { "name": "walk", "file": "${ASSIMP_TESTMODELS}/BVH/01_01.bvh",
 //         "first_frame": 1, "last_frame": 1200, "source_rate": 120,
-//         "scale": 0.0564444, "up_axis": "y", "animation": "" }
+//         "scale": 0.0564444, "up_axis": "y", "animation": "", "weight": 1 }
 //     ],
-//     "transitions": [ { "from": "walk", "frame": 120, "to": "run", "to_frame": 30 } ]
+//     "transitions": [ { "from": "walk", "frame": 120, "to": "run", "to_frame": 30, "weight": 1 } ]
 //   }
 //
 // Only "clips" and each clip's "file" are required. A file path is absolute, relative to the
@@ -18,6 +18,13 @@
 // "transitions" (optional) declares motion-graph transitions by hand, besides those found
 // automatically (graph/motion_graph.hpp): frame `frame` of clip `from` (frames of the clip at the
 // output rate) corresponds to frame `to_frame` of clip `to`.
+//
+// "weight" (optional, > 0, default 1) says how likely the game is to take a way out of a
+// motion-graph node: at a node, each edge leaving it is taken with probability weight / (sum of
+// the weights of the edges leaving that node). An edge's weight is its declared transition's
+// "weight" if it has one, else the "weight" of the clip it plays into (its target clip), so a
+// clip's weight makes every way into it more or less likely. The explorer weights a dead end's
+// error by how often the game reaches it (graph/motion_graph.hpp: edge_reach).
 #pragma once
 
 #include <filesystem>
@@ -32,6 +39,7 @@ struct MotionClipSpec {
   std::string name;
   std::filesystem::path file;  // resolved
   MotionLoadOptions options;   // name, range, rates, scale, up axis, animation
+  double weight = 1.0;         // relative likelihood of the edges into this clip (see above)
 };
 
 // A transition declared in the manifest: clip names are checked against the manifest's clips here,
@@ -41,7 +49,8 @@ struct ManifestTransition {
   int frame = 0;
   std::string to;
   int to_frame = 0;
-  std::string where;  // "<manifest>: transitions[k]", for error messages
+  std::string where;    // "<manifest>: transitions[k]", for error messages
+  double weight = 0.0;  // > 0: this transition's weight (see above); 0: not given
 };
 
 struct MotionManifest {

@@ -16,6 +16,8 @@
 
 #include "database/checksum.hpp"
 #include "database/codec.hpp"
+#include "explore/auto_solver.hpp"
+#include "explore/primary_graph.hpp"
 #include "graph/motion_graph.hpp"
 #include "quality/clip_quality.hpp"
 #include "report/svg_plot.hpp"
@@ -30,19 +32,6 @@ double thread_cpu_seconds() {
   timespec ts{};
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
   return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
-
-std::string hex64(uint64_t v) {
-  char buf[24];
-  std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(v));
-  return buf;
-}
-
-std::string file_hash(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw std::runtime_error(path + ": cannot read to hash it");
-  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  return "xxh64:" + hex64(db::xxh64(bytes.data(), bytes.size()));
 }
 
 // What a state looks like after a trip through the database (the codec's quantisation), so that
@@ -197,25 +186,7 @@ double state_distance(const std::vector<float>& xa, const std::vector<float>& va
 }
 
 ExploreGraph explore_graph(const CharacterScene& scene, const MotionGraph& graph, const std::string& where) {
-  ExploreGraph eg;
-  eg.node_count = graph.node_count();
-  eg.rate = scene.clips.front().rate;
-  eg.start_node = graph.edges.empty() ? 0 : graph.edges.front().from;
-  for (size_t e = 0; e < graph.edges.size(); ++e) {
-    const GraphEdge& ge = graph.edges[e];
-    if (ge.clip >= static_cast<int>(scene.clips.size()) || ge.target_clip >= static_cast<int>(scene.clips.size()))
-      throw std::runtime_error(where + ": edge " + std::to_string(e) + " names a clip the scene does not have");
-    ExploreEdge x;
-    x.from_node = ge.from;
-    x.to_node = ge.to;
-    x.name = ge.kind == EdgeKind::clip
-                 ? scene.clips[ge.clip].name + "[" + std::to_string(ge.first_frame) + "-" + std::to_string(ge.last_frame) + "]"
-                 : scene.clips[ge.clip].name + "[" + std::to_string(ge.first_frame) + "]->" +
-                       scene.clips[ge.target_clip].name + "[" + std::to_string(ge.target_frame) + "]";
-    x.poses = edge_poses(graph, scene.clips, static_cast<int>(e));
-    eg.edges.push_back(std::move(x));
-  }
-  return eg;
+  return make_explore_graph(graph, scene.clips, where);
 }
 
 DatabaseScene load_database_scene(db::Reader& reader, const std::string& scene_file) {
@@ -234,7 +205,7 @@ DatabaseScene load_database_scene(db::Reader& reader, const std::string& scene_f
                              " does not exist (a relative path is relative to where `precompute` ran; "
                              "give the scene file explicitly)");
   const SceneFile file = load_scene_file(scene_path);
-  const std::string now = "xxh64:" + hex64(db::xxh64(file.text.data(), file.text.size()));
+  const std::string now = content_hash(file.text);
   if (now != scene_hash)
     throw std::runtime_error(path + ": the scene file " + scene_path + " changed since this database was made (" +
                              scene_hash + ", now " + now + ")");
@@ -265,43 +236,31 @@ void prepare_database(db::Writer& writer, const CharacterScene& scene, ExploreGr
   db::Error err;
   if (reader.open(writer.path(), &err) != db::Status::Ok)
     throw std::runtime_error(writer.path() + ": " + std::string(err.message));
-  const std::string scene_hash = "xxh64:" + hex64(db::xxh64(scene.file.text.data(), scene.file.text.size()));
-  std::vector<std::string> motion_hashes;
-  for (const auto& name : scene.file.clips)
-    motion_hashes.push_back(file_hash(scene.file.manifest.clips[scene.file.manifest.require(name)].file.string()));
+  const std::string scene_hash = content_hash(scene.file.text);
+  const bool has_graph = attach_primary_graph(reader, graph, graph_json);
+  check_motion_files(reader);
 
   db::Garment existing;
   if (reader.garment(&existing, &err) == db::Status::Ok) {
-    // Resuming: the scene and the motions must be the ones this database was made from.
+    // Resuming: the scene must be the one this database was made from.
     std::string stored;
     if (reader.meta("scene_hash", &stored, &err) == db::Status::Ok && stored != scene_hash)
       throw std::runtime_error(writer.path() + ": was made from a different version of " +
                                scene.file.path.string() + " (scene hash " + stored + ", now " + scene_hash +
                                "); use a new --db, or restore the scene file");
-    std::vector<db::MotionFile> files;
-    reader.motion_files(&files, &err);
-    for (const auto& f : files) {
-      const std::string now = file_hash(f.path);
-      if (now != f.content_hash)
-        throw std::runtime_error(writer.path() + ": motion file " + f.path + " changed since this database was made (" +
-                                 f.content_hash + ", now " + now + "); refusing to mix results");
-    }
     if (existing.vertex_count() != static_cast<uint32_t>(scene.model.vertex_count()))
       throw std::runtime_error(writer.path() + ": garment has " + std::to_string(existing.vertex_count()) +
                                " vertices, the scene makes " + std::to_string(scene.model.vertex_count()));
-    std::vector<db::PrimaryClip> clips;
-    reader.primary_clips(&clips, &err);
-    std::map<std::string, int64_t> ids;
-    for (const auto& c : clips) ids[c.name] = c.id;
-    for (auto& e : graph.edges) {
-      if (!ids.count(e.name))
-        throw std::runtime_error(writer.path() + ": has no primary clip '" + e.name +
-                                 "': the motion graph changed since this database was made");
-      e.db_clip = ids[e.name];
-    }
+    if (!has_graph) throw std::runtime_error(writer.path() + ": has a garment but no motion graph");
     return;
   }
   db::Writer::Transaction tx(writer);
+  if (!has_graph) {
+    std::vector<std::string> files;
+    for (const auto& name : scene.file.clips)
+      files.push_back(scene.file.manifest.clips[scene.file.manifest.require(name)].file.string());
+    write_primary_graph(writer, graph, graph_json, files);
+  }
   db::Garment g;
   for (const auto& t : scene.model.mesh.triangles)
     for (int k = 0; k < 3; ++k) g.triangles.push_back(static_cast<uint32_t>(t[k]));
@@ -314,46 +273,12 @@ void prepare_database(db::Writer& writer, const CharacterScene& scene, ExploreGr
                 "\"bending_stiffness\": %g, \"damping\": %g}",
                 m.density, m.youngs_modulus, m.poisson, m.thickness, m.bending_rigidity(), m.damping);
   g.material = mat;
-  char sol[256];
-  std::snprintf(sol, sizeof sol, "{\"name\": \"%s\", \"substeps\": %d, \"iterations\": %d, \"tolerance\": %g}",
-                solver_name(scene.file.solver), scene.file.settings.substeps, scene.file.settings.iterations,
-                scene.file.settings.newton_tolerance);
-  g.solver = sol;
+  g.solver = solver_settings_json(scene.file.solver, scene.file.settings);
   writer.put_garment(g);
   writer.set_meta("units", "metres, seconds; cloth in character space (docs/SECONDARY_GRAPH.md)");
   writer.set_meta("scene", scene.file.text);
   writer.set_meta("scene_path", scene.file.path.string());
   writer.set_meta("scene_hash", scene_hash);
-  writer.set_meta("motion_graph", graph_json);
-  std::vector<int64_t> file_ids;
-  for (size_t i = 0; i < scene.file.clips.size(); ++i) {
-    const auto& spec = scene.file.manifest.clips[scene.file.manifest.require(scene.file.clips[i])];
-    file_ids.push_back(writer.add_motion_file(spec.file.string(), motion_hashes[i]));
-  }
-  for (auto& e : graph.edges) {
-    db::PrimaryClip c;
-    c.name = e.name;
-    c.motion_file = file_ids.empty() ? 0 : file_ids.front();
-    c.first_frame = 0;
-    c.frame_count = static_cast<int32_t>(e.poses.size());
-    c.frame_rate = graph.rate;
-    e.db_clip = writer.add_primary_clip(c);
-  }
-  for (const auto& a : graph.edges)
-    for (const auto& b : graph.edges)
-      if (a.to_node == b.from_node) {
-        db::PrimaryTransition t;
-        t.from_clip = a.db_clip;
-        t.from_frame = static_cast<int32_t>(a.poses.size()) - 1;
-        t.to_clip = b.db_clip;
-        t.to_frame = 0;
-        writer.add_primary_transition(t);
-      }
-  for (const auto& e : graph.edges)
-    if (e.from_node == graph.start_node) {
-      writer.set_meta("start_clip", std::to_string(e.db_clip));
-      break;
-    }
   tx.commit();
 }
 
@@ -407,7 +332,9 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
   }
   const int64_t run_id = writer.begin_run(
       "{\"epsilon_m\": " + std::to_string(options.epsilon) + ", \"threads\": " + std::to_string(options.threads) +
-      ", \"batch\": " + std::to_string(options.batch) + ", \"solver\": \"" + solver_name(scene.file.solver) + "\"}");
+      ", \"batch\": " + std::to_string(options.batch) + ", \"solver\": \"" + solver_name(scene.file.solver) +
+      "\", \"solver_settings\": " + solver_settings_json(scene.file.solver, scene.file.settings) +
+      (options.run_settings.empty() ? "" : ", " + options.run_settings) + "}");
   if (states.empty()) {
     SolverSettings settings = scene.file.settings;
     auto solver = make_solver(scene.file.solver, scene.model, settings);
@@ -427,11 +354,17 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
     states.push_back(std::move(rec));
   }
 
+  // Kim et al. expand the dead end whose unresolved error matters most: its error times how often
+  // the game takes its edge (ExploreEdge::reach, 1 for the most taken edge; docs/SECONDARY_GRAPH.md).
+  // A node's first state (no neighbour yet) stays ahead of every measured error.
+  auto weighted = [&](double error, int edge) {
+    return error >= kNoNeighbour ? kNoNeighbour * (1 + graph.edges[edge].reach) : error * graph.edges[edge].reach;
+  };
   auto dead_ends = [&] {
     std::vector<Job> jobs;
     for (size_t s = 0; s < states.size(); ++s)
       for (int e : out_edges[states[s].node])
-        if (!done.count({states[s].id, e})) jobs.push_back({static_cast<int>(s), e, states[s].priority});
+        if (!done.count({states[s].id, e})) jobs.push_back({static_cast<int>(s), e, weighted(states[s].priority, e)});
     std::sort(jobs.begin(), jobs.end(), [&](const Job& a, const Job& b) {
       if (a.priority != b.priority) return a.priority > b.priority;
       if (states[a.state].id != states[b.state].id) return states[a.state].id < states[b.state].id;
@@ -450,7 +383,8 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
     for (const Job& j : queue) {
       // The very first state at a node has no neighbour: its error is the whole unknown; count
       // it as epsilon-free worst case only when nothing else is known.
-      const double e = j.priority >= kNoNeighbour ? 0.0 : j.priority;
+      const double error = states[j.state].priority;  // metres, not weighted by reach
+      const double e = error >= kNoNeighbour ? 0.0 : error;
       p.worst_error = std::max(p.worst_error, e);
       sum += e;
       ++counted;

@@ -32,6 +32,9 @@ struct ExploreEdge {
   std::string name;
   std::vector<std::vector<JointPose>> poses;  // frame 0 at from_node, last at to_node
   int64_t db_clip = 0;                        // its primary_clips id
+  // How often the game takes this edge relative to the most taken one, in (0, 1] (edge_reach in
+  // graph/motion_graph.hpp): a dead end's priority is its error times this.
+  double reach = 1.0;
 };
 
 struct ExploreGraph {
@@ -48,6 +51,7 @@ struct ExploreOptions {
   int threads = 1;            // OpenMP threads across jobs (each job's solver runs on one)
   int batch = 8;              // dead ends per batch (fixed: the result does not depend on threads)
   bool progress = true;       // a progress bar on stderr
+  std::string run_settings;   // more JSON members for the run row, e.g. "\"auto_solver\": true"
 };
 
 struct CurvePoint {
@@ -83,7 +87,8 @@ double state_distance(const std::vector<float>& xa, const std::vector<float>& va
 
 // The explorer's view of a motion graph built from the scene's clips: one edge per graph edge,
 // named as its primary clip in the database ("clip[first-last]" or "clip[frame]->clip[frame]"),
-// with its poses. Throws std::runtime_error naming `where` if an edge names a clip the scene lacks.
+// with its poses and reach (make_explore_graph in explore/primary_graph.hpp). Throws
+// std::runtime_error naming `where` if the graph's clips are not the scene's.
 ExploreGraph explore_graph(const CharacterScene& scene, const MotionGraph& graph,
                            const std::string& where);
 
@@ -100,7 +105,9 @@ struct DatabaseScene {
 // as given to `precompute`, so relative to where it ran); the hash must still match.
 DatabaseScene load_database_scene(db::Reader& reader, const std::string& scene_file = "");
 
-// Writes the garment, scene and graph metadata into a new database (no-op for what is there).
+// Writes the garment, scene and graph metadata into a new database (no-op for what is there). A
+// primary graph already in the database (`clothdb graph build --db`) must be `graph_json`
+// (explore/primary_graph.hpp); the motion files it records must not have changed.
 void prepare_database(db::Writer& writer, const CharacterScene& scene, ExploreGraph& graph,
                       const std::string& graph_json);
 

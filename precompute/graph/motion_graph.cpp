@@ -742,10 +742,66 @@ GraphInput load_graph_input(const std::filesystem::path& manifest_file,
     }
     loaded.insert(manifest.clips[c].name);
     input.clips.push_back(std::move(m.clip));
+    input.clip_weights.push_back(manifest.clips[c].weight);
+    input.files.push_back(manifest.clips[c].file.string());
   }
   for (const ManifestTransition& t : manifest.transitions)
     if (loaded.count(t.from) && loaded.count(t.to)) input.transitions.push_back(t);
   return input;
+}
+
+void set_edge_weights(MotionGraph& graph, const std::vector<double>& clip_weights,
+                      const std::vector<ManifestTransition>& declared) {
+  if (!clip_weights.empty() && clip_weights.size() != graph.clips.size())
+    throw GraphError("set_edge_weights: " + std::to_string(clip_weights.size()) +
+                     " clip weights for a graph of " + std::to_string(graph.clips.size()) + " clips");
+  for (GraphEdge& e : graph.edges) {
+    e.weight = clip_weights.empty() ? 1.0 : clip_weights[e.target_clip];
+    if (e.kind != EdgeKind::transition || !e.manual) continue;
+    for (const ManifestTransition& d : declared)
+      if (d.weight > 0 && graph.clips[e.clip].name == d.from && d.frame == e.first_frame &&
+          graph.clips[e.target_clip].name == d.to && d.to_frame == e.target_first_frame)
+        e.weight = d.weight;
+  }
+}
+
+std::vector<double> edge_reach(int node_count, const std::vector<std::pair<int, int>>& edges,
+                               const std::vector<double>& weights) {
+  std::vector<double> out_weight(node_count, 0.0);
+  for (size_t e = 0; e < edges.size(); ++e) out_weight[edges[e].first] += weights[e];
+  // An unpruned graph (--no-prune) may have nodes with no way out: the game's chain then has no
+  // stationary distribution over the whole graph, so every edge counts as equally likely.
+  for (int v = 0; v < node_count; ++v)
+    if (!(out_weight[v] > 0)) return std::vector<double>(edges.size(), 1.0);
+  // Power iteration on the lazy chain pi <- (pi + pi P) / 2 from the uniform distribution.
+  std::vector<double> pi(node_count, 1.0 / node_count), next(node_count);
+  for (int it = 0; it < 100000; ++it) {
+    for (int v = 0; v < node_count; ++v) next[v] = 0.5 * pi[v];
+    for (size_t e = 0; e < edges.size(); ++e)
+      next[edges[e].second] += 0.5 * pi[edges[e].first] * weights[e] / out_weight[edges[e].first];
+    double change = 0;
+    for (int v = 0; v < node_count; ++v) change += std::abs(next[v] - pi[v]);
+    pi.swap(next);
+    if (change < 1e-14) break;
+  }
+  std::vector<double> reach(edges.size());
+  double largest = 0;
+  for (size_t e = 0; e < edges.size(); ++e) {
+    reach[e] = pi[edges[e].first] * weights[e] / out_weight[edges[e].first];
+    largest = std::max(largest, reach[e]);
+  }
+  for (double& r : reach) r = largest > 0 ? r / largest : 1.0;
+  return reach;
+}
+
+std::vector<double> edge_reach(const MotionGraph& graph) {
+  std::vector<std::pair<int, int>> edges;
+  std::vector<double> weights;
+  for (const GraphEdge& e : graph.edges) {
+    edges.emplace_back(e.from, e.to);
+    weights.push_back(e.weight);
+  }
+  return edge_reach(graph.node_count(), edges, weights);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -970,7 +1026,8 @@ nlohmann::json motion_graph_to_json(const MotionGraph& g) {
                           {"blend", e.blend},
                           {"distance", e.distance},
                           {"align", {e.align.theta, e.align.x, e.align.z}},
-                          {"manual", e.manual}});
+                          {"manual", e.manual},
+                          {"weight", e.weight}});
   j["counts"] = {{"nodes", g.node_count()},
                  {"edges", g.edge_count()},
                  {"transitions", g.transition_count()},
@@ -1082,6 +1139,10 @@ MotionGraph motion_graph_from_json(const nlohmann::json& j, const std::string& w
       r.fail(p + "align", "expected [theta, x, z]");
     e.align = {align[0].get<double>(), align[1].get<double>(), align[2].get<double>()};
     e.manual = r.boolean(o, "manual", p);
+    if (o.contains("weight")) {  // graphs written before weights existed have none: all 1
+      e.weight = r.number(o, "weight", p);
+      if (!(e.weight > 0) || !std::isfinite(e.weight)) r.fail(p + "weight", "expected a positive number");
+    }
     // The edge must fit its nodes: it leaves its source node's frame and arrives at its target's.
     const GraphNode& from = g.nodes[e.from];
     const GraphNode& to = g.nodes[e.to];

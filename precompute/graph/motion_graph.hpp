@@ -158,6 +158,9 @@ struct GraphEdge {
   // frame convention at the top of this file.
   FloorTransform align;
   bool manual = false;  // declared in the manifest rather than found
+  // Relative likelihood that the game takes this edge at its source node (manifest "weight",
+  // character/manifest.hpp; 1 when not given): probability weight / (sum over the node's edges).
+  double weight = 1.0;
 
   int frame_count() const { return last_frame - first_frame + 1; }  // poses it plays
 };
@@ -219,6 +222,8 @@ struct GraphInput {
   std::vector<MotionClip> clips;
   Skeleton skeleton;
   std::vector<ManifestTransition> transitions;  // the manifest's, between the clips kept
+  std::vector<double> clip_weights;             // the manifest's clip "weight", per clip kept
+  std::vector<std::string> files;               // the motion file of each clip kept
 };
 // Loads the clips named in `clip_names` (empty: all of them, in manifest order) and checks that
 // they share one skeleton; the manifest's declared transitions between clips not loaded are
@@ -258,6 +263,25 @@ FloorTransform edge_handoff(const MotionGraph& graph, const std::vector<MotionCl
 // frame, re-expressed in place in the canonical frame of the next edge.
 void carry_to_next_edge(const FloorTransform& handoff, std::vector<Eigen::Vector3d>* positions,
                         std::vector<Eigen::Vector3d>* velocities = nullptr);
+
+// Sets every edge's weight from the manifest (character/manifest.hpp): a declared transition's
+// own weight if it has one, else the weight of the clip the edge plays into. `clip_weights` is
+// per graph clip (empty: all 1).
+void set_edge_weights(MotionGraph& graph, const std::vector<double>& clip_weights,
+                      const std::vector<ManifestTransition>& declared);
+
+// How often a game wandering the graph takes each edge, relative to the most taken one (so the
+// most taken edge gets 1). The game is a Markov chain on the nodes: at node n it takes edge e
+// with p(e) = weight(e) / sum of the weights leaving n. Its stationary distribution pi
+// (pi = pi P, sum pi = 1; unique because the pruned graph is strongly connected) is found by
+// power iteration on the lazy chain (I + P) / 2, which has the same pi and converges even when
+// the graph is periodic. Edge e's reach is pi(from(e)) p(e), the long-run fraction of
+// transitions that are e, divided by the largest. Deterministic (fixed order and iteration).
+std::vector<double> edge_reach(const MotionGraph& graph);
+// The same for any directed graph given as (from, to) per edge with weights. If a node has no edge
+// out (an unpruned graph) there is no stationary chain: every edge gets reach 1.
+std::vector<double> edge_reach(int node_count, const std::vector<std::pair<int, int>>& edges,
+                               const std::vector<double>& weights);
 
 // JSON form (what the database stores). motion_graph_from_json checks everything it reads and
 // throws GraphError naming `where` and the field.

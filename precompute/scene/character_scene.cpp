@@ -164,7 +164,7 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   s.material.damping = f.number(m, "damping", "material.", s.material.damping, false, true);
 
   const json& so = f.object(j, "solver", "");
-  f.only(so, {"name", "substeps", "iterations", "tolerance", "linear_solver", "threads"}, "solver.");
+  f.only(so, {"name", "substeps", "iterations", "tolerance", "linear_solver", "threads", "tethers"}, "solver.");
   try {
     s.solver = parse_solver_kind(f.string(so, "name", "solver.", "xpbd"));
     s.settings.linear_solver = parse_linear_solver_kind(f.string(so, "linear_solver", "solver.", "ldlt"));
@@ -175,6 +175,10 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   s.settings.iterations = f.integer(so, "iterations", "solver.", 1, 1);
   s.settings.newton_tolerance = f.number(so, "tolerance", "solver.", s.settings.newton_tolerance, true);
   s.settings.threads = f.integer(so, "threads", "solver.", 1, 1);
+  if (so.contains("tethers")) {
+    if (!so["tethers"].is_boolean()) f.fail("solver.tethers", "expected true or false");
+    s.settings.tethers = so["tethers"].get<bool>();
+  }
 
   const json& c = f.object(j, "colliders", "");
   f.only(c,

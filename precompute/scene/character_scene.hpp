@@ -16,7 +16,7 @@
 //     "material": {"density": 0.15, "youngs_modulus": 1e8, "poisson": 0.3, "thickness": 5e-4,
 //                  "bending_stiffness": 1e-5, "damping": 1e-3},
 //     "solver": {"name": "xpbd", "substeps": 10, "iterations": 1, "tolerance": 1e-6,
-//                "linear_solver": "ldlt", "threads": 1},
+//                "linear_solver": "ldlt", "threads": 1, "tethers": true},
 //     "colliders": {"bones": ["Hips", "LeftUpLeg"], "auto_distance": 0.2,
 //                   "radius": {"Hips": 0.12}, "margin": 0.004,
 //                   "friction_static": 0.4, "friction_kinetic": 0.3,
