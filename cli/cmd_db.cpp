@@ -3,6 +3,7 @@
 #include <memory>
 #include <string>
 
+#include "cli_util.hpp"
 #include "commands.hpp"
 #include "database/check.hpp"
 
@@ -48,8 +49,7 @@ void print_info(const db::DatabaseInfo& i) {
 }  // namespace
 
 void register_db_commands(CLI::App& app) {
-  CLI::App* db = app.add_subcommand("db", "Inspect and check clothdb database files");
-  db->require_subcommand(1);
+  CLI::App* db = &command_group(app, "db", "Inspect and check clothdb database files");
 
   auto file = std::make_shared<std::string>();
   CLI::App* info = db->add_subcommand(

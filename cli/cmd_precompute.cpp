@@ -18,6 +18,9 @@
 #include "explore/primary_graph.hpp"
 #include "graph/motion_graph.hpp"
 #include "report/output.hpp"
+#ifdef CLOTHDB_MPI
+#include "explore/explore_mpi.hpp"
+#endif
 
 namespace clothdb::cli {
 
@@ -33,6 +36,8 @@ struct Args {
   std::string auto_solvers;
   double auto_fraction = 0.5;
   int auto_frames = 15;
+  double job_timeout = 60.0;  // under mpirun (--job-timeout)
+  bool mpi_verbose = false;
 };
 
 // The solver setting an existing database was made with ("" for none or a database older than
@@ -131,7 +136,10 @@ void register_precompute(CLI::App& app) {
   cmd->add_option("--cpu-hours", args->cpu_hours,
                   "Budget: CPU hours of simulation in this run (0: none)")
       ->capture_default_str();
-  cmd->add_option("--threads", args->threads, "OpenMP threads (0: all cores)")
+  cmd->add_option(
+         "--threads", args->threads,
+         "OpenMP threads (0: all cores). Under mpirun: each worker rank's threads inside one "
+         "simulation (0: 1)")
       ->capture_default_str();
   cmd->add_option("--batch", args->batch,
                   "Dead ends simulated per batch; fixed so the result does not depend on --threads")
@@ -169,10 +177,28 @@ void register_precompute(CLI::App& app) {
   cmd->add_flag("--auto-newton-reference", args->auto_newton,
                 "--auto: measure against the benchmark's Newton reference instead (also counts the "
                 "difference between the solvers' material models)");
+#ifdef CLOTHDB_MPI
+  cmd->add_option(
+         "--job-timeout", args->job_timeout,
+         "Under mpirun: seconds after which a job whose result has not come back is lost and "
+         "handed to another rank (grows to 4x the slowest time per frame seen x the job's frames; "
+         "10x this before the first result). Run mpirun with --enable-recovery so a dead rank "
+         "does not end the job")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  cmd->add_flag("--mpi-verbose", args->mpi_verbose,
+                "Under mpirun: one line per job handed out, lost or late");
+#endif
   cmd->callback([args] {
     const SceneFile file = load_scene_file(args->scene);
     CharacterScene scene = build_character_scene(file);
-    const bool exists = std::filesystem::exists(args->db);
+    // Under mpirun only rank 0 touches the database (and chooses the graph); workers are given
+    // the graph below.
+    bool worker = false;
+#ifdef CLOTHDB_MPI
+    worker = mpi::size() > 1 && mpi::rank() != 0;
+#endif
+    const bool exists = !worker && std::filesystem::exists(args->db);
     // The motion graph: --graph, else the one the database holds (`graph build --db`, or an
     // earlier precompute), else built here from the scene's clips and the manifest.
     std::string stored;
@@ -185,7 +211,9 @@ void register_precompute(CLI::App& app) {
     }
     MotionGraph graph;
     std::string graph_json, where;
-    if (!args->graph.empty()) {
+    if (worker) {
+      // filled in from rank 0's graph below
+    } else if (!args->graph.empty()) {
       graph = load_motion_graph(args->graph);
       where = args->graph;
     } else if (!stored.empty()) {
@@ -208,8 +236,26 @@ void register_precompute(CLI::App& app) {
       set_edge_weights(graph, weights, declared);
       where = args->scene;
     }
-    if (graph_json.empty()) graph_json = motion_graph_to_json(graph).dump();
+    if (graph_json.empty() && !worker) graph_json = motion_graph_to_json(graph).dump();
+#ifdef CLOTHDB_MPI
+    // Only rank 0 reads the database, so the graph it chose (the database's, --graph, or built)
+    // goes to the workers as JSON, and every rank explores the graph parsed from that same text.
+    if (mpi::size() > 1) {
+      graph_json = mpi::share_from_owner(graph_json);
+      where = "the motion graph rank 0 sent";
+      graph = motion_graph_from_json(nlohmann::json::parse(graph_json), where);
+    }
+#endif
+    if (graph.edges.empty()) throw std::runtime_error(where + ": the motion graph has no edges");
     ExploreGraph eg = explore_graph(scene, graph, where);
+#ifdef CLOTHDB_MPI
+    // Every rank has the same scene and graph now; only rank 0 goes on to the database. The
+    // solver setting (the scene's, or --auto's choice on rank 0) travels with each job.
+    if (worker) {
+      mpi::run_worker(scene, eg, std::max(1, args->threads));
+      return;
+    }
+#endif
     const bool resuming = !stored_solver(args->db).empty();  // a garment: an earlier precompute
     const std::string auto_table_text = choose_solver(*args, scene, eg);
     db::Writer writer = exists ? db::Writer::open(args->db) : db::Writer::create(args->db);
@@ -233,7 +279,29 @@ void register_precompute(CLI::App& app) {
                  scene.body.capsules.size(), solver_name(scene.file.solver), graph.node_count(),
                  graph.edge_count(), graph.transition_count(), args->epsilon_mm, options.threads,
                  resuming ? " (resuming)" : "");
+#ifdef CLOTHDB_MPI
+    std::unique_ptr<mpi::Owner> owner;
+    if (mpi::size() > 1) {
+      mpi::OwnerOptions mo;
+      mo.job_timeout = args->job_timeout;
+      mo.verbose = args->mpi_verbose;
+      mo.threads = options.threads;
+      owner = std::make_unique<mpi::Owner>(scene, eg, mo);
+      std::fprintf(stderr, "%s: MPI: rank 0 owns the database, %d worker ranks simulate\n",
+                   args->db.c_str(), mpi::size() - 1);
+    }
+    const ExploreReport report =
+        explore(scene, eg, writer, options, owner ? owner->runner() : BatchRunner{});
+    if (owner) {
+      std::fprintf(stderr, "%s", owner->summary().c_str());
+      std::fprintf(
+          stderr,
+          "mpi: rank 0 integrating: %.1f us per job (decode end state, nearest state, SQLite)\n",
+          1e6 * report.integrate_seconds / std::max(1L, report.jobs_this_run));
+    }
+#else
     const ExploreReport report = explore(scene, eg, writer, options);
+#endif
     const std::string prefix = args->curve.empty() ? args->db + ".curve" : args->curve;
     write_file_atomic(prefix + ".csv", curve_csv(report.curve));
     write_file_atomic(prefix + ".svg", curve_svg(report.curve, options.epsilon));
@@ -250,6 +318,10 @@ void register_precompute(CLI::App& app) {
         report.frames_this_run > 0 ? report.cpu_seconds / report.frames_this_run : 0.0,
         1e3 * report.worst_error, 1e3 * report.worst_blend_error, args->epsilon_mm, prefix.c_str(),
         prefix.c_str());
+#ifdef CLOTHDB_MPI
+    // Workers stop only now: everything rank 0 writes is written, whatever happens to them.
+    if (owner) owner->finish();
+#endif
   });
 }
 

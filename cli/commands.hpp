@@ -18,11 +18,13 @@ void register_motion_commands(CLI::App& app);  // cmd_motion.cpp: `clothdb motio
 void register_graph_commands(CLI::App& app);   // cmd_graph.cpp: `clothdb graph build|show`
 
 void register_db_commands(CLI::App& app);    // cmd_db.cpp: `clothdb db info|check`
+void register_db_dump(CLI::App& app);        // cmd_db_dump.cpp: `clothdb db dump`
 void register_bench_codec(CLI::App& bench);  // cmd_bench_codec.cpp: `clothdb bench codec`
 
-void register_play_commands(CLI::App& app);          // cmd_play.cpp: `clothdb play`
-void register_clip_quality_commands(CLI::App& app);  // cmd_clips.cpp: `clothdb clips list`, `clip show`
-void register_bench_runtime(CLI::App& bench);        // cmd_play.cpp: `clothdb bench runtime`
+void register_play_commands(CLI::App& app);  // cmd_play.cpp: `clothdb play`
+// cmd_clips.cpp: `clothdb clips list`, `clip show`
+void register_clip_quality_commands(CLI::App& app);
+void register_bench_runtime(CLI::App& bench);  // cmd_play.cpp: `clothdb bench runtime`
 // cmd_bench_character.cpp: `clothdb bench character`
 void register_bench_character(CLI::App& bench);
 

@@ -3,8 +3,15 @@
 #include <exception>
 
 #include "commands.hpp"
+#ifdef CLOTHDB_MPI
+#include "explore/explore_mpi.hpp"
+#endif
 
 int main(int argc, char** argv) {
+#ifdef CLOTHDB_MPI
+  // Initialises MPI only under mpirun / srun; `clothdb` on its own never touches it.
+  clothdb::mpi::Session mpi_session(&argc, &argv);
+#endif
   CLI::App app{
       "clothdb: precomputed secondary cloth. Simulates a garment offline over a character's "
       "motion graph, stores it in one SQLite database, and plays it back."};
@@ -21,6 +28,7 @@ int main(int argc, char** argv) {
   clothdb::cli::register_bench_character(*bench);
   clothdb::cli::register_scene_commands(app);
   clothdb::cli::register_db_commands(app);
+  clothdb::cli::register_db_dump(app);
   clothdb::cli::register_simulate(app);
   clothdb::cli::register_precompute(app);
   clothdb::cli::register_motion_commands(app);
@@ -34,6 +42,9 @@ int main(int argc, char** argv) {
     return app.exit(e);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "clothdb: error: %s\n", e.what());
+#ifdef CLOTHDB_MPI
+    clothdb::mpi::abort_all(1);  // the other ranks would wait for this one forever
+#endif
     return 1;
   }
   return 0;

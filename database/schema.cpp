@@ -562,6 +562,30 @@ int64_t Writer::add_cloth_state(int64_t primary_clip, int32_t frame, const float
   check_vertex_count(vertex_count, "the cloth state");
   const auto pos = encode_frames(positions, 1, vertex_count, codec_.position_bound, nullptr);
   const auto vel = encode_frames(velocities, 1, vertex_count, codec_.velocity_bound, nullptr);
+  return add_cloth_state_blobs(primary_clip, frame, pos, vel, run, source_clip);
+}
+
+int64_t Writer::add_cloth_state_blobs(int64_t primary_clip, int32_t frame,
+                                      const std::vector<uint8_t>& pos,
+                                      const std::vector<uint8_t>& vel, int64_t run,
+                                      int64_t source_clip) {
+  uint32_t vertex_count = 0;
+  for (const auto* blob : {&pos, &vel}) {
+    const double bound = blob == &pos ? codec_.position_bound : codec_.velocity_bound;
+    codec::BlobInfo info;
+    Error err;
+    if (codec::read_info(blob->data(), blob->size(), &info, &err) != Status::Ok)
+      throw ClothdbError(err.status, path_ + ": cloth state blob: " + err.message);
+    if (info.frame_count != 1 || (vertex_count != 0 && info.vertex_count != vertex_count) ||
+        info.bound > bound)
+      throw ClothdbError(Status::InvalidArgument,
+                         path_ + ": cloth state blobs must hold one frame of the same vertices " +
+                             "within the file's bounds (got " + std::to_string(info.frame_count) +
+                             " frames of " + std::to_string(info.vertex_count) +
+                             " vertices, bound " + std::to_string(info.bound) + ")");
+    vertex_count = info.vertex_count;
+  }
+  check_vertex_count(vertex_count, "the cloth state");
   Stmt s(db_,
          "INSERT INTO cloth_state(primary_clip, frame, vertex_count, positions, velocities, "
          "source_clip, run) VALUES(?, ?, ?, ?, ?, ?, ?)");

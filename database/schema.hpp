@@ -210,6 +210,12 @@ class Writer {
   int64_t add_cloth_state(int64_t primary_clip, int32_t frame, const float* positions,
                           const float* velocities, uint32_t vertex_count, int64_t run = 0,
                           int64_t source_clip = 0);
+  // The same with the two one-frame blobs already encoded (e.g. by a worker process with this
+  // file's codec settings); their vertex counts are checked.
+  int64_t add_cloth_state_blobs(int64_t primary_clip, int32_t frame,
+                                const std::vector<uint8_t>& positions,
+                                const std::vector<uint8_t>& velocities, int64_t run = 0,
+                                int64_t source_clip = 0);
   // frames: frame_count * vertex_count * 3 floats, encoded with the file's codec settings.
   int64_t add_cloth_clip(const NewClothClip& clip, const float* frames, uint32_t frame_count,
                          uint32_t vertex_count);

@@ -12,6 +12,7 @@
 #include "database/checksum.hpp"
 #include "database/schema.hpp"
 #include "explore/explorer.hpp"
+#include "explore/job_wire.hpp"
 
 using namespace clothdb;
 
@@ -38,7 +39,8 @@ CharacterScene small_scene() {
 }
 
 // The character turning about its root by `angle` (radians) and back: a loop at one node.
-std::vector<std::vector<JointPose>> sway(const std::vector<JointPose>& pose, double angle, int frames) {
+std::vector<std::vector<JointPose>> sway(const std::vector<JointPose>& pose, double angle,
+                                         int frames) {
   std::vector<std::vector<JointPose>> out;
   for (int k = 0; k < frames; ++k) {
     const double a = angle * std::sin(2 * 3.14159265358979 * k / (frames - 1));
@@ -75,13 +77,14 @@ std::string temp_db(const std::string& name) {
 }
 
 ExploreReport run(const CharacterScene& scene, const std::string& path, ExploreOptions options,
-                  double hold_reach = 1.0) {
+                  double hold_reach = 1.0, const BatchRunner& runner = {}) {
   ExploreGraph graph = small_graph(scene);
   graph.edges[0].reach = hold_reach;
-  db::Writer writer = std::filesystem::exists(path) ? db::Writer::open(path) : db::Writer::create(path);
+  db::Writer writer =
+      std::filesystem::exists(path) ? db::Writer::open(path) : db::Writer::create(path);
   prepare_database(writer, scene, graph, "{}");
   options.progress = std::getenv("CLOTHDB_PROGRESS") != nullptr;
-  return explore(scene, graph, writer, options);
+  return explore(scene, graph, writer, options, runner);
 }
 
 // Every clip blob and every state blob, in id order: the database's cloth content, as one
@@ -91,14 +94,17 @@ std::vector<uint64_t> content(const std::string& path) {
   db::Error err;
   EXPECT_EQ(r.open(path, &err), db::Status::Ok) << err.message;
   std::vector<uint64_t> out;
-  auto add = [&](const std::vector<uint8_t>& bytes) { out.push_back(db::xxh64(bytes.data(), bytes.size())); };
+  auto add = [&](const std::vector<uint8_t>& bytes) {
+    out.push_back(db::xxh64(bytes.data(), bytes.size()));
+  };
   std::vector<db::ClothClip> clips;
   r.cloth_clips(&clips, &err);
   for (const auto& c : clips) {
     std::vector<uint8_t> blob;
     r.clip_blob(c.id, &blob, &err);
     add(blob);
-    out.push_back(static_cast<uint64_t>(c.start_state) << 32 | static_cast<uint64_t>(c.primary_clip));
+    out.push_back(static_cast<uint64_t>(c.start_state) << 32 |
+                  static_cast<uint64_t>(c.primary_clip));
   }
   std::vector<db::ClothState> states;
   r.cloth_states(&states, &err);
@@ -110,7 +116,8 @@ std::vector<uint64_t> content(const std::string& path) {
   }
   std::vector<db::ClothEdge> edges;
   r.cloth_edges(&edges, &err);
-  for (const auto& e : edges) out.push_back(static_cast<uint64_t>(e.from_clip) << 32 | static_cast<uint64_t>(e.to_state));
+  for (const auto& e : edges)
+    out.push_back(static_cast<uint64_t>(e.from_clip) << 32 | static_cast<uint64_t>(e.to_state));
   return out;
 }
 
@@ -241,4 +248,32 @@ TEST(Explore, RefusesAChangedScene) {
   run(scene, path, options);
   scene.file.text += " ";  // the scene file as given changed
   EXPECT_THROW(run(scene, path, options), std::runtime_error);
+}
+
+// What an MPI worker does, without MPI: every job and result goes through the wire format, and
+// the jobs of a batch finish in reverse order. The database must be the OpenMP runner's.
+TEST(Explore, JobsThroughTheWireInAnyOrderGiveTheSameDatabase) {
+  const CharacterScene scene = small_scene();
+  const ExploreGraph graph = small_graph(scene);  // the same edges run() builds
+  ExploreOptions options;
+  options.epsilon = 0.02;
+  options.batch = 4;
+  run(scene, temp_db("omp"), options);
+  long wired = 0;
+  const BatchRunner reversed = [&](const std::vector<JobInput>& jobs,
+                                   std::vector<JobResult>& results) {
+    for (size_t k = jobs.size(); k-- > 0;) {
+      const std::vector<uint8_t> out = encode_job(1000 + k, jobs[k]);
+      uint64_t seq = 0;
+      const JobInput received = decode_job(out.data(), out.size(), &seq);
+      ASSERT_EQ(seq, 1000 + k);
+      const std::vector<uint8_t> back = encode_result(seq, run_job(scene, graph, received));
+      results[k] = decode_result(back.data(), back.size(), &seq);
+      ++wired;
+    }
+  };
+  const ExploreReport report = run(scene, temp_db("wire"), options, 1.0, reversed);
+  EXPECT_TRUE(report.converged);
+  EXPECT_GT(wired, 4);
+  EXPECT_EQ(content(db_path("omp")), content(db_path("wire")));
 }

@@ -49,7 +49,8 @@ std::vector<float> roundtrip(const std::vector<float>& values, double bound) {
   return out;
 }
 
-std::vector<float> to_local(const Eigen::Matrix3Xd& x, const Eigen::Isometry3d& frame, bool vectors) {
+std::vector<float> to_local(const Eigen::Matrix3Xd& x, const Eigen::Isometry3d& frame,
+                            bool vectors) {
   std::vector<float> out(static_cast<size_t>(x.cols()) * 3);
   const Eigen::Isometry3d inv = frame.inverse();
   for (Eigen::Index i = 0; i < x.cols(); ++i) {
@@ -59,7 +60,8 @@ std::vector<float> to_local(const Eigen::Matrix3Xd& x, const Eigen::Isometry3d& 
   return out;
 }
 
-Eigen::Matrix3Xd to_world(const std::vector<float>& local, const Eigen::Isometry3d& frame, bool vectors) {
+Eigen::Matrix3Xd to_world(const std::vector<float>& local, const Eigen::Isometry3d& frame,
+                          bool vectors) {
   Eigen::Matrix3Xd x(3, static_cast<Eigen::Index>(local.size() / 3));
   for (Eigen::Index i = 0; i < x.cols(); ++i) {
     const Vec3 p(local[3 * i], local[3 * i + 1], local[3 * i + 2]);
@@ -81,73 +83,142 @@ struct Job {
   double priority = 0;
 };
 
-struct JobResult {
-  bool stable = true;
-  std::string message;
-  uint32_t frame_count = 0;
-  std::vector<uint8_t> blob;   // the clip's frames, encoded (character space)
-  double max_error = 0;        // codec error of the blob
-  std::vector<float> last;     // its last frame as the runtime decodes it (for the pop)
-  std::vector<float> end_x, end_v;
-  ClipQuality quality;
-  // Thread CPU time of the simulation (the budget counts simulations; measuring the quality, about
-  // 0.6 ms per frame at 2,958 vertices, and encoding are not counted, as before).
-  double cpu_seconds = 0;
+std::vector<uint8_t> encode_with(const std::vector<float>& frames, uint32_t frame_count,
+                                 uint32_t vertices, double bound, const db::CodecSettings& codec,
+                                 double* max_error) {
+  // The writer's own settings (db::Writer::encode_frames), so the blob is what it would store.
+  codec::EncodeSettings settings;
+  settings.bound = bound;
+  settings.key_interval = codec.key_interval;
+  settings.zstd_level = codec.zstd_level;
+  codec::EncodeStats stats;
+  std::vector<uint8_t> blob = codec::encode(frames.data(), frame_count, vertices, settings, &stats);
+  if (max_error) *max_error = stats.max_error;
+  return blob;
+}
+
+// What the explorer knows between batches: the states (as stored), which dead ends have a clip,
+// and which failed in this run.
+struct Exploration {
+  Exploration(const CharacterScene& s, const ExploreGraph& g) : scene(s), graph(g) {}
+  const CharacterScene& scene;
+  const ExploreGraph& graph;
+  double tau = 0;
+  std::vector<std::vector<int>> out_edges;  // per node: edges leaving it
+  std::vector<StateRec> states;
+  std::set<std::pair<int64_t, int>> done;    // (state id, edge) with a clip
+  std::set<std::pair<int64_t, int>> failed;  // unstable in this run: not retried
+
+  int64_t node_anchor(int node) const { return graph.edges[out_edges[node].front()].db_clip; }
 };
 
-// Simulates one dead end, measures the clip's quality and encodes it (worker threads: encoding
-// touches no SQLite state, and the blob is the same as encoding at integration would give).
-JobResult simulate_job(const CharacterScene& scene, const ExploreEdge& edge, const StateRec& start,
-                       double rate, const db::Writer& writer) {
-  JobResult r;
-  const double t0 = thread_cpu_seconds();
-  SolverSettings settings = scene.file.settings;
-  settings.threads = 1;  // parallel across jobs, not inside one
-  auto solver = make_solver(scene.file.solver, scene.model, settings);
-  const Eigen::Isometry3d frame0 = character_frame(scene, edge.poses.front());
-  ClothState state;
-  state.x = to_world(start.x, frame0, false);
-  state.v = to_world(start.v, frame0, true);
-  // Pins exactly on their bones (the stored state is within the codec bound of them).
-  const Eigen::Matrix3Xd pins = skin_pins(scene.garment, scene.bind, edge.poses.front());
-  for (size_t k = 0; k < scene.garment.pins.size(); ++k) state.x.col(scene.garment.pins[k]) = pins.col(static_cast<Eigen::Index>(k));
-  const PoseRun run = simulate_poses(scene, *solver, edge.poses, rate, state);
-  r.cpu_seconds = thread_cpu_seconds() - t0;
-  if (!run.stable) {
-    r.stable = false;
-    r.message = run.message;
-    return r;
+// Kim et al. expand the dead end whose unresolved error matters most: its error times how often
+// the game takes its edge (ExploreEdge::reach, 1 for the most taken edge;
+// docs/SECONDARY_GRAPH.md). A node's first state (no neighbour yet) stays ahead of every measured
+// error.
+double weighted_priority(const Exploration& ex, double error, int edge) {
+  const double reach = ex.graph.edges[edge].reach;
+  return error >= kNoNeighbour ? kNoNeighbour * (1 + reach) : error * reach;
+}
+
+// Every dead end, in the explorer's total order: largest weighted error first, then state id,
+// then edge.
+std::vector<Job> dead_ends(const Exploration& ex) {
+  std::vector<Job> jobs;
+  for (size_t s = 0; s < ex.states.size(); ++s)
+    for (int e : ex.out_edges[ex.states[s].node])
+      if (!ex.done.count({ex.states[s].id, e}))
+        jobs.push_back({static_cast<int>(s), e, weighted_priority(ex, ex.states[s].priority, e)});
+  std::sort(jobs.begin(), jobs.end(), [&](const Job& a, const Job& b) {
+    if (a.priority != b.priority) return a.priority > b.priority;
+    if (ex.states[a.state].id != ex.states[b.state].id)
+      return ex.states[a.state].id < ex.states[b.state].id;
+    return a.edge < b.edge;
+  });
+  return jobs;
+}
+
+// The next batch: the first `size` dead ends of the queue that did not fail in this run.
+std::vector<Job> choose_batch(const Exploration& ex, const std::vector<Job>& queue, int size) {
+  std::vector<Job> batch;
+  for (const Job& j : queue) {
+    if (static_cast<int>(batch.size()) >= size) break;
+    if (ex.failed.count({ex.states[j.state].id, j.edge})) continue;
+    batch.push_back(j);
   }
-  const size_t per_frame = start.x.size();
-  std::vector<float> frames;  // frame_count * V * 3, character space
-  frames.reserve(per_frame * edge.poses.size());
-  frames.insert(frames.end(), start.x.begin(), start.x.end());
-  for (size_t f = 0; f < run.frames.size(); ++f) {
-    const std::vector<float> local = to_local(run.frames[f], character_frame(scene, edge.poses[f + 1]), false);
-    frames.insert(frames.end(), local.begin(), local.end());
-  }
-  const Eigen::Isometry3d frame_end = character_frame(scene, edge.poses.back());
-  r.end_x.assign(frames.end() - static_cast<long>(per_frame), frames.end());
-  r.end_v = to_local(state.v, frame_end, true);
-  // On a worker thread an exception would end the process: a clip that cannot be measured or
-  // encoded (e.g. non-finite coordinates) is reported and left as a dead end, like an unstable one.
-  try {
-    r.quality = measure_clip(scene, edge.poses, frames);
-    r.quality.halved_steps = run.step_halvings;
-    const uint32_t vertices = static_cast<uint32_t>(per_frame / 3);
-    r.frame_count = static_cast<uint32_t>(edge.poses.size());
-    r.blob = writer.encode_clip(frames.data(), r.frame_count, vertices, &r.max_error);
-    r.last.resize(per_frame);
-    codec::DecodeScratch scratch;
+  return batch;
+}
+
+// Integrates a batch's results in batch order in one transaction: each clip is stored, and its
+// end links to the closest state at its target node within epsilon or becomes a new state.
+void integrate_batch(Exploration& ex, db::Writer& writer, const std::vector<Job>& batch,
+                     const std::vector<JobResult>& results, int64_t run_id,
+                     const ExploreOptions& options, ExploreReport& report) {
+  const auto t0 = std::chrono::steady_clock::now();
+  codec::DecodeScratch scratch;
+  db::Writer::Transaction tx(writer);
+  for (size_t b = 0; b < batch.size(); ++b) {
+    const Job& job = batch[b];
+    const JobResult& r = results[b];
+    report.cpu_seconds += r.cpu_seconds;
+    const int64_t start_id = ex.states[job.state].id;
+    const ExploreEdge& edge = ex.graph.edges[job.edge];
+    if (!r.stable) {
+      ex.failed.insert({start_id, job.edge});
+      std::fprintf(stderr,
+                   "\nexplore: state %lld along '%s' is unstable (%s); left as a dead end\n",
+                   static_cast<long long>(start_id), edge.name.c_str(), r.message.c_str());
+      continue;
+    }
+    db::NewClothClip clip;
+    clip.set_metrics(to_clip_metrics(r.quality));
+    clip.start_state = start_id;
+    clip.primary_clip = edge.db_clip;
+    clip.first_frame = 0;
+    clip.run = run_id;
+    const int64_t clip_id = writer.add_cloth_clip_blob(clip, r.clip_blob, r.clip_max_error);
+    ex.done.insert({start_id, job.edge});
+    report.frames += r.frame_count;
+    report.frames_this_run += r.frame_count;
+    // The end as it is stored (and as a resumed run reads it), then the closest state at the end
+    // node.
+    std::vector<float> end_x, end_v;
     db::Error err;
-    if (codec::decode_frames(r.blob.data(), r.blob.size(), r.frame_count - 1, 1, r.last.data(), r.last.size(),
-                             scratch, &err) != db::Status::Ok)
-      throw std::runtime_error(std::string("decoding a clip just encoded: ") + err.message);
-  } catch (const std::exception& e) {
-    r.stable = false;
-    r.message = e.what();
+    if (codec::decode_all(r.end_x_blob.data(), r.end_x_blob.size(), end_x, scratch, &err) !=
+            db::Status::Ok ||
+        codec::decode_all(r.end_v_blob.data(), r.end_v_blob.size(), end_v, scratch, &err) !=
+            db::Status::Ok)
+      throw std::runtime_error("explore: the end state of state " + std::to_string(start_id) +
+                               " along '" + edge.name + "' does not decode: " + err.message);
+    double best = std::numeric_limits<double>::infinity();
+    int best_state = -1;
+    for (size_t s = 0; s < ex.states.size(); ++s) {
+      if (ex.states[s].node != edge.to_node) continue;
+      const double d = state_distance(end_x, end_v, ex.states[s].x, ex.states[s].v, ex.tau);
+      if (d < best) best = d, best_state = static_cast<int>(s);
+    }
+    if (best_state >= 0 && best <= options.epsilon) {
+      writer.add_cloth_edge(
+          clip_id, ex.states[best_state].id, best,
+          transition_pop(r.last.data(), ex.states[best_state].x.data(), r.vertex_count));
+      report.worst_blend_error = std::max(report.worst_blend_error, best);
+    } else {
+      StateRec rec;
+      rec.node = edge.to_node;
+      rec.x = std::move(end_x);
+      rec.v = std::move(end_v);
+      rec.priority = best_state >= 0 ? best : kNoNeighbour;
+      rec.id = writer.add_cloth_state_blobs(ex.node_anchor(rec.node), 0, r.end_x_blob, r.end_v_blob,
+                                            run_id, clip_id);
+      writer.add_cloth_edge(clip_id, rec.id, 0.0,
+                            transition_pop(r.last.data(), rec.x.data(), r.vertex_count));
+      ex.states.push_back(std::move(rec));
+    }
   }
-  return r;
+  tx.commit();
+  report.jobs_this_run += static_cast<long>(batch.size());
+  report.integrate_seconds +=
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
 std::string bar(double fraction, int width) {
@@ -157,6 +228,106 @@ std::string bar(double fraction, int width) {
 }
 
 }  // namespace
+
+JobResult run_job(const CharacterScene& scene, const ExploreGraph& graph, const JobInput& input) {
+  if (input.edge < 0 || input.edge >= static_cast<int>(graph.edges.size()))
+    throw std::runtime_error("explore: job names edge " + std::to_string(input.edge) +
+                             " of a graph of " + std::to_string(graph.edges.size()));
+  const ExploreEdge& edge = graph.edges[input.edge];
+  const size_t per_frame = static_cast<size_t>(scene.model.vertex_count()) * 3;
+  if (input.x.size() != per_frame || input.v.size() != per_frame)
+    throw std::runtime_error("explore: job's start state has " +
+                             std::to_string(input.x.size() / 3) +
+                             " vertices, the scene's garment " + std::to_string(per_frame / 3));
+  JobResult r;
+  const double t0 = thread_cpu_seconds();
+  auto solver = make_solver(input.solver, scene.model, input.settings);
+  const Eigen::Isometry3d frame0 = character_frame(scene, edge.poses.front());
+  ClothState state;
+  state.x = to_world(input.x, frame0, false);
+  state.v = to_world(input.v, frame0, true);
+  // Pins exactly on their bones (the stored state is within the codec bound of them).
+  const Eigen::Matrix3Xd pins = skin_pins(scene.garment, scene.bind, edge.poses.front());
+  for (size_t k = 0; k < scene.garment.pins.size(); ++k)
+    state.x.col(scene.garment.pins[k]) = pins.col(static_cast<Eigen::Index>(k));
+  const PoseRun run = simulate_poses(scene, *solver, edge.poses, graph.rate, state);
+  // The budget counts simulations: measuring the quality and encoding are not in cpu_seconds.
+  r.cpu_seconds = thread_cpu_seconds() - t0;
+  if (!run.stable) {
+    r.stable = false;
+    r.message = run.message;
+    return r;
+  }
+  std::vector<float> frames;
+  frames.reserve(per_frame * edge.poses.size());
+  frames.insert(frames.end(), input.x.begin(), input.x.end());
+  for (size_t f = 0; f < run.frames.size(); ++f) {
+    const std::vector<float> local =
+        to_local(run.frames[f], character_frame(scene, edge.poses[f + 1]), false);
+    frames.insert(frames.end(), local.begin(), local.end());
+  }
+  r.vertex_count = static_cast<uint32_t>(per_frame / 3);
+  r.frame_count = static_cast<uint32_t>(frames.size() / per_frame);
+  const std::vector<float> end_x(frames.end() - static_cast<long>(per_frame), frames.end());
+  const std::vector<float> end_v =
+      to_local(state.v, character_frame(scene, edge.poses.back()), true);
+  // On a worker thread an exception would end the process: a clip that cannot be measured or
+  // encoded (e.g. non-finite coordinates) is reported and left as a dead end, like an unstable one.
+  try {
+    r.quality = measure_clip(scene, edge.poses, frames);
+    r.quality.halved_steps = run.step_halvings;
+    r.clip_blob = encode_with(frames, r.frame_count, r.vertex_count, input.codec.position_bound,
+                              input.codec, &r.clip_max_error);
+    r.end_x_blob =
+        encode_with(end_x, 1, r.vertex_count, input.codec.position_bound, input.codec, nullptr);
+    r.end_v_blob =
+        encode_with(end_v, 1, r.vertex_count, input.codec.velocity_bound, input.codec, nullptr);
+    // The last frame as the runtime decodes it, for the pop at the clip's cloth edge.
+    r.last.resize(per_frame);
+    codec::DecodeScratch scratch;
+    db::Error err;
+    if (codec::decode_frames(r.clip_blob.data(), r.clip_blob.size(), r.frame_count - 1, 1,
+                             r.last.data(), r.last.size(), scratch, &err) != db::Status::Ok)
+      throw std::runtime_error(std::string("decoding a clip just encoded: ") + err.message);
+  } catch (const std::exception& e) {
+    JobResult failed;
+    failed.stable = false;
+    failed.message = e.what();
+    failed.cpu_seconds = r.cpu_seconds;
+    return failed;
+  }
+  return r;
+}
+
+std::vector<size_t> longest_first(const ExploreGraph& graph, const std::vector<JobInput>& jobs) {
+  // A batch mixes 300-frame clip segments with 10-frame transitions: a long job started last would
+  // leave the other threads idle.
+  std::vector<size_t> order(jobs.size());
+  for (size_t b = 0; b < jobs.size(); ++b) order[b] = b;
+  std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) {
+    return graph.edges[jobs[a].edge].poses.size() > graph.edges[jobs[b].edge].poses.size();
+  });
+  return order;
+}
+
+BatchRunner openmp_runner(const CharacterScene& scene, const ExploreGraph& graph, int threads) {
+  return [&scene, &graph, threads](const std::vector<JobInput>& jobs,
+                                   std::vector<JobResult>& results) {
+    const std::vector<size_t> order = longest_first(graph, jobs);
+    // An exception must not leave an OpenMP region: keep the first and rethrow after it.
+    std::exception_ptr error;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(std::max(1, threads))
+    for (size_t k = 0; k < order.size(); ++k) {
+      try {
+        results[order[k]] = run_job(scene, graph, jobs[order[k]]);
+      } catch (...) {
+#pragma omp critical(clothdb_explore_error)
+        if (!error) error = std::current_exception();
+      }
+    }
+    if (error) std::rethrow_exception(error);
+  };
+}
 
 Eigen::Isometry3d character_frame(const CharacterScene& scene, const std::vector<JointPose>& pose) {
   // Heading: the root's bind-pose +z carried by its rotation, projected onto the floor.
@@ -185,7 +356,8 @@ double state_distance(const std::vector<float>& xa, const std::vector<float>& va
   return n > 0 ? std::sqrt(sum / n) : 0.0;
 }
 
-ExploreGraph explore_graph(const CharacterScene& scene, const MotionGraph& graph, const std::string& where) {
+ExploreGraph explore_graph(const CharacterScene& scene, const MotionGraph& graph,
+                           const std::string& where) {
   return make_explore_graph(graph, scene.clips, where);
 }
 
@@ -195,20 +367,23 @@ DatabaseScene load_database_scene(db::Reader& reader, const std::string& scene_f
   auto meta = [&](const char* key) {
     std::string value;
     if (reader.meta(key, &value, &err) != db::Status::Ok)
-      throw std::runtime_error(path + ": no meta '" + key + "': not made by `clothdb precompute`, so its scene is unknown");
+      throw std::runtime_error(path + ": no meta '" + key +
+                               "': not made by `clothdb precompute`, so its scene is unknown");
     return value;
   };
   const std::string scene_path = scene_file.empty() ? meta("scene_path") : scene_file;
   const std::string scene_hash = meta("scene_hash");
   if (!std::filesystem::exists(scene_path))
-    throw std::runtime_error(path + ": its scene file " + scene_path +
-                             " does not exist (a relative path is relative to where `precompute` ran; "
-                             "give the scene file explicitly)");
+    throw std::runtime_error(
+        path + ": its scene file " + scene_path +
+        " does not exist (a relative path is relative to where `precompute` ran; "
+        "give the scene file explicitly)");
   const SceneFile file = load_scene_file(scene_path);
   const std::string now = content_hash(file.text);
   if (now != scene_hash)
-    throw std::runtime_error(path + ": the scene file " + scene_path + " changed since this database was made (" +
-                             scene_hash + ", now " + now + ")");
+    throw std::runtime_error(path + ": the scene file " + scene_path +
+                             " changed since this database was made (" + scene_hash + ", now " +
+                             now + ")");
   DatabaseScene out{build_character_scene(file), {}};
   nlohmann::json graph_json;
   try {
@@ -224,7 +399,8 @@ DatabaseScene load_database_scene(db::Reader& reader, const std::string& scene_f
   for (const auto& c : clips) ids[c.name] = c.id;
   for (auto& e : out.graph.edges) {
     if (!ids.count(e.name))
-      throw std::runtime_error(path + ": has no primary clip '" + e.name + "' of its own motion graph");
+      throw std::runtime_error(path + ": has no primary clip '" + e.name +
+                               "' of its own motion graph");
     e.db_clip = ids[e.name];
   }
   return out;
@@ -246,11 +422,12 @@ void prepare_database(db::Writer& writer, const CharacterScene& scene, ExploreGr
     std::string stored;
     if (reader.meta("scene_hash", &stored, &err) == db::Status::Ok && stored != scene_hash)
       throw std::runtime_error(writer.path() + ": was made from a different version of " +
-                               scene.file.path.string() + " (scene hash " + stored + ", now " + scene_hash +
-                               "); use a new --db, or restore the scene file");
+                               scene.file.path.string() + " (scene hash " + stored + ", now " +
+                               scene_hash + "); use a new --db, or restore the scene file");
     if (existing.vertex_count() != static_cast<uint32_t>(scene.model.vertex_count()))
-      throw std::runtime_error(writer.path() + ": garment has " + std::to_string(existing.vertex_count()) +
-                               " vertices, the scene makes " + std::to_string(scene.model.vertex_count()));
+      throw std::runtime_error(
+          writer.path() + ": garment has " + std::to_string(existing.vertex_count()) +
+          " vertices, the scene makes " + std::to_string(scene.model.vertex_count()));
     if (!has_graph) throw std::runtime_error(writer.path() + ": has a garment but no motion graph");
     return;
   }
@@ -264,14 +441,16 @@ void prepare_database(db::Writer& writer, const CharacterScene& scene, ExploreGr
   db::Garment g;
   for (const auto& t : scene.model.mesh.triangles)
     for (int k = 0; k < 3; ++k) g.triangles.push_back(static_cast<uint32_t>(t[k]));
-  const std::vector<float> rest = to_local(scene.model.mesh.rest, Eigen::Isometry3d::Identity(), false);
+  const std::vector<float> rest =
+      to_local(scene.model.mesh.rest, Eigen::Isometry3d::Identity(), false);
   g.rest_positions = rest;
   const Material& m = scene.file.material;
   char mat[256];
   std::snprintf(mat, sizeof mat,
                 "{\"density\": %g, \"youngs_modulus\": %g, \"poisson\": %g, \"thickness\": %g, "
                 "\"bending_stiffness\": %g, \"damping\": %g}",
-                m.density, m.youngs_modulus, m.poisson, m.thickness, m.bending_rigidity(), m.damping);
+                m.density, m.youngs_modulus, m.poisson, m.thickness, m.bending_rigidity(),
+                m.damping);
   g.material = mat;
   g.solver = solver_settings_json(scene.file.solver, scene.file.settings);
   writer.put_garment(g);
@@ -283,43 +462,51 @@ void prepare_database(db::Writer& writer, const CharacterScene& scene, ExploreGr
 }
 
 ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db::Writer& writer,
-                      const ExploreOptions& options) {
+                      const ExploreOptions& options, const BatchRunner& given_runner) {
+  const BatchRunner runner =
+      given_runner ? given_runner : openmp_runner(scene, graph, options.threads);
   ExploreReport report;
-  const double tau = 1.0 / graph.rate;
-  const double pos_bound = writer.codec().position_bound, vel_bound = writer.codec().velocity_bound;
-  std::vector<std::vector<int>> out_edges(graph.node_count);
+  Exploration ex(scene, graph);
+  ex.tau = 1.0 / graph.rate;
+  const db::CodecSettings codec_settings = writer.codec();
+  const double pos_bound = codec_settings.position_bound, vel_bound = codec_settings.velocity_bound;
+  ex.out_edges.resize(graph.node_count);
   std::map<int64_t, int> edge_of_clip;
   for (size_t e = 0; e < graph.edges.size(); ++e) {
-    out_edges[graph.edges[e].from_node].push_back(static_cast<int>(e));
+    ex.out_edges[graph.edges[e].from_node].push_back(static_cast<int>(e));
     edge_of_clip[graph.edges[e].db_clip] = static_cast<int>(e);
   }
-  auto node_anchor = [&](int node) { return graph.edges[out_edges[node].front()].db_clip; };
+  std::vector<StateRec>& states = ex.states;
 
   // Load what the database holds (a resumed run), or make the rest state.
   db::Reader reader;
   db::Error err;
-  if (reader.open(writer.path(), &err) != db::Status::Ok) throw std::runtime_error(writer.path() + ": " + std::string(err.message));
+  if (reader.open(writer.path(), &err) != db::Status::Ok)
+    throw std::runtime_error(writer.path() + ": " + std::string(err.message));
   std::vector<db::ClothState> stored_states;
   std::vector<db::ClothClip> stored_clips;
   std::vector<db::ClothEdge> stored_edges;
   reader.cloth_states(&stored_states, &err);
   reader.cloth_clips(&stored_clips, &err);
   reader.cloth_edges(&stored_edges, &err);
-  std::vector<StateRec> states;
-  std::set<std::pair<int64_t, int>> done;  // (state id, edge) with a clip
   codec::DecodeScratch scratch;
   for (const auto& s : stored_states) {
     StateRec rec;
     rec.id = s.id;
-    if (!edge_of_clip.count(s.primary_clip)) throw std::runtime_error(writer.path() + ": state " + std::to_string(s.id) + " is at an unknown primary clip");
+    if (!edge_of_clip.count(s.primary_clip))
+      throw std::runtime_error(writer.path() + ": state " + std::to_string(s.id) +
+                               " is at an unknown primary clip");
     rec.node = graph.edges[edge_of_clip[s.primary_clip]].from_node;
     if (reader.read_state(s.id, &rec.x, &rec.v, scratch, &err) != db::Status::Ok)
-      throw std::runtime_error(writer.path() + ": state " + std::to_string(s.id) + ": " + std::string(err.message));
+      throw std::runtime_error(writer.path() + ": state " + std::to_string(s.id) + ": " +
+                               std::string(err.message));
     states.push_back(std::move(rec));
   }
-  for (const auto& c : stored_clips) done.insert({c.start_state, edge_of_clip.at(c.primary_clip)});
+  for (const auto& c : stored_clips)
+    ex.done.insert({c.start_state, edge_of_clip.at(c.primary_clip)});
   for (const auto& c : stored_clips) report.frames += c.frame_count;
-  for (const auto& e : stored_edges) report.worst_blend_error = std::max(report.worst_blend_error, e.blend_error);
+  for (const auto& e : stored_edges)
+    report.worst_blend_error = std::max(report.worst_blend_error, e.blend_error);
   report.resumed = !states.empty();
   // Priorities are a function of the states alone (distance to the nearest older state at the
   // same node), so a resumed run rebuilds the same queue.
@@ -327,51 +514,36 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
     double best = kNoNeighbour;
     for (size_t j = 0; j < i; ++j)
       if (states[j].node == states[i].node)
-        best = std::min(best, state_distance(states[i].x, states[i].v, states[j].x, states[j].v, tau));
+        best = std::min(best,
+                        state_distance(states[i].x, states[i].v, states[j].x, states[j].v, ex.tau));
     states[i].priority = best;
   }
   const int64_t run_id = writer.begin_run(
-      "{\"epsilon_m\": " + std::to_string(options.epsilon) + ", \"threads\": " + std::to_string(options.threads) +
-      ", \"batch\": " + std::to_string(options.batch) + ", \"solver\": \"" + solver_name(scene.file.solver) +
+      "{\"epsilon_m\": " + std::to_string(options.epsilon) + ", \"threads\": " +
+      std::to_string(options.threads) + ", \"batch\": " + std::to_string(options.batch) +
+      ", \"solver\": \"" + solver_name(scene.file.solver) +
       "\", \"solver_settings\": " + solver_settings_json(scene.file.solver, scene.file.settings) +
       (options.run_settings.empty() ? "" : ", " + options.run_settings) + "}");
   if (states.empty()) {
     SolverSettings settings = scene.file.settings;
     auto solver = make_solver(scene.file.solver, scene.model, settings);
-    const ExploreEdge& first = graph.edges[out_edges[graph.start_node].front()];
+    const ExploreEdge& first = graph.edges[ex.out_edges[graph.start_node].front()];
     const ClothState rest = settle_garment(scene, *solver, first.poses.front());
     const Eigen::Isometry3d frame = character_frame(scene, first.poses.front());
     // The writer stores encode(raw); keeping roundtrip(raw) in memory is exactly what a resumed
     // run decodes (re-encoding an already decoded state could round differently).
-    const std::vector<float> raw_x = to_local(rest.x, frame, false), raw_v = to_local(rest.v, frame, true);
+    const std::vector<float> raw_x = to_local(rest.x, frame, false),
+                             raw_v = to_local(rest.v, frame, true);
     StateRec rec;
     rec.node = graph.start_node;
     rec.x = roundtrip(raw_x, pos_bound);
     rec.v = roundtrip(raw_v, vel_bound);
     rec.priority = kNoNeighbour;
-    rec.id = writer.add_cloth_state(node_anchor(rec.node), 0, raw_x.data(), raw_v.data(),
+    rec.id = writer.add_cloth_state(ex.node_anchor(rec.node), 0, raw_x.data(), raw_v.data(),
                                     static_cast<uint32_t>(raw_x.size() / 3), run_id);
     states.push_back(std::move(rec));
   }
 
-  // Kim et al. expand the dead end whose unresolved error matters most: its error times how often
-  // the game takes its edge (ExploreEdge::reach, 1 for the most taken edge; docs/SECONDARY_GRAPH.md).
-  // A node's first state (no neighbour yet) stays ahead of every measured error.
-  auto weighted = [&](double error, int edge) {
-    return error >= kNoNeighbour ? kNoNeighbour * (1 + graph.edges[edge].reach) : error * graph.edges[edge].reach;
-  };
-  auto dead_ends = [&] {
-    std::vector<Job> jobs;
-    for (size_t s = 0; s < states.size(); ++s)
-      for (int e : out_edges[states[s].node])
-        if (!done.count({states[s].id, e})) jobs.push_back({static_cast<int>(s), e, weighted(states[s].priority, e)});
-    std::sort(jobs.begin(), jobs.end(), [&](const Job& a, const Job& b) {
-      if (a.priority != b.priority) return a.priority > b.priority;
-      if (states[a.state].id != states[b.state].id) return states[a.state].id < states[b.state].id;
-      return a.edge < b.edge;
-    });
-    return jobs;
-  };
   auto curve_point = [&](const std::vector<Job>& queue) {
     CurvePoint p;
     p.cpu_seconds = report.cpu_seconds;
@@ -394,111 +566,61 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
   };
 
   const auto wall_start = std::chrono::steady_clock::now();
-  std::vector<Job> queue = dead_ends();
+  std::vector<Job> queue = dead_ends(ex);
   report.curve.push_back(curve_point(queue));
-  std::set<std::pair<int64_t, int>> failed;
   while (true) {
-    std::vector<Job> batch;
-    for (const Job& j : queue) {
-      if (static_cast<int>(batch.size()) >= options.batch) break;
-      if (failed.count({states[j.state].id, j.edge})) continue;
-      batch.push_back(j);
-    }
+    const std::vector<Job> batch = choose_batch(ex, queue, options.batch);
     if (batch.empty()) break;
     if (options.cpu_hours > 0 && report.cpu_seconds >= options.cpu_hours * 3600) break;
     if (options.max_frames > 0 && report.frames_this_run >= options.max_frames) break;
 
-    // Longest edges first (LPT scheduling): a batch mixes 300-frame clip segments with 10-frame
-    // transitions, and a long job started last would leave the other threads idle. Results are
-    // integrated in batch order below, so the schedule cannot change what is stored.
-    std::vector<size_t> order(batch.size());
-    for (size_t b = 0; b < batch.size(); ++b) order[b] = b;
-    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) {
-      return graph.edges[batch[a].edge].poses.size() > graph.edges[batch[b].edge].poses.size();
-    });
-    std::vector<JobResult> results(batch.size());
-#pragma omp parallel for schedule(dynamic, 1) num_threads(std::max(1, options.threads))
-    for (size_t k = 0; k < order.size(); ++k) {
-      const size_t b = order[k];
-      results[b] = simulate_job(scene, graph.edges[batch[b].edge], states[batch[b].state], graph.rate, writer);
-    }
-
-    db::Writer::Transaction tx(writer);
+    std::vector<JobInput> inputs(batch.size());
     for (size_t b = 0; b < batch.size(); ++b) {
-      const Job& job = batch[b];
-      JobResult& r = results[b];
-      report.cpu_seconds += r.cpu_seconds;
-      const int64_t start_id = states[job.state].id;
-      if (!r.stable) {
-        failed.insert({start_id, job.edge});
-        std::fprintf(stderr, "\nexplore: state %lld along '%s' is unstable (%s); left as a dead end\n",
-                     static_cast<long long>(start_id), graph.edges[job.edge].name.c_str(), r.message.c_str());
-        continue;
-      }
-      const ExploreEdge& edge = graph.edges[job.edge];
-      db::NewClothClip clip;
-      clip.set_metrics(to_clip_metrics(r.quality));
-      clip.start_state = start_id;
-      clip.primary_clip = edge.db_clip;
-      clip.first_frame = 0;
-      clip.run = run_id;
-      const uint32_t vertices = static_cast<uint32_t>(states[job.state].x.size() / 3);
-      const uint32_t frame_count = r.frame_count;
-      const int64_t clip_id = writer.add_cloth_clip_blob(clip, r.blob, r.max_error);
-      done.insert({start_id, job.edge});
-      report.frames += frame_count;
-      report.frames_this_run += frame_count;
-      // The end as it will be stored, then the closest state at the end node.
-      std::vector<float> end_x = roundtrip(r.end_x, pos_bound), end_v = roundtrip(r.end_v, vel_bound);
-      double best = std::numeric_limits<double>::infinity();
-      int best_state = -1;
-      for (size_t s = 0; s < states.size(); ++s) {
-        if (states[s].node != edge.to_node) continue;
-        const double d = state_distance(end_x, end_v, states[s].x, states[s].v, tau);
-        if (d < best) best = d, best_state = static_cast<int>(s);
-      }
-      if (best_state >= 0 && best <= options.epsilon) {
-        writer.add_cloth_edge(clip_id, states[best_state].id, best,
-                              transition_pop(r.last.data(), states[best_state].x.data(), vertices));
-        report.worst_blend_error = std::max(report.worst_blend_error, best);
-      } else {
-        StateRec rec;
-        rec.node = edge.to_node;
-        rec.x = std::move(end_x);
-        rec.v = std::move(end_v);
-        rec.priority = best_state >= 0 ? best : kNoNeighbour;
-        rec.id = writer.add_cloth_state(node_anchor(rec.node), 0, r.end_x.data(), r.end_v.data(), vertices, run_id, clip_id);
-        writer.add_cloth_edge(clip_id, rec.id, 0.0, transition_pop(r.last.data(), rec.x.data(), vertices));
-        states.push_back(std::move(rec));
-      }
+      inputs[b].edge = batch[b].edge;
+      inputs[b].x = states[batch[b].state].x;
+      inputs[b].v = states[batch[b].state].v;
+      inputs[b].solver = scene.file.solver;
+      inputs[b].settings = scene.file.settings;
+      inputs[b].settings.threads =
+          1;  // parallel across jobs, not inside one (a runner may change it)
+      inputs[b].codec = codec_settings;
     }
-    tx.commit();
-    queue = dead_ends();
+    std::vector<JobResult> results(batch.size());
+    runner(inputs, results);
+    integrate_batch(ex, writer, batch, results, run_id, options, report);
+
+    queue = dead_ends(ex);
     report.curve.push_back(curve_point(queue));
     if (options.progress) {
       const CurvePoint& p = report.curve.back();
+      const size_t done = ex.done.size();
       double fraction = 0, eta = 0;
-      const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
-      if (options.max_frames > 0) fraction = static_cast<double>(report.frames_this_run) / options.max_frames;
-      if (options.cpu_hours > 0) fraction = std::max(fraction, report.cpu_seconds / (options.cpu_hours * 3600));
+      const double wall =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+      if (options.max_frames > 0)
+        fraction = static_cast<double>(report.frames_this_run) / options.max_frames;
+      if (options.cpu_hours > 0)
+        fraction = std::max(fraction, report.cpu_seconds / (options.cpu_hours * 3600));
       if (fraction > 0) {
         eta = wall / fraction * (1 - fraction);
       } else {
         // No budget: at least the dead ends left at the current pace (new ones may appear).
-        const double per_job = wall / std::max<size_t>(1, done.size());
-        fraction = static_cast<double>(done.size()) / (done.size() + queue.size());
+        const double per_job = wall / std::max<size_t>(1, done);
+        fraction = static_cast<double>(done) / (done + queue.size());
         eta = per_job * queue.size();
       }
-      std::fprintf(stderr, "\r[%s] frames %ld  states %d  dead ends %d  worst %.1f mm  cpu %.0f s  ETA %s%.0f s   ",
-                   bar(fraction, 24).c_str(), report.frames, p.states, p.dead_ends, 1e3 * p.worst_error,
-                   report.cpu_seconds, options.max_frames > 0 || options.cpu_hours > 0 ? "" : ">=", eta);
+      std::fprintf(
+          stderr,
+          "\r[%s] frames %ld  states %d  dead ends %d  worst %.1f mm  cpu %.0f s  ETA %s%.0f s   ",
+          bar(fraction, 24).c_str(), report.frames, p.states, p.dead_ends, 1e3 * p.worst_error,
+          report.cpu_seconds, options.max_frames > 0 || options.cpu_hours > 0 ? "" : ">=", eta);
     }
   }
   if (options.progress) std::fprintf(stderr, "\n");
   writer.finish_run(run_id, report.cpu_seconds,
                     queue.empty() ? "converged" : std::to_string(queue.size()) + " dead ends left");
   report.states = static_cast<int>(states.size());
-  report.clips = static_cast<int>(done.size());
+  report.clips = static_cast<int>(ex.done.size());
   report.dead_ends = static_cast<int>(queue.size());
   report.edges = report.clips;
   report.worst_error = report.curve.back().worst_error;
@@ -510,8 +632,8 @@ std::string curve_csv(const std::vector<CurvePoint>& curve) {
   std::ostringstream o;
   o << "cpu_seconds,frames,states,dead_ends,worst_error_mm,mean_error_mm\n";
   for (const auto& p : curve)
-    o << p.cpu_seconds << ',' << p.frames << ',' << p.states << ',' << p.dead_ends << ',' << 1e3 * p.worst_error
-      << ',' << 1e3 * p.mean_error << '\n';
+    o << p.cpu_seconds << ',' << p.frames << ',' << p.states << ',' << p.dead_ends << ','
+      << 1e3 * p.worst_error << ',' << 1e3 * p.mean_error << '\n';
   return o.str();
 }
 

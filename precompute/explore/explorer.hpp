@@ -13,6 +13,11 @@
 // edge), simulated independently, and integrated in that order; every simulation starts from the
 // state as stored (decoded), so a resumed run continues exactly as an uninterrupted one. Each batch
 // is one transaction: a run killed at any moment resumes from the last committed batch.
+//
+// Who runs a batch's jobs is the only thing a parallel back end changes: explore() chooses the
+// batch, hands its jobs (JobInput: plain data) to a BatchRunner, and integrates the results
+// (JobResult: plain data, serialisable by explore/job_wire.hpp) in the batch's order. The default
+// runner uses OpenMP threads in this process; explore/explore_mpi.hpp sends jobs to MPI ranks.
 #pragma once
 
 #include <functional>
@@ -20,6 +25,7 @@
 #include <vector>
 
 #include "database/schema.hpp"
+#include "quality/clip_quality.hpp"
 #include "scene/character_scene.hpp"
 
 namespace clothdb {
@@ -44,14 +50,53 @@ struct ExploreGraph {
   std::vector<ExploreEdge> edges;
 };
 
+// One job: simulate the garment along one primary edge from one cloth state. Everything a worker
+// needs beyond the scene and graph it loaded itself.
+struct JobInput {
+  int edge = 0;             // index into ExploreGraph::edges
+  std::vector<float> x, v;  // start state in character space, as stored (decoded)
+  SolverKind solver = SolverKind::Xpbd;
+  SolverSettings settings;  // settings.threads: OpenMP threads inside this one simulation
+  db::CodecSettings codec;  // the database's: the worker encodes exactly what the writer would
+};
+
+// What a job sends back: the clip already encoded (so the owner of the database only inserts it)
+// and the end state encoded as the writer stores a state (so the owner decodes exactly what a
+// resumed run reads back). Every field is in job_wire's serializer.
+struct JobResult {
+  bool stable = true;
+  std::string message;  // why not, when unstable (or when the clip could not be measured/encoded)
+  uint32_t frame_count = 0, vertex_count = 0;
+  std::vector<uint8_t> clip_blob;  // frame_count frames, codec.position_bound
+  double clip_max_error = 0;       // m, the codec's largest error on the clip
+  std::vector<float> last;         // the clip's last frame as the runtime decodes it (the pop)
+  std::vector<uint8_t> end_x_blob, end_v_blob;  // one frame each, position / velocity bound
+  ClipQuality quality;     // strain, penetration, jitter, halved steps, worst frame
+  double cpu_seconds = 0;  // thread CPU time of the simulation (not measuring or encoding)
+};
+
+// Runs one job (thread-safe: its own solver; input.settings.threads threads inside).
+JobResult run_job(const CharacterScene& scene, const ExploreGraph& graph, const JobInput& input);
+
+// Fills results[i] for jobs[i] (results has jobs.size() entries). The order in which jobs run or
+// finish must not matter: explore() integrates in index order.
+using BatchRunner =
+    std::function<void(const std::vector<JobInput>& jobs, std::vector<JobResult>& results)>;
+
+// Runs a batch on `threads` OpenMP threads in this process, one job per thread.
+BatchRunner openmp_runner(const CharacterScene& scene, const ExploreGraph& graph, int threads);
+
+// The order to start a batch's jobs in: longest edge first (LPT scheduling), ties in batch order.
+std::vector<size_t> longest_first(const ExploreGraph& graph, const std::vector<JobInput>& jobs);
+
 struct ExploreOptions {
-  double epsilon = 0.005;     // m: link back when the state distance is at most this
-  double cpu_hours = 0.0;     // budget (0: none): CPU time of the simulations
-  long max_frames = 0;        // budget (0: none): frames simulated in this run
-  int threads = 1;            // OpenMP threads across jobs (each job's solver runs on one)
-  int batch = 8;              // dead ends per batch (fixed: the result does not depend on threads)
-  bool progress = true;       // a progress bar on stderr
-  std::string run_settings;   // more JSON members for the run row, e.g. "\"auto_solver\": true"
+  double epsilon = 0.005;    // m: link back when the state distance is at most this
+  double cpu_hours = 0.0;    // budget (0: none): CPU time of the simulations
+  long max_frames = 0;       // budget (0: none): frames simulated in this run
+  int threads = 1;           // OpenMP threads across jobs (each job's solver runs on one)
+  int batch = 8;             // dead ends per batch (fixed: the result does not depend on threads)
+  bool progress = true;      // a progress bar on stderr
+  std::string run_settings;  // more JSON members for the run row, e.g. "\"auto_solver\": true"
 };
 
 struct CurvePoint {
@@ -67,14 +112,16 @@ struct ExploreReport {
   int states = 0;
   int clips = 0;
   int edges = 0;
-  int dead_ends = 0;         // left when it stopped
-  long frames = 0;           // stored cloth frames in the database
+  int dead_ends = 0;  // left when it stopped
+  long frames = 0;    // stored cloth frames in the database
   long frames_this_run = 0;
-  double cpu_seconds = 0;    // this run
-  double worst_error = 0;    // m
+  double cpu_seconds = 0;        // this run
+  double worst_error = 0;        // m
   double worst_blend_error = 0;  // m, largest recorded blend error on a cloth edge
-  bool converged = false;    // no dead end left above epsilon
+  bool converged = false;        // no dead end left above epsilon
   bool resumed = false;
+  long jobs_this_run = 0;         // simulations integrated (stable or not)
+  double integrate_seconds = 0;   // wall time spent integrating them into the database
   std::vector<CurvePoint> curve;  // one point per batch (this run)
 };
 
@@ -112,8 +159,9 @@ void prepare_database(db::Writer& writer, const CharacterScene& scene, ExploreGr
                       const std::string& graph_json);
 
 // Runs (or resumes) the exploration. The database must have been prepared for this scene and graph.
+// runner: who simulates each batch (empty: openmp_runner with options.threads).
 ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db::Writer& writer,
-                      const ExploreOptions& options);
+                      const ExploreOptions& options, const BatchRunner& runner = {});
 
 std::string curve_csv(const std::vector<CurvePoint>& curve);
 std::string curve_svg(const std::vector<CurvePoint>& curve, double epsilon);

@@ -1,0 +1,321 @@
+#include "explore/job_wire.hpp"
+
+#include <bit>
+#include <cstring>
+
+#include "database/checksum.hpp"
+#include "database/codec.hpp"
+
+namespace clothdb {
+
+static_assert(std::endian::native == std::endian::little, "the wire format is little-endian");
+
+// A new field in one of these structs must go into its encoder and decoder below (and bump
+// kWireVersion); the sizes catch a field added without that on the platform we build on.
+#if defined(__x86_64__) && defined(__GLIBCXX__)
+static_assert(sizeof(SolverSettings) == 80, "SolverSettings changed: update encode_job/decode_job");
+static_assert(sizeof(db::CodecSettings) == 24,
+              "CodecSettings changed: update encode_job/decode_job");
+static_assert(sizeof(JobInput) == 168, "JobInput changed: update encode_job/decode_job");
+static_assert(sizeof(ClipQuality) == 40, "ClipQuality changed: update encode_result/decode_result");
+static_assert(sizeof(JobResult) == 200, "JobResult changed: update encode_result/decode_result");
+static_assert(sizeof(WorkerHello) == 64, "WorkerHello changed: update encode_hello/decode_hello");
+#endif
+
+namespace {
+
+class Out {
+ public:
+  explicit Out(const char kind[4]) {
+    raw(kind, 4);
+    u32(kWireVersion);
+  }
+  void raw(const void* p, size_t n) {
+    if (n == 0) return;
+    const size_t at = bytes_.size();
+    bytes_.resize(at + n);
+    std::memcpy(bytes_.data() + at, p, n);
+  }
+  void u32(uint32_t v) { raw(&v, 4); }
+  void i32(int32_t v) { raw(&v, 4); }
+  void u64(uint64_t v) { raw(&v, 8); }
+  void i64(int64_t v) { raw(&v, 8); }
+  void f64(double v) { raw(&v, 8); }
+  void str(const std::string& s) {
+    u64(s.size());
+    raw(s.data(), s.size());
+  }
+  void bytes(const std::vector<uint8_t>& b) {
+    u64(b.size());
+    raw(b.data(), b.size());
+  }
+  void floats(const std::vector<float>& f) {
+    u64(f.size());
+    raw(f.data(), f.size() * sizeof(float));
+  }
+  std::vector<uint8_t> take() { return std::move(bytes_); }
+
+ private:
+  std::vector<uint8_t> bytes_;
+};
+
+class In {
+ public:
+  In(const uint8_t* data, size_t size, const char kind[4], const char* what)
+      : p_(data), end_(data + size), what_(what) {
+    if (size < 8 || std::memcmp(data, kind, 4) != 0)
+      fail("header",
+           "not a " + std::string(what) + " message (" + std::to_string(size) + " bytes)");
+    p_ += 4;
+    const uint32_t version = u32("version");
+    if (version != kWireVersion)
+      fail("version", "format " + std::to_string(version) + ", this build speaks " +
+                          std::to_string(kWireVersion) +
+                          ": every rank must run the same clothdb build");
+  }
+  [[noreturn]] void fail(const char* field, const std::string& problem) const {
+    throw WireError(std::string(what_) + " message: " + field + ": " + problem);
+  }
+  void raw(void* out, size_t n, const char* field) {
+    if (static_cast<size_t>(end_ - p_) < n)
+      fail(field, "needs " + std::to_string(n) + " bytes, " + std::to_string(end_ - p_) +
+                      " left (truncated)");
+    std::memcpy(out, p_, n);
+    p_ += n;
+  }
+  template <typename T>
+  T num(const char* field) {
+    T v;
+    raw(&v, sizeof v, field);
+    return v;
+  }
+  uint32_t u32(const char* field) { return num<uint32_t>(field); }
+  int32_t i32(const char* field) { return num<int32_t>(field); }
+  uint64_t u64(const char* field) { return num<uint64_t>(field); }
+  int64_t i64(const char* field) { return num<int64_t>(field); }
+  double f64(const char* field) { return num<double>(field); }
+  // A length checked against what is left before anything is allocated for it.
+  size_t length(const char* field, size_t element) {
+    const uint64_t n = u64(field);
+    if (n > static_cast<size_t>(end_ - p_) / element)
+      fail(field, "declares " + std::to_string(n) + " elements, only " + std::to_string(end_ - p_) +
+                      " bytes left");
+    return static_cast<size_t>(n);
+  }
+  std::string str(const char* field) {
+    std::string s(length(field, 1), '\0');
+    raw(s.data(), s.size(), field);
+    return s;
+  }
+  std::vector<uint8_t> bytes(const char* field) {
+    std::vector<uint8_t> b(length(field, 1));
+    raw(b.data(), b.size(), field);
+    return b;
+  }
+  std::vector<float> floats(const char* field) {
+    std::vector<float> f(length(field, sizeof(float)));
+    raw(f.data(), f.size() * sizeof(float), field);
+    return f;
+  }
+  void finish() const {
+    if (p_ != end_) fail("end", std::to_string(end_ - p_) + " bytes after the last field");
+  }
+
+ private:
+  const uint8_t* p_;
+  const uint8_t* end_;
+  const char* what_;
+};
+
+// A blob must be a frame blob of exactly the frames and vertices the message says.
+void check_blob(const In& in, const std::vector<uint8_t>& blob, uint32_t frames, uint32_t vertices,
+                const char* field) {
+  codec::BlobInfo info;
+  db::Error err;
+  if (codec::read_info(blob.data(), blob.size(), &info, &err) != db::Status::Ok)
+    in.fail(field, std::string("not a valid frame blob: ") + err.message);
+  if (info.frame_count != frames || info.vertex_count != vertices || info.size != blob.size())
+    in.fail(field, "holds " + std::to_string(info.frame_count) + " frames of " +
+                       std::to_string(info.vertex_count) + " vertices in " +
+                       std::to_string(info.size) + " bytes; the message says " +
+                       std::to_string(frames) + " of " + std::to_string(vertices) + " in " +
+                       std::to_string(blob.size()));
+}
+
+}  // namespace
+
+std::vector<uint8_t> encode_hello(const WorkerHello& h) {
+  Out o("CDBH");
+  o.str(h.host);
+  o.i64(h.pid);
+  o.u64(h.scene_hash);
+  o.u64(h.graph_hash);
+  o.u32(h.vertices);
+  o.i32(h.threads);
+  return o.take();
+}
+
+WorkerHello decode_hello(const uint8_t* data, size_t size) {
+  In in(data, size, "CDBH", "hello");
+  WorkerHello h;
+  h.host = in.str("host");
+  h.pid = in.i64("pid");
+  h.scene_hash = in.u64("scene_hash");
+  h.graph_hash = in.u64("graph_hash");
+  h.vertices = in.u32("vertices");
+  h.threads = in.i32("threads");
+  in.finish();
+  return h;
+}
+
+std::vector<uint8_t> encode_job(uint64_t seq, const JobInput& job) {
+  Out o("CDBJ");
+  o.u64(seq);
+  o.i32(job.edge);
+  o.floats(job.x);
+  o.floats(job.v);
+  o.u32(static_cast<uint32_t>(job.solver));
+  const SolverSettings& s = job.settings;
+  o.i32(s.substeps);
+  o.i32(s.iterations);
+  o.f64(s.pbd_stretch_stiffness);
+  o.f64(s.pbd_bend_stiffness);
+  o.f64(s.provot_critical_rate);
+  o.f64(s.newton_tolerance);
+  o.i32(s.newton_max_iterations);
+  o.i32(s.newton_max_halvings);
+  o.u32(static_cast<uint32_t>(s.linear_solver));
+  o.i32(s.threads);
+  o.u32(s.tethers ? 1 : 0);
+  o.u32(static_cast<uint32_t>(s.newton_guess));
+  o.f64(s.newton_reuse_contraction);
+  o.u32(s.newton_exact_hessian ? 1 : 0);
+  o.f64(job.codec.position_bound);
+  o.f64(job.codec.velocity_bound);
+  o.u32(job.codec.key_interval);
+  o.i32(job.codec.zstd_level);
+  return o.take();
+}
+
+JobInput decode_job(const uint8_t* data, size_t size, uint64_t* seq) {
+  In in(data, size, "CDBJ", "job");
+  JobInput job;
+  *seq = in.u64("seq");
+  job.edge = in.i32("edge");
+  job.x = in.floats("x");
+  job.v = in.floats("v");
+  if (job.x.size() != job.v.size() || job.x.size() % 3 != 0)
+    in.fail("v", std::to_string(job.x.size()) + " position and " + std::to_string(job.v.size()) +
+                     " velocity floats: must be equal multiples of 3");
+  const uint32_t solver = in.u32("solver");
+  if (solver > static_cast<uint32_t>(SolverKind::Newton))
+    in.fail("solver", "unknown kind " + std::to_string(solver));
+  job.solver = static_cast<SolverKind>(solver);
+  SolverSettings& s = job.settings;
+  s.substeps = in.i32("substeps");
+  s.iterations = in.i32("iterations");
+  s.pbd_stretch_stiffness = in.f64("pbd_stretch_stiffness");
+  s.pbd_bend_stiffness = in.f64("pbd_bend_stiffness");
+  s.provot_critical_rate = in.f64("provot_critical_rate");
+  s.newton_tolerance = in.f64("newton_tolerance");
+  s.newton_max_iterations = in.i32("newton_max_iterations");
+  s.newton_max_halvings = in.i32("newton_max_halvings");
+  const uint32_t linear = in.u32("linear_solver");
+  if (linear > static_cast<uint32_t>(LinearSolverKind::ConjugateGradientIC))
+    in.fail("linear_solver", "unknown kind " + std::to_string(linear));
+  s.linear_solver = static_cast<LinearSolverKind>(linear);
+  s.threads = in.i32("threads");
+  s.tethers = in.u32("tethers") != 0;
+  const uint32_t guess = in.u32("newton_guess");
+  if (guess > static_cast<uint32_t>(SolverSettings::Guess::Extrapolate))
+    in.fail("newton_guess", "unknown kind " + std::to_string(guess));
+  s.newton_guess = static_cast<SolverSettings::Guess>(guess);
+  s.newton_reuse_contraction = in.f64("newton_reuse_contraction");
+  s.newton_exact_hessian = in.u32("newton_exact_hessian") != 0;
+  job.codec.position_bound = in.f64("position_bound");
+  job.codec.velocity_bound = in.f64("velocity_bound");
+  job.codec.key_interval = in.u32("key_interval");
+  job.codec.zstd_level = in.i32("zstd_level");
+  in.finish();
+  return job;
+}
+
+std::vector<uint8_t> encode_result(uint64_t seq, const JobResult& r) {
+  Out o("CDBR");
+  o.u64(seq);
+  o.u32(r.stable ? 1 : 0);
+  o.str(r.message);
+  o.u32(r.frame_count);
+  o.u32(r.vertex_count);
+  o.bytes(r.clip_blob);
+  o.f64(r.clip_max_error);
+  o.floats(r.last);
+  o.bytes(r.end_x_blob);
+  o.bytes(r.end_v_blob);
+  const ClipQuality& q = r.quality;
+  o.f64(q.max_strain);
+  o.f64(q.max_penetration);
+  o.f64(q.mean_penetration);
+  o.f64(q.jitter);
+  o.i32(q.halved_steps);
+  o.i32(q.worst_frame);
+  o.f64(r.cpu_seconds);
+  return o.take();
+}
+
+JobResult decode_result(const uint8_t* data, size_t size, uint64_t* seq) {
+  In in(data, size, "CDBR", "result");
+  JobResult r;
+  *seq = in.u64("seq");
+  r.stable = in.u32("stable") != 0;
+  r.message = in.str("message");
+  r.frame_count = in.u32("frame_count");
+  r.vertex_count = in.u32("vertex_count");
+  r.clip_blob = in.bytes("clip_blob");
+  r.clip_max_error = in.f64("clip_max_error");
+  r.last = in.floats("last");
+  r.end_x_blob = in.bytes("end_x_blob");
+  r.end_v_blob = in.bytes("end_v_blob");
+  ClipQuality& q = r.quality;
+  q.max_strain = in.f64("max_strain");
+  q.max_penetration = in.f64("max_penetration");
+  q.mean_penetration = in.f64("mean_penetration");
+  q.jitter = in.f64("jitter");
+  q.halved_steps = in.i32("halved_steps");
+  q.worst_frame = in.i32("worst_frame");
+  r.cpu_seconds = in.f64("cpu_seconds");
+  in.finish();
+  if (r.stable) {  // an unstable job carries no frames
+    check_blob(in, r.clip_blob, r.frame_count, r.vertex_count, "clip_blob");
+    if (r.last.size() != size_t(r.vertex_count) * 3)
+      in.fail("last", std::to_string(r.last.size()) + " floats for " +
+                          std::to_string(r.vertex_count) + " vertices");
+    check_blob(in, r.end_x_blob, 1, r.vertex_count, "end_x_blob");
+    check_blob(in, r.end_v_blob, 1, r.vertex_count, "end_v_blob");
+  }
+  return r;
+}
+
+uint64_t graph_hash(const ExploreGraph& graph) {
+  Out o("CDBG");
+  o.i32(graph.node_count);
+  o.i32(graph.start_node);
+  o.f64(graph.rate);
+  for (const ExploreEdge& e : graph.edges) {
+    o.i32(e.from_node);
+    o.i32(e.to_node);
+    o.str(e.name);
+    o.u64(e.poses.size());
+    for (const auto& pose : e.poses) {
+      o.u64(pose.size());
+      for (const JointPose& j : pose) {
+        o.raw(j.position.data(), 3 * sizeof(double));
+        o.raw(j.rotation.coeffs().data(), 4 * sizeof(double));
+      }
+    }
+  }
+  const std::vector<uint8_t> bytes = o.take();
+  return db::xxh64(bytes.data(), bytes.size());
+}
+
+}  // namespace clothdb

@@ -1,0 +1,56 @@
+#!/usr/bin/env bash
+# The MPI precompute against the single-process one, on a small graph (tests/data/mpi_small.json:
+# CMU 01_01, 192-vertex skirt, 10 nodes, 14 edges, about 60 clips at epsilon 10 mm), over TCP on
+# loopback as between the nodes of a cluster. Registered by tests/CMakeLists.txt when MPI is found.
+#
+#   run_mpi_test.sh same CLOTHDB MPIEXEC SOURCE_DIR WORK_DIR
+#     mpirun -n 3 (rank 0 + 2 workers) writes the same cloth_state, cloth_clip and cloth_edge rows,
+#     blobs included, as one process.
+#   run_mpi_test.sh kill CLOTHDB MPIEXEC SOURCE_DIR WORK_DIR
+#     the same while worker rank 1 is SIGKILLed as soon as it has been handed its fifth job: rank 0
+#     must declare it lost, hand its job to the other worker, and still write the same rows.
+set -euo pipefail
+mode=$1 clothdb=$2 mpiexec=$3 src=$4 work=$5
+export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
+rm -rf "$work" && mkdir -p "$work" && cd "$work"
+
+scene=$src/tests/data/mpi_small.json
+args=(--epsilon 10 --batch 4 --quiet)
+# TCP on loopback (not shared memory), one slot per rank even on a 2-core machine.
+mpi=("$mpiexec" -n 3 --oversubscribe --mca btl self,tcp --mca btl_tcp_if_include lo --mca oob_tcp_if_include lo)
+
+"$clothdb" precompute "$scene" --db single.db --threads 2 "${args[@]}" >single.out 2>single.err
+"$clothdb" db dump single.db >single.dump
+[ "$(grep -c . single.dump)" -gt 50 ] || { echo "the single-process run stored too little"; exit 1; }
+
+if [ "$mode" = same ]; then
+  "${mpi[@]}" "$clothdb" precompute "$scene" --db mpi.db "${args[@]}" >mpi.out 2>mpi.err ||
+    { cat mpi.err; exit 1; }
+elif [ "$mode" = kill ]; then
+  # --enable-recovery: the job survives a dead rank; --job-timeout 1: a job is lost after
+  # max(1 s, 4x the slowest time per frame seen x its frames).
+  "${mpi[@]}" --enable-recovery "$clothdb" precompute "$scene" --db mpi.db "${args[@]}" --job-timeout 1 \
+    --mpi-verbose >mpi.out 2>mpi.err &
+  run=$!
+  victim=
+  for _ in $(seq 1 3000); do
+    victim=$(grep -m1 -oP 'mpi: job ([5-9]|[1-9][0-9]+) \(.*-> rank 1 \(.* pid \K[0-9]+' mpi.err || true)
+    [ -n "$victim" ] && break
+    sleep 0.01
+  done
+  [ -n "$victim" ] || { echo "rank 1 never got a fifth job"; kill -9 "$run"; cat mpi.err; exit 1; }
+  kill -9 "$victim"
+  echo "killed rank 1 (pid $victim)"
+  wait "$run" || echo "mpirun exited with $? (a rank was killed)"
+  grep -q "rank 1 .*lost, its job goes back to the queue" mpi.err ||
+    { echo "rank 0 did not report rank 1's job as lost"; cat mpi.err; exit 1; }
+  grep "^mpi: " mpi.err | grep -v "^mpi: job"
+else
+  echo "unknown mode $mode"; exit 2
+fi
+grep -q "converged" mpi.out || { echo "the MPI run did not converge"; cat mpi.out mpi.err; exit 1; }
+"$clothdb" db dump mpi.db >mpi.dump
+if ! cmp -s single.dump mpi.dump; then
+  echo "the MPI run stored different rows:"; diff single.dump mpi.dump | head -20; exit 1
+fi
+echo "same $(grep -c . mpi.dump) rows as the single-process run"
