@@ -25,6 +25,8 @@ void register_play_commands(CLI::App& app);  // cmd_play.cpp: `clothdb play`
 // cmd_clips.cpp: `clothdb clips list`, `clip show`
 void register_clip_quality_commands(CLI::App& app);
 void register_bench_runtime(CLI::App& bench);  // cmd_play.cpp: `clothdb bench runtime`
+// cmd_edit.cpp: `clothdb clip export|import|resim|flag|unflag|delete|log`, `clothdb undo`
+void register_edit_commands(CLI::App& app);
 // cmd_bench_character.cpp: `clothdb bench character`
 void register_bench_character(CLI::App& bench);
 

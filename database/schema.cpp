@@ -1,5 +1,9 @@
 #include "database/schema.hpp"
 
+// The session extension (changesets for the edit log's exact undo); Debian's libsqlite3 is built
+// with it (SQLITE_ENABLE_SESSION and SQLITE_ENABLE_PREUPDATE_HOOK).
+#define SQLITE_ENABLE_SESSION 1
+#define SQLITE_ENABLE_PREUPDATE_HOOK 1
 #include <sqlite3.h>
 
 #include <cstdio>
@@ -101,14 +105,16 @@ CREATE TABLE edit_log(
   id INTEGER PRIMARY KEY,
   time TEXT NOT NULL,
   author TEXT NOT NULL,
-  clip INTEGER NOT NULL REFERENCES cloth_clip(id),
-  action TEXT NOT NULL CHECK (action IN ('set-status', 'replace-frames', 'undo')),
+  clip INTEGER NOT NULL,
+  action TEXT NOT NULL CHECK (action IN ('set-status', 'replace-frames', 'undo', 'flag',
+    'unflag', 'import', 'resim', 'delete')),
   description TEXT NOT NULL,
   old_status TEXT,
   new_status TEXT,
   old_frames BLOB,
   old_max_error REAL,
-  undoes INTEGER REFERENCES edit_log(id)
+  undoes INTEGER REFERENCES edit_log(id),
+  changeset BLOB
 );
 CREATE INDEX cloth_state_at ON cloth_state(primary_clip, frame);
 CREATE INDEX cloth_clip_from ON cloth_clip(start_state);
@@ -126,6 +132,39 @@ ALTER TABLE cloth_clip ADD COLUMN worst_frame INTEGER
   CHECK (worst_frame >= 0 AND worst_frame < frame_count);
 ALTER TABLE cloth_edge ADD COLUMN pop REAL;
 )sql";
+
+// Version 2 -> 3: the edit log records every edit as a changeset (SQLite's session extension) and
+// takes the new actions; its clip is no longer a foreign key, since a deleted clip's edits stay
+// in the log. A CHECK cannot be altered in place, so the table is rebuilt (ids kept); foreign
+// keys are deferred to the commit while it has no edit_log.
+constexpr const char* kMigrateTo3Sql = R"sql(
+PRAGMA defer_foreign_keys = ON;
+CREATE TABLE edit_log_v3(
+  id INTEGER PRIMARY KEY,
+  time TEXT NOT NULL,
+  author TEXT NOT NULL,
+  clip INTEGER NOT NULL,
+  action TEXT NOT NULL CHECK (action IN ('set-status', 'replace-frames', 'undo', 'flag',
+    'unflag', 'import', 'resim', 'delete')),
+  description TEXT NOT NULL,
+  old_status TEXT,
+  new_status TEXT,
+  old_frames BLOB,
+  old_max_error REAL,
+  undoes INTEGER REFERENCES edit_log(id),
+  changeset BLOB
+);
+INSERT INTO edit_log_v3(id, time, author, clip, action, description, old_status, new_status,
+  old_frames, old_max_error, undoes)
+  SELECT id, time, author, clip, action, description, old_status, new_status, old_frames,
+    old_max_error, undoes FROM edit_log;
+DROP TABLE edit_log;
+ALTER TABLE edit_log_v3 RENAME TO edit_log;
+CREATE INDEX edit_log_clip ON edit_log(clip);
+)sql";
+
+// The tables an edit may change and undo restores (everything but the log itself).
+constexpr const char* kEditedTables[] = {"cloth_state", "cloth_clip", "cloth_edge", "run", "meta"};
 
 constexpr const char* kNow = "strftime('%Y-%m-%dT%H:%M:%fZ', 'now')";
 
@@ -411,10 +450,14 @@ void Writer::migrate(int from_version) {
   // reader and the next Writer::open still accept. The version is re-read under the write lock in
   // case another writer migrated it meanwhile.
   Transaction t(*this);
-  Stmt v(db_, "PRAGMA user_version");
-  if (!v.ok() || v.step() != SQLITE_ROW) throw_sql("reading the schema version");
-  if (v.i64(0) != from_version) return;  // rolled back by t's destructor: nothing to do
+  {
+    // Finalized before the migration: an open statement would lock the tables it drops.
+    Stmt v(db_, "PRAGMA user_version");
+    if (!v.ok() || v.step() != SQLITE_ROW) throw_sql("reading the schema version");
+    if (v.i64(0) != from_version) return;  // rolled back by t's destructor: nothing to do
+  }
   if (from_version < 2) exec(kMigrateTo2Sql);
+  if (from_version < 3) exec(kMigrateTo3Sql);
   exec(("PRAGMA user_version=" + std::to_string(kSchemaVersion)).c_str());
   set_meta("format_version", std::to_string(kSchemaVersion));
   t.commit();
@@ -769,6 +812,186 @@ int64_t Writer::undo_edit(int64_t edit, const std::string& author) {
   return id;
 }
 
+// ----------------------------------------------------------------------------------- Edits
+
+Writer::Edit::Edit(Writer& writer, int64_t clip, const std::string& action,
+                   const std::string& author)
+    : writer_(&writer), clip_(clip), action_(action), author_(author), tx_(writer) {
+  // Opened inside the transaction, so it records exactly this edit's changes.
+  if (sqlite3session_create(writer.db_, "main", &session_) != SQLITE_OK)
+    writer.throw_sql("starting an edit's change record (sqlite3session_create)");
+  for (const char* table : kEditedTables)
+    if (sqlite3session_attach(session_, table) != SQLITE_OK) {
+      sqlite3session_delete(session_);
+      session_ = nullptr;
+      writer.throw_sql("attaching a table to an edit's change record");
+    }
+}
+
+Writer::Edit::~Edit() {
+  if (session_) sqlite3session_delete(session_);
+}
+
+int64_t Writer::Edit::commit(const std::string& description) {
+  int size = 0;
+  void* changes = nullptr;
+  if (sqlite3session_changeset(session_, &size, &changes) != SQLITE_OK)
+    writer_->throw_sql("reading an edit's changes (sqlite3session_changeset)");
+  sqlite3session_delete(session_);  // before the log row: the log is not part of the edit
+  session_ = nullptr;
+  Stmt log(writer_->db_, (std::string("INSERT INTO edit_log(time, author, clip, action, "
+                                      "description, changeset) VALUES(") +
+                          kNow + ", ?, ?, ?, ?, ?)")
+                             .c_str());
+  log.bind(1, author_).bind(2, clip_).bind(3, action_).bind(4, description);
+  log.bind_blob(5, changes, size_t(size));
+  const int rc = log.ok() ? log.step() : log.rc();
+  sqlite3_free(changes);
+  if (rc != SQLITE_DONE) writer_->throw_sql("logging an edit");
+  const int64_t id = sqlite3_last_insert_rowid(writer_->db_);
+  tx_.commit();
+  return id;
+}
+
+namespace {
+
+// Applying an inverted changeset: any conflict means the rows are not as the edit left them.
+struct UndoConflicts {
+  int count = 0;
+  int kind = 0;
+};
+
+int abort_on_conflict(void* context, int kind, sqlite3_changeset_iter*) {
+  auto* c = static_cast<UndoConflicts*>(context);
+  ++c->count;
+  c->kind = kind;
+  return SQLITE_CHANGESET_ABORT;
+}
+
+const char* conflict_name(int kind) {
+  switch (kind) {
+    case SQLITE_CHANGESET_DATA:
+      return "a row it changed has changed again";
+    case SQLITE_CHANGESET_NOTFOUND:
+      return "a row it changed is gone";
+    case SQLITE_CHANGESET_CONFLICT:
+      return "a row it removed has been added again";
+    case SQLITE_CHANGESET_CONSTRAINT:
+      return "restoring a row breaks a constraint";
+    case SQLITE_CHANGESET_FOREIGN_KEY:
+      return "newer rows refer to rows it added";
+  }
+  return "conflict";
+}
+
+}  // namespace
+
+EditLogEntry Writer::undo_last(const std::string& author) {
+  Transaction t(*this);
+  Stmt last(db_,
+            "SELECT id, clip, action, description, changeset IS NOT NULL FROM edit_log "
+            "WHERE action != 'undo' AND id NOT IN "
+            "(SELECT undoes FROM edit_log WHERE undoes IS NOT NULL) ORDER BY id DESC LIMIT 1");
+  if (!last.ok()) throw_sql("reading the edit log");
+  const int rc = last.step();
+  if (rc == SQLITE_DONE)
+    throw ClothdbError(Status::NotFound, path_ + ": the edit log has nothing left to undo");
+  if (rc != SQLITE_ROW) throw_sql("reading the edit log");
+  EditLogEntry undone;
+  undone.id = last.i64(0);
+  undone.clip = last.i64(1);
+  undone.action = last.text(2);
+  undone.description = last.text(3);
+  undone.has_changeset = last.i64(4) != 0;
+  if (!undone.has_changeset) {
+    undo_edit(undone.id, author);  // an old-style edit (set-status, replace-frames)
+    t.commit();
+    return undone;
+  }
+  Stmt blob(db_, "SELECT changeset FROM edit_log WHERE id = ?");
+  if (!blob.ok() || blob.bind(1, undone.id).step() != SQLITE_ROW)
+    throw_sql("reading an edit's changeset");
+  int inverse_size = 0;
+  void* inverse = nullptr;
+  if (sqlite3changeset_invert(int(blob.bytes(0)),
+                              const_cast<void*>(sqlite3_column_blob(blob.get(), 0)), &inverse_size,
+                              &inverse) != SQLITE_OK)
+    throw ClothdbError(Status::Corrupt, path_ + ": edit " + std::to_string(undone.id) +
+                                            ": its changeset does not read back");
+  UndoConflicts conflicts;
+  const int applied =
+      sqlite3changeset_apply(db_, inverse_size, inverse, nullptr, abort_on_conflict, &conflicts);
+  if (applied != SQLITE_OK) {
+    sqlite3_free(inverse);
+    if (conflicts.count > 0)
+      throw ClothdbError(Status::InvalidArgument,
+                         path_ + ": cannot undo edit " + std::to_string(undone.id) + " (" +
+                             undone.action + " of clip " + std::to_string(undone.clip) +
+                             ") exactly: " + conflict_name(conflicts.kind) +
+                             " since (written outside the edit log, e.g. by a precompute run); "
+                             "nothing was changed");
+    throw_sql("undoing an edit");
+  }
+  Stmt log(db_, (std::string("INSERT INTO edit_log(time, author, clip, action, description, "
+                             "undoes, changeset) VALUES(") +
+                 kNow + ", ?, ?, 'undo', ?, ?, ?)")
+                    .c_str());
+  log.bind(1, author).bind(2, undone.clip);
+  log.bind(3, "undo of edit " + std::to_string(undone.id) + " (" + undone.action + ")");
+  log.bind(4, undone.id).bind_blob(5, inverse, size_t(inverse_size));
+  const int logged = log.ok() ? log.step() : log.rc();
+  sqlite3_free(inverse);
+  if (logged != SQLITE_DONE) throw_sql("logging an undo");
+  t.commit();
+  return undone;
+}
+
+void Writer::replace_clip_blob(int64_t clip, const std::vector<uint8_t>& blob, double max_error,
+                               ClipStatus status) {
+  codec::BlobInfo info;
+  Error err;
+  if (codec::read_info(blob.data(), blob.size(), &info, &err) != Status::Ok)
+    throw ClothdbError(err.status, path_ + ": cloth clip blob: " + err.message);
+  check_vertex_count(info.vertex_count, "the cloth clip");
+  Stmt up(db_,
+          "UPDATE cloth_clip SET frames = ?, frame_count = ?, error_bound = ?, max_error = ?, "
+          "status = ? WHERE id = ?");
+  up.bind_blob(1, blob.data(), blob.size()).bind(2, int64_t(info.frame_count));
+  up.bind(3, info.bound).bind(4, max_error).bind(5, clip_status_name(status)).bind(6, clip);
+  if (!up.ok() || up.step() != SQLITE_DONE) throw_sql("replacing clip frames");
+  if (sqlite3_changes(db_) != 1)
+    throw ClothdbError(Status::NotFound, path_ + ": no cloth clip " + std::to_string(clip));
+}
+
+void Writer::set_clip_status_unlogged(int64_t clip, ClipStatus status) {
+  Stmt up(db_, "UPDATE cloth_clip SET status = ? WHERE id = ?");
+  if (!up.ok() || up.bind(1, clip_status_name(status)).bind(2, clip).step() != SQLITE_DONE)
+    throw_sql("setting a clip status");
+  if (sqlite3_changes(db_) != 1)
+    throw ClothdbError(Status::NotFound, path_ + ": no cloth clip " + std::to_string(clip));
+}
+
+void Writer::set_edge(int64_t edge, int64_t to_state, double blend_error, double pop) {
+  Stmt up(db_, "UPDATE cloth_edge SET to_state = ?, blend_error = ?, pop = ? WHERE id = ?");
+  up.bind(1, to_state).bind(2, blend_error).bind_metric(3, pop).bind(4, edge);
+  if (!up.ok() || up.step() != SQLITE_DONE) throw_sql("changing a cloth edge");
+  if (sqlite3_changes(db_) != 1)
+    throw ClothdbError(Status::NotFound, path_ + ": no cloth edge " + std::to_string(edge));
+}
+
+void Writer::remove_clip(int64_t clip) {
+  Transaction t(*this);
+  for (const char* sql : {"DELETE FROM cloth_edge WHERE from_clip = ?",
+                          "UPDATE cloth_state SET source_clip = NULL WHERE source_clip = ?",
+                          "DELETE FROM cloth_clip WHERE id = ?"}) {
+    Stmt s(db_, sql);
+    if (!s.ok() || s.bind(1, clip).step() != SQLITE_DONE) throw_sql("removing a cloth clip");
+  }
+  if (sqlite3_changes(db_) != 1)
+    throw ClothdbError(Status::NotFound, path_ + ": no cloth clip " + std::to_string(clip));
+  t.commit();
+}
+
 // ----------------------------------------------------------------------------------- Reader
 
 Reader::Reader(Reader&& other) noexcept
@@ -777,7 +1000,8 @@ Reader::Reader(Reader&& other) noexcept
       schema_version_(other.schema_version_),
       codec_(other.codec_),
       clip_blob_stmt_(std::exchange(other.clip_blob_stmt_, nullptr)),
-      state_blob_stmt_(std::exchange(other.state_blob_stmt_, nullptr)) {}
+      state_blob_stmt_(std::exchange(other.state_blob_stmt_, nullptr)),
+      borrowed_(std::exchange(other.borrowed_, false)) {}
 
 Reader& Reader::operator=(Reader&& other) noexcept {
   if (this != &other) {
@@ -788,6 +1012,7 @@ Reader& Reader::operator=(Reader&& other) noexcept {
     codec_ = other.codec_;
     clip_blob_stmt_ = std::exchange(other.clip_blob_stmt_, nullptr);
     state_blob_stmt_ = std::exchange(other.state_blob_stmt_, nullptr);
+    borrowed_ = std::exchange(other.borrowed_, false);
   }
   return *this;
 }
@@ -800,8 +1025,19 @@ void Reader::close() {
   sqlite3_finalize(clip_blob_stmt_);
   sqlite3_finalize(state_blob_stmt_);
   clip_blob_stmt_ = state_blob_stmt_ = nullptr;
-  sqlite3_close_v2(db_);
+  if (!borrowed_) sqlite3_close_v2(db_);
   db_ = nullptr;
+  borrowed_ = false;
+}
+
+Status Reader::open_on(Writer& writer, Error* err) {
+  close();
+  path_ = writer.path();
+  db_ = writer.handle();
+  borrowed_ = true;
+  const Status st = recognise(db_, path_, &schema_version_, &codec_, err);
+  if (st != Status::Ok) close();
+  return st;
 }
 
 Status Reader::open(const std::string& path, Error* err) {
@@ -1013,13 +1249,18 @@ Status Reader::runs(std::vector<Run>* out, Error* err) {
 
 Status Reader::edit_log(std::vector<EditLogEntry>* out, Error* err) {
   out->clear();
-  return for_each_row(db_, path_,
-                      "SELECT id, time, author, clip, action, description, old_status, "
-                      "new_status, old_frames IS NOT NULL, undoes FROM edit_log ORDER BY id",
-                      err, [&](Stmt& s) {
-                        out->push_back({s.i64(0), s.text(1), s.text(2), s.i64(3), s.text(4),
-                                        s.text(5), s.text(6), s.text(7), s.i64(8) != 0, s.i64(9)});
-                      });
+  return for_each_row(
+      db_, path_,
+      schema_version_ >= 3 ? "SELECT id, time, author, clip, action, description, old_status, "
+                             "new_status, old_frames IS NOT NULL, undoes, changeset IS NOT NULL "
+                             "FROM edit_log ORDER BY id"
+                           : "SELECT id, time, author, clip, action, description, old_status, "
+                             "new_status, old_frames IS NOT NULL, undoes, 0 FROM edit_log "
+                             "ORDER BY id",
+      err, [&](Stmt& s) {
+        out->push_back({s.i64(0), s.text(1), s.text(2), s.i64(3), s.text(4), s.text(5), s.text(6),
+                        s.text(7), s.i64(8) != 0, s.i64(9), s.i64(10) != 0});
+      });
 }
 
 // Copies column `col` of the single row the statement yields into `blob`, then resets it so the

@@ -21,13 +21,15 @@
 
 struct sqlite3;
 struct sqlite3_stmt;
+struct sqlite3_session;
 
 namespace clothdb::db {
 
 // Version 2 added the quality metrics (cloth_clip: mean_penetration, jitter, halved_steps,
-// worst_frame; cloth_edge: pop). Writer::open migrates a version 1 file in one transaction; the
-// Reader reads version 1 files as they are, with those metrics unknown.
-constexpr int kSchemaVersion = 2;
+// worst_frame; cloth_edge: pop). Version 3: the edit log keeps each edit's changeset (exact undo
+// of edits that touch many rows) and the actions flag, unflag, import, resim, delete. Writer::open
+// migrates older files in one transaction; the Reader reads them as they are.
+constexpr int kSchemaVersion = 3;
 constexpr int32_t kApplicationId = 0x434C4442;  // "CLDB"
 
 enum class ClipStatus { Ok, Flagged, Edited };
@@ -151,11 +153,14 @@ struct EditLogEntry {
   std::string time;
   std::string author;
   int64_t clip = 0;
-  std::string action;  // "set-status", "replace-frames" or "undo"
+  // "set-status", "replace-frames", "undo" (Writer::set_clip_status and friends), or an Edit's:
+  // "flag", "unflag", "import", "resim", "delete"
+  std::string action;
   std::string description;
   std::string old_status, new_status;
   bool has_old_frames = false;  // the previous blob is kept, so the edit can be undone
   int64_t undoes = 0;           // for "undo": the edit it reverted
+  bool has_changeset = false;   // an Edit's: every row it changed, as an SQLite changeset
 };
 
 struct NewClothClip {
@@ -243,6 +248,20 @@ class Writer {
                               const std::string& description);
   int64_t undo_edit(int64_t edit, const std::string& author);
 
+  // Reverts the newest edit that is not an undo and not yet undone, exactly (its changeset
+  // inverted, or the old columns for set-status / replace-frames), and logs the undo. Throws
+  // NotFound when there is nothing to undo, and InvalidArgument (changing nothing) when rows it
+  // changed were changed again outside the log since (e.g. by a resumed precompute).
+  EditLogEntry undo_last(const std::string& author);
+
+  // Plain row writes for the edit tools (inside an Edit, so they are logged and undoable).
+  void replace_clip_blob(int64_t clip, const std::vector<uint8_t>& blob, double max_error,
+                         ClipStatus status);
+  void set_clip_status_unlogged(int64_t clip, ClipStatus status);
+  void set_edge(int64_t edge, int64_t to_state, double blend_error, double pop);
+  // Removes a clip and its out edges; the states it made keep their data, source_clip cleared.
+  void remove_clip(int64_t clip);
+
   // Groups writes into one transaction: commit() makes them durable together; destroying an
   // uncommitted Transaction rolls back. Without one, each call is its own transaction.
   class Transaction {
@@ -256,6 +275,27 @@ class Writer {
    private:
     Writer* writer_;
     bool done_ = false;
+  };
+
+  // One logged change of the cloth graph that may touch many rows (import, resim, delete, flag):
+  // a transaction in which SQLite's session extension records every row changed in cloth_state,
+  // cloth_clip, cloth_edge, run and meta. commit() stores that changeset in the edit log with the
+  // entry, in the same transaction, so undo_last() can put back exactly the rows it changed.
+  // Destroying an uncommitted Edit rolls everything back: nothing half-written.
+  class Edit {
+   public:
+    Edit(Writer& writer, int64_t clip, const std::string& action, const std::string& author);
+    ~Edit();
+    Edit(const Edit&) = delete;
+    Edit& operator=(const Edit&) = delete;
+    int64_t commit(const std::string& description);  // the edit_log id
+
+   private:
+    Writer* writer_;
+    int64_t clip_;
+    std::string action_, author_;
+    sqlite3_session* session_ = nullptr;
+    Transaction tx_;
   };
 
   sqlite3* handle() { return db_; }
@@ -289,6 +329,10 @@ class Reader {
 
   // Opens read-only. Errors: IoError (cannot open), NotClothdb, NewerVersion, Corrupt.
   Status open(const std::string& path, Error* err);
+  // Reads through the writer's own connection (not closed with this Reader; the Writer must
+  // outlive it), so it sees the writer's uncommitted changes: tools that read back what their
+  // edit has written so far, inside the edit's transaction.
+  Status open_on(Writer& writer, Error* err);
   void close();
   bool is_open() const { return db_ != nullptr; }
   const std::string& path() const { return path_; }
@@ -330,6 +374,7 @@ class Reader {
   sqlite3_stmt* clip_blob_stmt_ = nullptr;
   sqlite3_stmt* state_blob_stmt_ = nullptr;
   std::vector<uint8_t> state_pos_, state_vel_;
+  bool borrowed_ = false;  // db_ is a Writer's connection
 };
 
 }  // namespace clothdb::db

@@ -104,6 +104,7 @@ struct Exploration {
   const CharacterScene& scene;
   const ExploreGraph& graph;
   double tau = 0;
+  int64_t min_state_id = 0;                 // ExploreOptions::min_state_id
   std::vector<std::vector<int>> out_edges;  // per node: edges leaving it
   std::vector<StateRec> states;
   std::set<std::pair<int64_t, int>> done;    // (state id, edge) with a clip
@@ -125,10 +126,12 @@ double weighted_priority(const Exploration& ex, double error, int edge) {
 // then edge.
 std::vector<Job> dead_ends(const Exploration& ex) {
   std::vector<Job> jobs;
-  for (size_t s = 0; s < ex.states.size(); ++s)
+  for (size_t s = 0; s < ex.states.size(); ++s) {
+    if (ex.states[s].id < ex.min_state_id) continue;
     for (int e : ex.out_edges[ex.states[s].node])
       if (!ex.done.count({ex.states[s].id, e}))
         jobs.push_back({static_cast<int>(s), e, weighted_priority(ex, ex.states[s].priority, e)});
+  }
   std::sort(jobs.begin(), jobs.end(), [&](const Job& a, const Job& b) {
     if (a.priority != b.priority) return a.priority > b.priority;
     if (ex.states[a.state].id != ex.states[b.state].id)
@@ -345,6 +348,18 @@ Eigen::Isometry3d character_frame(const CharacterScene& scene, const std::vector
   return t;
 }
 
+int64_t node_anchor_clip(const ExploreGraph& graph, int node) {
+  for (const ExploreEdge& e : graph.edges)
+    if (e.from_node == node) return e.db_clip;
+  throw std::runtime_error("explore: node " + std::to_string(node) + " has no edge leaving it");
+}
+
+int node_of_primary_clip(const ExploreGraph& graph, int64_t primary_clip) {
+  for (const ExploreEdge& e : graph.edges)
+    if (e.db_clip == primary_clip) return e.from_node;
+  return -1;
+}
+
 double state_distance(const std::vector<float>& xa, const std::vector<float>& va,
                       const std::vector<float>& xb, const std::vector<float>& vb, double tau) {
   double sum = 0;
@@ -468,6 +483,7 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
   ExploreReport report;
   Exploration ex(scene, graph);
   ex.tau = 1.0 / graph.rate;
+  ex.min_state_id = options.min_state_id;
   const db::CodecSettings codec_settings = writer.codec();
   const double pos_bound = codec_settings.position_bound, vel_bound = codec_settings.velocity_bound;
   ex.out_edges.resize(graph.node_count);
@@ -478,10 +494,11 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
   }
   std::vector<StateRec>& states = ex.states;
 
-  // Load what the database holds (a resumed run), or make the rest state.
+  // Load what the database holds (a resumed run), or make the rest state. Through the writer's
+  // connection, so an edit that explores from a state it has just added (clip resim) sees it.
   db::Reader reader;
   db::Error err;
-  if (reader.open(writer.path(), &err) != db::Status::Ok)
+  if (reader.open_on(writer, &err) != db::Status::Ok)
     throw std::runtime_error(writer.path() + ": " + std::string(err.message));
   std::vector<db::ClothState> stored_states;
   std::vector<db::ClothClip> stored_clips;

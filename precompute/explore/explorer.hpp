@@ -97,6 +97,9 @@ struct ExploreOptions {
   int batch = 8;             // dead ends per batch (fixed: the result does not depend on threads)
   bool progress = true;      // a progress bar on stderr
   std::string run_settings;  // more JSON members for the run row, e.g. "\"auto_solver\": true"
+  // Only dead ends of states with at least this id (0: every dead end). `clothdb clip resim`
+  // explores from the states its edit made and leaves the rest of the database as it is.
+  int64_t min_state_id = 0;
 };
 
 struct CurvePoint {
@@ -127,6 +130,12 @@ struct ExploreReport {
 
 // Character space (docs/SECONDARY_GRAPH.md): the root projected to the floor, facing +z.
 Eigen::Isometry3d character_frame(const CharacterScene& scene, const std::vector<JointPose>& pose);
+
+// The primary clip a cloth state at `node` is stored at: the first edge leaving the node (the
+// explorer's convention, docs/SECONDARY_GRAPH.md).
+int64_t node_anchor_clip(const ExploreGraph& graph, int node);
+// The node a stored state is at, from its primary clip (-1 if no edge of the graph is that clip).
+int node_of_primary_clip(const ExploreGraph& graph, int64_t primary_clip);
 
 // RMS over vertices of sqrt(|dx|^2 + (tau |dv|)^2), metres.
 double state_distance(const std::vector<float>& xa, const std::vector<float>& va,

@@ -1,0 +1,616 @@
+#include "edit/clip_edit.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <deque>
+#include <filesystem>
+#include <limits>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <set>
+#include <stdexcept>
+
+#include "database/codec.hpp"
+#include "exchange/body_mesh.hpp"
+#include "exchange/point_cache.hpp"
+#include "explore/auto_solver.hpp"
+#include "quality/clip_quality.hpp"
+#include "report/output.hpp"
+
+namespace clothdb {
+
+namespace {
+
+[[noreturn]] void fail(const std::string& message) {
+  throw std::runtime_error(message);
+}
+
+void check(db::Status st, const db::Error& err) {
+  if (st != db::Status::Ok) fail(err.message);
+}
+
+// The explorer's epsilon of the newest run that recorded one (run settings "epsilon_m").
+double database_epsilon(db::Reader& reader) {
+  std::vector<db::Run> runs;
+  db::Error err;
+  check(reader.runs(&runs, &err), err);
+  for (auto it = runs.rbegin(); it != runs.rend(); ++it) {
+    const auto j = nlohmann::json::parse(it->settings, nullptr, false);
+    if (j.is_object() && j.contains("epsilon_m") && j["epsilon_m"].is_number())
+      return j["epsilon_m"].get<double>();
+  }
+  fail(reader.path() +
+       ": no run records its epsilon (not made by `clothdb precompute`); give "
+       "--epsilon");
+}
+
+const ExploreEdge& edge_of_clip(const EditContext& ctx, const db::ClothClip& row, int* index) {
+  const auto& edges = ctx.scene.graph.edges;
+  for (size_t e = 0; e < edges.size(); ++e)
+    if (edges[e].db_clip == row.primary_clip) {
+      if (index) *index = static_cast<int>(e);
+      if (static_cast<int>(edges[e].poses.size()) != row.frame_count)
+        fail(ctx.path + ": cloth clip " + std::to_string(row.id) + " has " +
+             std::to_string(row.frame_count) + " frames, its primary edge '" + edges[e].name +
+             "' " + std::to_string(edges[e].poses.size()));
+      return edges[e];
+    }
+  fail(ctx.path + ": cloth clip " + std::to_string(row.id) + " is along primary clip " +
+       std::to_string(row.primary_clip) + ", which no edge of the motion graph is");
+}
+
+struct StateData {
+  db::ClothState row;
+  std::vector<float> x, v;
+};
+
+StateData read_state(db::Reader& reader, int64_t id) {
+  std::vector<db::ClothState> states;
+  db::Error err;
+  check(reader.cloth_states(&states, &err), err);
+  StateData s;
+  auto it = std::find_if(states.begin(), states.end(),
+                         [&](const db::ClothState& r) { return r.id == id; });
+  if (it == states.end()) fail(reader.path() + ": no cloth state " + std::to_string(id));
+  s.row = *it;
+  codec::DecodeScratch scratch;
+  check(reader.read_state(id, &s.x, &s.v, scratch, &err), err);
+  return s;
+}
+
+// The state an end of a clip is in: positions of `at`, velocity from the neighbouring frame
+// (displacement per frame times the rate). `next` > `at` for the start, < for the end.
+void end_state(const std::vector<float>& frames, size_t per_frame, int at, int other, double rate,
+               std::vector<float>* x, std::vector<float>* v) {
+  x->assign(frames.begin() + static_cast<long>(per_frame * at),
+            frames.begin() + static_cast<long>(per_frame * (at + 1)));
+  v->assign(per_frame, 0.0f);
+  if (other == at) return;
+  const double sign = other > at ? 1.0 : -1.0;
+  for (size_t i = 0; i < per_frame; ++i)
+    (*v)[i] = static_cast<float>(sign * rate *
+                                 (frames[per_frame * other + i] - frames[per_frame * at + i]));
+}
+
+// How far an edit moves one end of a clip: the state distance between that end of the new and of
+// the old frames.
+double end_move(const std::vector<float>& now, const std::vector<float>& before, size_t per_frame,
+                int at, int other, double rate) {
+  std::vector<float> xa, va, xb, vb;
+  end_state(now, per_frame, at, other, rate, &xa, &va);
+  end_state(before, per_frame, at, other, rate, &xb, &vb);
+  return state_distance(xa, va, xb, vb, 1.0 / rate);
+}
+
+// Ramps frames toward `original` so that the two frames at `end` (0 or the last) are the
+// original's and the edit fades in over `ramp` frames (smoothstep).
+void ramp_to_original(std::vector<float>& frames, const std::vector<float>& original,
+                      size_t per_frame, int frame_count, bool at_start, int ramp) {
+  const int hold = std::min(2, frame_count);
+  const int span = std::min(frame_count, hold + std::max(0, ramp));
+  for (int k = 0; k < span; ++k) {
+    const int f = at_start ? k : frame_count - 1 - k;
+    double w = 1.0;  // weight of the original
+    if (k >= hold) {
+      const double t = double(k - hold + 1) / double(span - hold + 1);  // (0, 1)
+      w = 1.0 - t * t * (3.0 - 2.0 * t);
+    }
+    for (size_t i = 0; i < per_frame; ++i) {
+      float& value = frames[per_frame * f + i];
+      value = static_cast<float>(value + w * (original[per_frame * f + i] - value));
+    }
+  }
+}
+
+std::vector<float> decode_clip_blob(const std::vector<uint8_t>& blob) {
+  std::vector<float> out;
+  codec::DecodeScratch scratch;
+  db::Error err;
+  check(codec::decode_all(blob.data(), blob.size(), out, scratch, &err), err);
+  return out;
+}
+
+std::vector<float> last_frame(db::Reader& reader, int64_t clip, size_t per_frame) {
+  db::ClothClip row;
+  const std::vector<float> frames = read_clip_frames(reader, clip, &row);
+  return std::vector<float>(frames.end() - static_cast<long>(per_frame), frames.end());
+}
+
+std::string mm(double metres) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.2f mm", 1e3 * metres);
+  return buf;
+}
+
+}  // namespace
+
+EditContext open_edit(const std::string& path, const std::string& scene_file, double epsilon,
+                      const std::string& author) {
+  if (!std::filesystem::exists(path)) fail("cannot open " + path + ": no such file");
+  EditContext ctx{path, db::Writer::open(path), {}, {}, 0, author};
+  db::Error err;
+  check(ctx.reader.open_on(ctx.writer, &err), err);
+  ctx.scene = load_database_scene(ctx.reader, scene_file);
+  db::Garment garment;
+  check(ctx.reader.garment(&garment, &err), err);
+  if (garment.vertex_count() != static_cast<uint32_t>(ctx.scene.scene.model.vertex_count()))
+    fail(path + ": the garment has " + std::to_string(garment.vertex_count()) +
+         " vertices, its scene makes " + std::to_string(ctx.scene.scene.model.vertex_count()));
+  // The setting the database was simulated with (the scene's, or what --auto chose): what carried
+  // forward clips are simulated with, so they match their neighbours.
+  try {
+    parse_solver_settings_json(garment.solver, path + ": garment solver",
+                               &ctx.scene.scene.file.solver, &ctx.scene.scene.file.settings);
+  } catch (const std::exception&) {
+    // recorded before the full settings were: the scene file's
+  }
+  ctx.scene.scene.file.settings.threads = 1;
+  ctx.epsilon = epsilon > 0 ? epsilon : database_epsilon(ctx.reader);
+  return ctx;
+}
+
+std::vector<float> read_clip_frames(db::Reader& reader, int64_t clip, db::ClothClip* row) {
+  db::Error err;
+  if (reader.cloth_clip(clip, row, &err) != db::Status::Ok)
+    fail(reader.path() + ": no cloth clip " + std::to_string(clip) + " (" + err.message + ")");
+  std::vector<uint8_t> blob;
+  check(reader.clip_blob(clip, &blob, &err), err);
+  return decode_clip_blob(blob);
+}
+
+// ---- export / import ----------------------------------------------------------------------------
+
+ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& dir,
+                         const std::string& scene_file) {
+  db::ClothClip row;
+  const std::vector<float> frames = read_clip_frames(reader, clip, &row);
+  db::Garment garment;
+  db::Error err;
+  check(reader.garment(&garment, &err), err);
+  const int n = static_cast<int>(garment.vertex_count());
+  std::vector<std::array<int, 3>> triangles(garment.triangles.size() / 3);
+  for (size_t k = 0; k < triangles.size(); ++k)
+    triangles[k] = {int(garment.triangles[3 * k]), int(garment.triangles[3 * k + 1]),
+                    int(garment.triangles[3 * k + 2])};
+  std::filesystem::create_directories(dir);
+  ExportedClip out;
+  out.cloth_obj = dir + "/cloth.obj";
+  out.cloth_pc2 = dir + "/cloth.pc2";
+  out.info_json = dir + "/clip.json";
+  write_obj(out.cloth_obj, "cloth_clip_" + std::to_string(clip), frames.data(), n, triangles);
+  PointCache cache;
+  cache.vertex_count = n;
+  cache.frame_count = row.frame_count;
+  cache.positions = frames;
+  write_pc2(out.cloth_pc2, cache);
+  std::string body_note = "no body: ";
+  double rate = 30;
+  try {
+    DatabaseScene scene = load_database_scene(reader, scene_file);
+    rate = scene.graph.rate;
+    const ExploreEdge* edge = nullptr;
+    for (const auto& e : scene.graph.edges)
+      if (e.db_clip == row.primary_clip) edge = &e;
+    if (!edge || static_cast<int>(edge->poses.size()) != row.frame_count)
+      fail("its motion graph has no edge of " + std::to_string(row.frame_count) +
+           " frames along primary clip " + std::to_string(row.primary_clip));
+    const auto capsules = character_space_capsules(scene.scene, edge->poses);
+    PointCache body;
+    body.frame_count = row.frame_count;
+    for (const auto& at : capsules) append_capsule_mesh_positions(at, body.positions);
+    const int caps = capsules.empty() ? 0 : static_cast<int>(capsules.front().size());
+    body.vertex_count = static_cast<int>(body.positions.size() / 3 / std::max(1, row.frame_count));
+    out.body_obj = dir + "/body.obj";
+    out.body_pc2 = dir + "/body.pc2";
+    write_obj(out.body_obj, "body", body.positions.data(), body.vertex_count,
+              capsule_mesh_triangles(caps));
+    write_pc2(out.body_pc2, body);
+    body_note = "";
+  } catch (const std::exception& e) {
+    body_note += e.what();
+    std::fprintf(stderr, "clip export: %s\n", body_note.c_str());
+  }
+  nlohmann::json info = {
+      {"database", reader.path()},
+      {"clip", clip},
+      {"primary_clip", row.primary_clip},
+      {"start_state", row.start_state},
+      {"frames", row.frame_count},
+      {"vertices", n},
+      {"frame_rate", rate},
+      {"space", "character space of each frame (docs/SECONDARY_GRAPH.md), metres, y up"},
+      {"codec_bound_m", row.error_bound},
+      {"import", "clothdb clip import " + reader.path() + " " + std::to_string(clip) + " " + dir},
+  };
+  if (!body_note.empty()) info["body"] = body_note;
+  write_file_atomic(out.info_json, info.dump(2) + "\n");
+  return out;
+}
+
+std::vector<float> read_edited_frames(const std::string& path, uint32_t vertex_count,
+                                      int32_t frame_count) {
+  const std::string file =
+      std::filesystem::is_directory(path) ? path + "/cloth.pc2" : std::string(path);
+  if (!std::filesystem::exists(file))
+    fail(file + ": no such file (a .pc2, or a folder with cloth.pc2)");
+  const PointCache cache = read_pc2(file);
+  if (cache.vertex_count != static_cast<int>(vertex_count))
+    fail(file + ": points: " + std::to_string(cache.vertex_count) + " vertices, the clip has " +
+         std::to_string(vertex_count) + " (the topology changed: keep the vertex order)");
+  if (cache.frame_count != frame_count)
+    fail(file + ": samples: " + std::to_string(cache.frame_count) + " frames, the clip has " +
+         std::to_string(frame_count) + " (the clip follows its primary edge frame by frame)");
+  for (size_t i = 0; i < cache.positions.size(); ++i)
+    if (!std::isfinite(cache.positions[i]))
+      fail(file + ": frame " + std::to_string(i / 3 / vertex_count) + " vertex " +
+           std::to_string(i / 3 % vertex_count) + ": not a finite coordinate");
+  return cache.positions;
+}
+
+OnBreak parse_on_break(const std::string& name) {
+  if (name == "refuse") return OnBreak::Refuse;
+  if (name == "reblend") return OnBreak::Reblend;
+  if (name == "ramp") return OnBreak::Ramp;
+  fail("--on-break: '" + name + "' is not refuse, reblend or ramp");
+}
+
+ImportReport import_clip(EditContext& ctx, int64_t clip, std::vector<float> frames,
+                         const ImportOptions& options) {
+  db::ClothClip row;
+  const std::vector<float> original = read_clip_frames(ctx.reader, clip, &row);
+  const ExploreEdge& edge = edge_of_clip(ctx, row, nullptr);
+  const size_t per_frame = static_cast<size_t>(ctx.scene.scene.model.vertex_count()) * 3;
+  const int n = row.frame_count;
+  if (frames.size() != original.size())
+    fail("clip import: " + std::to_string(frames.size() / per_frame) + " frames given, clip " +
+         std::to_string(clip) + " has " + std::to_string(n));
+  const double rate = ctx.scene.graph.rate;
+  std::vector<db::ClothEdge> all_edges;
+  db::Error err;
+  check(ctx.reader.cloth_edges(&all_edges, &err), err);
+  const StateData start = read_state(ctx.reader, row.start_state);
+
+  ImportReport report;
+  auto measure = [&] {
+    report.start_move = end_move(frames, original, per_frame, 0, std::min(1, n - 1), rate);
+    report.end_move = end_move(frames, original, per_frame, n - 1, std::max(0, n - 2), rate);
+    report.edges.clear();
+    const std::vector<float> first(frames.begin(), frames.begin() + static_cast<long>(per_frame));
+    const std::vector<float> last(frames.end() - static_cast<long>(per_frame), frames.end());
+    for (const db::ClothEdge& e : all_edges) {
+      const bool into = e.to_state == row.start_state, out = e.from_clip == clip;
+      if (!into && !out) continue;
+      EdgeCheck c{e.id, e.from_clip, e.to_state, into, e.blend_error, 0, 0, false};
+      if (out) {
+        const StateData target = read_state(ctx.reader, e.to_state);
+        c.blend_after = e.blend_error + report.end_move;
+        c.pop = transition_pop(last.data(), target.x.data(), per_frame / 3);
+      } else {
+        const std::vector<float> from = last_frame(ctx.reader, e.from_clip, per_frame);
+        c.blend_after = e.blend_error + report.start_move;
+        c.pop = std::max(transition_pop(from.data(), start.x.data(), per_frame / 3),
+                         transition_pop(from.data(), first.data(), per_frame / 3));
+      }
+      c.broken = c.blend_after > ctx.epsilon;
+      report.edges.push_back(c);
+    }
+  };
+  measure();
+  const bool start_broken =
+      std::any_of(report.edges.begin(), report.edges.end(),
+                  [](const EdgeCheck& c) { return c.broken && c.into_start; });
+  const bool end_broken = std::any_of(report.edges.begin(), report.edges.end(),
+                                      [](const EdgeCheck& c) { return c.broken && !c.into_start; });
+  if ((start_broken || end_broken) && options.on_break == OnBreak::Refuse) return report;
+  if (options.on_break == OnBreak::Ramp) {
+    if (start_broken) ramp_to_original(frames, original, per_frame, n, true, options.ramp_frames);
+    if (end_broken) ramp_to_original(frames, original, per_frame, n, false, options.ramp_frames);
+    report.ramped_start = start_broken;
+    report.ramped_end = end_broken;
+    measure();
+  }
+
+  // Re-encoded within the file's bound; the metrics are measured on what the runtime decodes.
+  double codec_error = 0;
+  const std::vector<uint8_t> blob = ctx.writer.encode_clip(
+      frames.data(), static_cast<uint32_t>(n), static_cast<uint32_t>(per_frame / 3), &codec_error);
+  const std::vector<float> stored = decode_clip_blob(blob);
+  ClipQuality quality = measure_clip(ctx.scene.scene, edge.poses, stored);
+  quality.halved_steps = -1;  // not simulated: unknown
+  report.metrics = to_clip_metrics(quality);
+  report.codec_error = codec_error;
+
+  db::Writer::Edit edit(ctx.writer, clip, "import", ctx.author);
+  ctx.writer.replace_clip_blob(clip, blob, codec_error, db::ClipStatus::Edited);
+  ctx.writer.set_clip_metrics(clip, report.metrics);
+  for (const EdgeCheck& c : report.edges) {
+    // The clip's own edges: their blend bound and pop with the edited end. Edges into its start
+    // state change only when asked to re-blend (their other clips are unchanged).
+    if (!c.into_start)
+      ctx.writer.set_edge(c.edge, c.to_state, c.blend_after, c.pop);
+    else if (options.on_break == OnBreak::Reblend && c.broken)
+      ctx.writer.set_edge(c.edge, c.to_state, c.blend_after, c.pop);
+  }
+  report.edit = edit.commit("imported frames: start moved " + mm(report.start_move) +
+                            ", end moved " + mm(report.end_move) +
+                            (report.ramped_start || report.ramped_end ? ", ramped" : ""));
+  return report;
+}
+
+// ---- re-simulation ------------------------------------------------------------------------------
+
+ResimReport resim_clip(EditContext& ctx, int64_t clip, const ResimOptions& options) {
+  db::ClothClip row;
+  read_clip_frames(ctx.reader, clip, &row);
+  int edge_index = 0;
+  const ExploreEdge& edge = edge_of_clip(ctx, row, &edge_index);
+  const StateData start = read_state(ctx.reader, row.start_state);
+  JobInput job;
+  job.edge = edge_index;
+  job.x = start.x;
+  job.v = start.v;
+  job.solver = options.solver;
+  job.settings = options.settings;
+  job.settings.threads = std::max(1, options.threads);
+  job.codec = ctx.writer.codec();
+  const JobResult r = run_job(ctx.scene.scene, ctx.scene.graph, job);
+  if (!r.stable)
+    fail("clip resim: clip " + std::to_string(clip) + " with " + solver_name(options.solver) +
+         " is unstable (" + r.message + "); nothing was changed");
+  std::vector<float> end_x, end_v;
+  {
+    codec::DecodeScratch scratch;
+    db::Error err;
+    check(codec::decode_all(r.end_x_blob.data(), r.end_x_blob.size(), end_x, scratch, &err), err);
+    check(codec::decode_all(r.end_v_blob.data(), r.end_v_blob.size(), end_v, scratch, &err), err);
+  }
+  const double tau = 1.0 / ctx.scene.graph.rate;
+  std::vector<db::ClothState> states;
+  std::vector<db::ClothEdge> edges;
+  db::Error err;
+  check(ctx.reader.cloth_states(&states, &err), err);
+  check(ctx.reader.cloth_edges(&edges, &err), err);
+  int64_t max_state = 0, best_id = 0;
+  double best = std::numeric_limits<double>::infinity();
+  std::vector<float> best_x;
+  for (const auto& s : states) {
+    max_state = std::max(max_state, s.id);
+    if (node_of_primary_clip(ctx.scene.graph, s.primary_clip) != edge.to_node) continue;
+    const StateData d = read_state(ctx.reader, s.id);
+    const double dist = state_distance(end_x, end_v, d.x, d.v, tau);
+    if (dist < best) best = dist, best_id = s.id, best_x = d.x;
+  }
+  std::vector<const db::ClothEdge*> out;
+  for (const auto& e : edges)
+    if (e.from_clip == clip) out.push_back(&e);
+
+  ResimReport report;
+  report.metrics = to_clip_metrics(r.quality);
+  if (!out.empty()) {
+    const StateData old_target = read_state(ctx.reader, out.front()->to_state);
+    report.end_move = state_distance(end_x, end_v, old_target.x, old_target.v, tau);
+  }
+  db::Writer::Edit edit(ctx.writer, clip, "resim", ctx.author);
+  ctx.writer.replace_clip_blob(clip, r.clip_blob, r.clip_max_error, db::ClipStatus::Edited);
+  ctx.writer.set_clip_metrics(clip, report.metrics);
+  const uint32_t vertices = r.vertex_count;
+  auto link = [&](int64_t to_state, double blend, const std::vector<float>& target_x) {
+    const double pop = transition_pop(r.last.data(), target_x.data(), vertices);
+    if (out.empty()) {
+      ctx.writer.add_cloth_edge(clip, to_state, blend, pop);
+    } else {
+      ctx.writer.set_edge(out.front()->id, to_state, blend, pop);
+      for (size_t k = 1; k < out.size(); ++k) ctx.writer.set_edge(out[k]->id, to_state, blend, pop);
+    }
+    report.linked_to = to_state;
+    report.blend_error = blend;
+  };
+  std::string carried;
+  if (best_id != 0 && best <= ctx.epsilon) {
+    link(best_id, best, best_x);
+  } else {
+    // A new state: the explorer simulates the clips leaving it (with the database's setting), and
+    // so on, only from the states this edit makes.
+    report.new_state = true;
+    const int64_t id = ctx.writer.add_cloth_state_blobs(
+        node_anchor_clip(ctx.scene.graph, edge.to_node), 0, r.end_x_blob, r.end_v_blob, 0, clip);
+    link(id, 0.0, end_x);
+    ExploreOptions eo;
+    eo.epsilon = ctx.epsilon;
+    eo.max_frames = options.max_frames;
+    eo.batch = options.batch;
+    eo.threads = std::max(1, options.threads);
+    eo.progress = options.progress;
+    eo.min_state_id = id;
+    eo.run_settings = "\"carried_forward_from_clip\": " + std::to_string(clip);
+    const ExploreReport er = explore(ctx.scene.scene, ctx.scene.graph, ctx.writer, eo);
+    report.frames_added = er.frames_this_run;
+    report.dead_ends_left = er.dead_ends;
+    // What the edit added, and how many generations deep (a new state made by a clip that starts
+    // at a new state is one generation further).
+    std::vector<db::ClothState> now;
+    std::vector<db::ClothClip> clips;
+    check(ctx.reader.cloth_states(&now, &err), err);
+    check(ctx.reader.cloth_clips(&clips, &err), err);
+    std::map<int64_t, int64_t> clip_start;
+    for (const auto& c : clips) clip_start[c.id] = c.start_state;
+    std::map<int64_t, int> depth;
+    for (const auto& s : now) {
+      if (s.id <= max_state) continue;
+      ++report.states_added;
+      int d = 1;
+      auto from = clip_start.find(s.source_clip);
+      if (from != clip_start.end() && depth.count(from->second)) d = depth[from->second] + 1;
+      depth[s.id] = d;
+      report.depth = std::max(report.depth, d);
+    }
+    for (const auto& c : clips)
+      if (c.start_state > max_state) ++report.clips_added;
+    carried = "; carried forward: " + std::to_string(report.states_added) + " new states, " +
+              std::to_string(report.clips_added) + " clips, " +
+              std::to_string(report.dead_ends_left) + " dead ends left";
+  }
+  report.edit = edit.commit(std::string("re-simulated with ") + solver_name(options.solver) + " " +
+                            solver_settings_json(options.solver, options.settings) +
+                            "; end moved " + mm(report.end_move) + carried);
+  return report;
+}
+
+// ---- flag, delete -------------------------------------------------------------------------------
+
+int64_t set_clip_flag(EditContext& ctx, int64_t clip, bool flagged) {
+  db::ClothClip row;
+  db::Error err;
+  if (ctx.reader.cloth_clip(clip, &row, &err) != db::Status::Ok)
+    fail(ctx.path + ": no cloth clip " + std::to_string(clip));
+  db::Writer::Edit edit(ctx.writer, clip, flagged ? "flag" : "unflag", ctx.author);
+  // Unflagging an edited clip leaves it edited: the flag is about how it looks, not its origin.
+  const db::ClipStatus status = flagged                                 ? db::ClipStatus::Flagged
+                                : row.status == db::ClipStatus::Flagged ? db::ClipStatus::Ok
+                                                                        : row.status;
+  ctx.writer.set_clip_status_unlogged(clip, status);
+  return edit.commit(std::string(flagged ? "flagged" : "unflagged") + " (was " +
+                     db::clip_status_name(row.status) + ")");
+}
+
+DeleteReport delete_clip(EditContext& ctx, int64_t clip) {
+  db::ClothClip row;
+  db::Error err;
+  if (ctx.reader.cloth_clip(clip, &row, &err) != db::Status::Ok)
+    fail(ctx.path + ": no cloth clip " + std::to_string(clip));
+  const ExploreGraph& graph = ctx.scene.graph;
+  const StateData start = read_state(ctx.reader, row.start_state);
+  const int node = node_of_primary_clip(graph, start.row.primary_clip);
+  std::vector<db::ClothState> states;
+  std::vector<db::ClothClip> clips;
+  std::vector<db::ClothEdge> edges;
+  check(ctx.reader.cloth_states(&states, &err), err);
+  check(ctx.reader.cloth_clips(&clips, &err), err);
+  check(ctx.reader.cloth_edges(&edges, &err), err);
+  int64_t start_state = 0;
+  for (const auto& s : states)
+    if (node_of_primary_clip(graph, s.primary_clip) == graph.start_node &&
+        (start_state == 0 || s.id < start_state))
+      start_state = s.id;
+  if (row.start_state == start_state)
+    fail(ctx.path + ": clip " + std::to_string(clip) +
+         " starts at the start state, where every path begins; re-simulate it (clip resim) or "
+         "import a fix instead");
+  std::set<std::pair<int64_t, int64_t>> along;  // (state, primary clip) with a clip
+  for (const auto& c : clips)
+    if (c.id != clip) along.insert({c.start_state, c.primary_clip});
+  DeleteReport report;
+  report.start_state = row.start_state;
+  std::vector<const db::ClothEdge*> into;
+  for (const auto& e : edges)
+    if (e.to_state == row.start_state && e.from_clip != clip) into.push_back(&e);
+  double best = std::numeric_limits<double>::infinity();
+  std::vector<float> best_x;
+  if (!into.empty()) {
+    const double tau = 1.0 / graph.rate;
+    for (const auto& s : states) {
+      if (s.id == row.start_state || node_of_primary_clip(graph, s.primary_clip) != node) continue;
+      bool complete = true;
+      for (const auto& e : graph.edges)
+        if (e.from_node == node && !along.count({s.id, e.db_clip})) complete = false;
+      if (!complete) continue;
+      const StateData d = read_state(ctx.reader, s.id);
+      const double dist = state_distance(start.x, start.v, d.x, d.v, tau);
+      if (dist < best) best = dist, report.replacement = s.id, best_x = d.x;
+    }
+    if (report.replacement == 0)
+      fail(ctx.path + ": clip " + std::to_string(clip) +
+           " cannot be deleted: " + std::to_string(into.size()) +
+           " edges lead to its start state " + std::to_string(row.start_state) +
+           " and no other state at its node has cloth along every way out; re-simulate it "
+           "(clip resim) instead");
+  }
+  const size_t per_frame = start.x.size();
+  db::Writer::Edit edit(ctx.writer, clip, "delete", ctx.author);
+  ctx.writer.remove_clip(clip);
+  for (const db::ClothEdge* e : into) {
+    const std::vector<float> from = last_frame(ctx.reader, e->from_clip, per_frame);
+    EdgeCheck c{e->id,
+                e->from_clip,
+                report.replacement,
+                true,
+                e->blend_error,
+                e->blend_error + best,
+                transition_pop(from.data(), best_x.data(), per_frame / 3),
+                false};
+    c.broken = c.blend_after > ctx.epsilon;
+    ctx.writer.set_edge(e->id, report.replacement, c.blend_after, c.pop);
+    report.rerouted.push_back(c);
+  }
+  report.edit = edit.commit(
+      "deleted clip " + std::to_string(clip) + " (state " + std::to_string(row.start_state) +
+      " along primary clip " + std::to_string(row.primary_clip) + "); " +
+      std::to_string(into.size()) + " edges into its start state re-routed" +
+      (report.replacement ? " to state " + std::to_string(report.replacement) : ""));
+  return report;
+}
+
+// ---- consistency --------------------------------------------------------------------------------
+
+std::vector<std::string> coverage_gaps(db::Reader& reader, const ExploreGraph& graph) {
+  std::vector<db::ClothState> states;
+  std::vector<db::ClothClip> clips;
+  std::vector<db::ClothEdge> edges;
+  db::Error err;
+  check(reader.cloth_states(&states, &err), err);
+  check(reader.cloth_clips(&clips, &err), err);
+  check(reader.cloth_edges(&edges, &err), err);
+  std::map<int64_t, int> node;
+  int64_t start = 0;
+  for (const auto& s : states) {
+    node[s.id] = node_of_primary_clip(graph, s.primary_clip);
+    if (node[s.id] == graph.start_node && (start == 0 || s.id < start)) start = s.id;
+  }
+  std::map<std::pair<int64_t, int64_t>, int64_t> clip_of;  // (state, primary clip) -> clip
+  for (const auto& c : clips) clip_of[{c.start_state, c.primary_clip}] = c.id;
+  std::map<int64_t, std::vector<int64_t>> next;  // clip -> states
+  for (const auto& e : edges) next[e.from_clip].push_back(e.to_state);
+  std::vector<std::string> gaps;
+  if (start == 0) return {"no state at the start node"};
+  std::set<int64_t> seen{start};
+  std::deque<int64_t> queue{start};
+  while (!queue.empty()) {
+    const int64_t s = queue.front();
+    queue.pop_front();
+    for (const auto& e : graph.edges) {
+      if (e.from_node != node[s]) continue;
+      auto c = clip_of.find({s, e.db_clip});
+      if (c == clip_of.end()) {
+        gaps.push_back("state " + std::to_string(s) + " at node " + std::to_string(node[s]) +
+                       " has no clip along '" + e.name + "'");
+        continue;
+      }
+      for (int64_t t : next[c->second])
+        if (seen.insert(t).second) queue.push_back(t);
+    }
+  }
+  return gaps;
+}
+
+}  // namespace clothdb
