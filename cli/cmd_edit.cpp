@@ -146,7 +146,7 @@ void register_edit_commands(CLI::App& app) {
     Common c;
     SolverOptions solver;
     bool solver_given = false;
-    long max_frames = 0;
+    long max_frames = 2000;
     int batch = 8;
     bool quiet = false;
   };
@@ -160,7 +160,8 @@ void register_edit_commands(CLI::App& app) {
   add_common(res, ra->c);
   ra->solver.add_to(*res);
   res->add_option("--max-frames", ra->max_frames,
-                  "Budget for carrying the change forward, frames (0: until it links back)")
+                  "Budget for carrying the change forward, frames simulated (0: until every new "
+                  "end links back, which on a database that has not converged may not happen)")
       ->capture_default_str();
   res->add_option("--batch", ra->batch, "Carried-forward dead ends per batch")
       ->capture_default_str()
