@@ -101,7 +101,13 @@ CREATE TABLE cloth_edge(
   blend_error REAL NOT NULL,
   pop REAL
 );
-CREATE TABLE edit_log(
+CREATE INDEX cloth_state_at ON cloth_state(primary_clip, frame);
+CREATE INDEX cloth_clip_from ON cloth_clip(start_state);
+CREATE INDEX cloth_edge_from ON cloth_edge(from_clip);
+)sql";
+
+// The edit log's columns, shared by new files (Writer::create) and the version 3 migration.
+constexpr const char* kEditLogColumns = R"sql(
   id INTEGER PRIMARY KEY,
   time TEXT NOT NULL,
   author TEXT NOT NULL,
@@ -115,12 +121,7 @@ CREATE TABLE edit_log(
   old_max_error REAL,
   undoes INTEGER REFERENCES edit_log(id),
   changeset BLOB
-);
-CREATE INDEX cloth_state_at ON cloth_state(primary_clip, frame);
-CREATE INDEX cloth_clip_from ON cloth_clip(start_state);
-CREATE INDEX cloth_edge_from ON cloth_edge(from_clip);
-CREATE INDEX edit_log_clip ON edit_log(clip);
-)sql";
+))sql";
 
 // Version 1 -> 2: the quality metrics, as the columns kSchemaSql ends its tables with (NULL:
 // unknown). ADD COLUMN keeps every row and id as it is; the CHECKs are the same as for new files.
@@ -138,22 +139,6 @@ ALTER TABLE cloth_edge ADD COLUMN pop REAL;
 // in the log. A CHECK cannot be altered in place, so the table is rebuilt (ids kept); foreign
 // keys are deferred to the commit while it has no edit_log.
 constexpr const char* kMigrateTo3Sql = R"sql(
-PRAGMA defer_foreign_keys = ON;
-CREATE TABLE edit_log_v3(
-  id INTEGER PRIMARY KEY,
-  time TEXT NOT NULL,
-  author TEXT NOT NULL,
-  clip INTEGER NOT NULL,
-  action TEXT NOT NULL CHECK (action IN ('set-status', 'replace-frames', 'undo', 'flag',
-    'unflag', 'import', 'resim', 'delete')),
-  description TEXT NOT NULL,
-  old_status TEXT,
-  new_status TEXT,
-  old_frames BLOB,
-  old_max_error REAL,
-  undoes INTEGER REFERENCES edit_log(id),
-  changeset BLOB
-);
 INSERT INTO edit_log_v3(id, time, author, clip, action, description, old_status, new_status,
   old_frames, old_max_error, undoes)
   SELECT id, time, author, clip, action, description, old_status, new_status, old_frames,
@@ -408,6 +393,9 @@ Writer Writer::create(const std::string& path, const CodecSettings& codec) {
   // file with user_version 0 that every opener rejects as unfinished.
   w.exec("BEGIN IMMEDIATE");
   w.exec(kSchemaSql);
+  w.exec(("CREATE TABLE edit_log(" + std::string(kEditLogColumns) +
+          "; CREATE INDEX edit_log_clip ON edit_log(clip);")
+             .c_str());
   w.exec(("PRAGMA application_id=" + std::to_string(kApplicationId)).c_str());
   w.exec(("PRAGMA user_version=" + std::to_string(kSchemaVersion)).c_str());
   const std::pair<const char*, std::string> meta[] = {
@@ -457,7 +445,10 @@ void Writer::migrate(int from_version) {
     if (v.i64(0) != from_version) return;  // rolled back by t's destructor: nothing to do
   }
   if (from_version < 2) exec(kMigrateTo2Sql);
-  if (from_version < 3) exec(kMigrateTo3Sql);
+  if (from_version < 3)
+    exec(("PRAGMA defer_foreign_keys = ON; CREATE TABLE edit_log_v3(" +
+          std::string(kEditLogColumns) + ";" + kMigrateTo3Sql)
+             .c_str());
   exec(("PRAGMA user_version=" + std::to_string(kSchemaVersion)).c_str());
   set_meta("format_version", std::to_string(kSchemaVersion));
   t.commit();
