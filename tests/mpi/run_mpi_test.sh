@@ -6,6 +6,9 @@
 #   run_mpi_test.sh same CLOTHDB MPIEXEC SOURCE_DIR WORK_DIR
 #     mpirun -n 3 (rank 0 + 2 workers) writes the same cloth_state, cloth_clip and cloth_edge rows,
 #     blobs included, as one process.
+#   run_mpi_test.sh stored CLOTHDB MPIEXEC SOURCE_DIR WORK_DIR
+#     the same with the motion graph put into both databases first (`graph build --db`): only
+#     rank 0 reads it there, and the workers get it from rank 0.
 #   run_mpi_test.sh kill CLOTHDB MPIEXEC SOURCE_DIR WORK_DIR
 #     the same while worker rank 1 is SIGKILLed as soon as it has been handed its fifth job: rank 0
 #     must declare it lost, hand its job to the other worker, and still write the same rows.
@@ -19,11 +22,15 @@ args=(--epsilon 10 --batch 4 --quiet)
 # TCP on loopback (not shared memory), one slot per rank even on a 2-core machine.
 mpi=("$mpiexec" -n 3 --oversubscribe --mca btl self,tcp --mca btl_tcp_if_include lo --mca oob_tcp_if_include lo)
 
+if [ "$mode" = stored ]; then
+  "$clothdb" graph build "$src/motions/cmu_walk.json" --clips 01_01 --db single.db >graph.out 2>&1
+  cp single.db mpi.db
+fi
 "$clothdb" precompute "$scene" --db single.db --threads 2 "${args[@]}" >single.out 2>single.err
 "$clothdb" db dump single.db >single.dump
 [ "$(grep -c . single.dump)" -gt 50 ] || { echo "the single-process run stored too little"; exit 1; }
 
-if [ "$mode" = same ]; then
+if [ "$mode" = same ] || [ "$mode" = stored ]; then
   "${mpi[@]}" "$clothdb" precompute "$scene" --db mpi.db "${args[@]}" >mpi.out 2>mpi.err ||
     { cat mpi.err; exit 1; }
 elif [ "$mode" = kill ]; then
