@@ -304,7 +304,8 @@ ImportReport import_clip(EditContext& ctx, int64_t clip, std::vector<float> fram
       EdgeCheck c{e.id, e.from_clip, e.to_state, into, e.blend_error, 0, 0, false};
       if (out) {
         const StateData target = read_state(ctx.reader, e.to_state);
-        c.blend_after = e.blend_error + report.end_move;
+        // An edge back into the clip's own start state sees both ends move.
+        c.blend_after = e.blend_error + report.end_move + (into ? report.start_move : 0.0);
         c.pop = transition_pop(last.data(), target.x.data(), per_frame / 3);
       } else {
         const std::vector<float> from = last_frame(ctx.reader, e.from_clip, per_frame);
