@@ -169,6 +169,8 @@ void register_edit_commands(CLI::App& app) {
   res->add_flag("--quiet", ra->quiet, "No progress bar");
   res->callback([ra, res] {
     EditContext ctx = open(ra->c);
+    db::ClothClip row;
+    read_clip_frames(ctx.reader, ra->c.id, &row);  // a clear error for a wrong id, before anything
     ResimOptions o;
     const bool given = res->count("--solver") + res->count("--substeps") +
                            res->count("--iterations") + res->count("--tolerance") +

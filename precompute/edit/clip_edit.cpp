@@ -172,8 +172,7 @@ EditContext open_edit(const std::string& path, const std::string& scene_file, do
 
 std::vector<float> read_clip_frames(db::Reader& reader, int64_t clip, db::ClothClip* row) {
   db::Error err;
-  if (reader.cloth_clip(clip, row, &err) != db::Status::Ok)
-    fail(reader.path() + ": no cloth clip " + std::to_string(clip) + " (" + err.message + ")");
+  if (reader.cloth_clip(clip, row, &err) != db::Status::Ok) fail(err.message);
   std::vector<uint8_t> blob;
   check(reader.clip_blob(clip, &blob, &err), err);
   return decode_clip_blob(blob);
