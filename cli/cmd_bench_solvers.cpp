@@ -48,14 +48,22 @@ void register_bench_solvers(CLI::App& bench) {
     for (const auto& s : options.solvers) parse_solver_kind(s);  // fail before any work
     make_directories(args->out);
     const auto start = std::chrono::steady_clock::now();
-    const auto rows = run_solver_bench(options, [&](const std::string& line) {
-      const double s =
-          std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-      std::fprintf(stderr, "[%6.1fs] %s\n", s, line.c_str());
-    });
-    write_file_atomic(args->out + "/solvers.csv", bench_rows_csv(rows));
-    write_file_atomic(args->out + "/solvers.json", bench_rows_json(rows));
-    write_file_atomic(args->out + "/solvers.md", bench_rows_markdown(rows));
+    // The tables are rewritten after every run, so a sweep stopped part-way (the full one takes
+    // over half an hour) keeps every row it finished.
+    auto write_tables = [&](const std::vector<BenchRow>& rows) {
+      write_file_atomic(args->out + "/solvers.csv", bench_rows_csv(rows));
+      write_file_atomic(args->out + "/solvers.json", bench_rows_json(rows));
+      write_file_atomic(args->out + "/solvers.md", bench_rows_markdown(rows));
+    };
+    const auto rows = run_solver_bench(
+        options,
+        [&](const std::string& line) {
+          const double s =
+              std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+          std::fprintf(stderr, "[%6.1fs] %s\n", s, line.c_str());
+        },
+        write_tables);
+    write_tables(rows);
     std::vector<std::string> scenes;
     for (const auto& r : rows)
       if (std::find(scenes.begin(), scenes.end(), r.scene) == scenes.end())

@@ -165,8 +165,9 @@ BenchRow measure_config(const ClothScene& scene, const BenchConfig& c, int frame
   return row;
 }
 
-std::vector<BenchRow> run_solver_bench(const SolverBenchOptions& options,
-                                       const std::function<void(const std::string&)>& progress) {
+std::vector<BenchRow> run_solver_bench(
+    const SolverBenchOptions& options, const std::function<void(const std::string&)>& progress,
+    const std::function<void(const std::vector<BenchRow>&)>& rows_so_far) {
   std::vector<std::string> scenes = options.scenes;
   if (scenes.empty()) {
     scenes = hard_case_names();
@@ -224,6 +225,7 @@ std::vector<BenchRow> run_solver_bench(const SolverBenchOptions& options,
                              : "UNSTABLE");
             progress(buf);
           }
+          if (rows_so_far) rows_so_far(rows);
         }
       }
     }

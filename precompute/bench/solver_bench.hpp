@@ -83,9 +83,11 @@ BenchRow measure_config(const ClothScene& scene, const BenchConfig& config, int 
 // Builds a benchmark scene by name (hard cases, "large-sheet", "seed004-529").
 ClothScene make_bench_scene(const std::string& name, const SolverBenchOptions& options);
 
-// Runs the sweep; `progress` gets one line per finished run.
-std::vector<BenchRow> run_solver_bench(const SolverBenchOptions& options,
-                                       const std::function<void(const std::string&)>& progress);
+// Runs the sweep; `progress` gets one line per finished run, `rows_so_far` (optional) every row
+// finished so far after each one (so a caller can keep a stopped sweep's results on disk).
+std::vector<BenchRow> run_solver_bench(
+    const SolverBenchOptions& options, const std::function<void(const std::string&)>& progress,
+    const std::function<void(const std::vector<BenchRow>&)>& rows_so_far = {});
 
 // The Newton study (`clothdb bench newton`): the same scene under Newton variants, from the
 // original loop (start at x_n, a factorisation every iteration, tight tolerance) through the
