@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "database/schema.hpp"
 #include "solvers/solver.hpp"
 
 namespace clothdb::cli {
@@ -29,6 +30,14 @@ inline CLI::App& command_group(CLI::App& app, const std::string& name,
   CLI::App* group = app.add_subcommand(name, description);
   group->require_subcommand(1);
   return *group;
+}
+
+// A database opened for reading; throws with the reader's message (it names the file).
+inline db::Reader open_reader(const std::string& path) {
+  db::Reader reader;
+  db::Error err;
+  if (reader.open(path, &err) != db::Status::Ok) throw std::runtime_error(err.message);
+  return reader;
 }
 
 // The CPU's model name, for benchmark reports (every figure names the machine it ran on).

@@ -50,13 +50,6 @@ ClipTable read_table(db::Reader& reader) {
   return t;
 }
 
-db::Reader open_reader(const std::string& path) {
-  db::Reader reader;
-  db::Error err;
-  if (reader.open(path, &err) != db::Status::Ok) throw std::runtime_error(err.message);
-  return reader;
-}
-
 // The worst pop over a clip's out edges (NaN if it has none, or none was measured).
 double worst_pop(const ClipTable& t, int64_t clip) {
   double worst = db::kUnknownMetric;

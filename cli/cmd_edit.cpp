@@ -43,15 +43,15 @@ EditContext open(const Common& c) {
 }
 
 void print_edges(const std::vector<EdgeCheck>& edges, double epsilon) {
+  char over[48];
+  std::snprintf(over, sizeof over, " > epsilon %.2f mm", 1e3 * epsilon);
   for (const EdgeCheck& e : edges)
     std::printf(
         "  edge %lld (clip %lld -> state %lld)%s: blend error %.2f -> at most %.2f mm, "
         "pop %.2f mm%s\n",
         (long long)e.edge, (long long)e.from_clip, (long long)e.to_state,
         e.into_start ? " into the clip's start" : " out of the clip", 1e3 * e.blend_before,
-        1e3 * e.blend_after, 1e3 * e.pop,
-        e.broken ? (" > epsilon " + std::to_string(1e3 * epsilon).substr(0, 4) + " mm").c_str()
-                 : "");
+        1e3 * e.blend_after, 1e3 * e.pop, e.broken ? over : "");
 }
 
 void print_metrics(const db::ClipMetrics& m) {
@@ -82,9 +82,7 @@ void register_edit_commands(CLI::App& app) {
   add_common(exp, ea->c);
   exp->add_option("--out", ea->out, "Folder to write (created)")->required();
   exp->callback([ea] {
-    db::Reader reader;
-    db::Error err;
-    if (reader.open(ea->c.file, &err) != db::Status::Ok) throw std::runtime_error(err.message);
+    db::Reader reader = open_reader(ea->c.file);
     const ExportedClip files = export_clip(reader, ea->c.id, ea->out, ea->c.scene);
     std::printf("clip %lld -> %s, %s%s%s%s, %s\n", (long long)ea->c.id, files.cloth_obj.c_str(),
                 files.cloth_pc2.c_str(), files.body_obj.empty() ? "" : ", ", files.body_obj.c_str(),
@@ -145,7 +143,6 @@ void register_edit_commands(CLI::App& app) {
   struct ResimArgs {
     Common c;
     SolverOptions solver;
-    bool solver_given = false;
     long max_frames = 2000;
     int batch = 8;
     bool quiet = false;
@@ -172,20 +169,15 @@ void register_edit_commands(CLI::App& app) {
     db::ClothClip row;
     read_clip_frames(ctx.reader, ra->c.id, &row);  // a clear error for a wrong id, before anything
     ResimOptions o;
-    const bool given = res->count("--solver") + res->count("--substeps") +
-                           res->count("--iterations") + res->count("--tolerance") +
-                           res->count("--linear-solver") >
-                       0;
+    // The database's setting, with what was given on the command line over it.
     o.solver = ctx.scene.scene.file.solver;
     o.settings = ctx.scene.scene.file.settings;
-    if (given) {
-      if (res->count("--solver")) o.solver = ra->solver.kind();
-      const SolverSettings s = ra->solver.resolved();
-      if (res->count("--substeps")) o.settings.substeps = s.substeps;
-      if (res->count("--iterations")) o.settings.iterations = s.iterations;
-      if (res->count("--tolerance")) o.settings.newton_tolerance = s.newton_tolerance;
-      if (res->count("--linear-solver")) o.settings.linear_solver = s.linear_solver;
-    }
+    const SolverSettings given = ra->solver.resolved();
+    if (res->count("--solver")) o.solver = ra->solver.kind();
+    if (res->count("--substeps")) o.settings.substeps = given.substeps;
+    if (res->count("--iterations")) o.settings.iterations = given.iterations;
+    if (res->count("--tolerance")) o.settings.newton_tolerance = given.newton_tolerance;
+    if (res->count("--linear-solver")) o.settings.linear_solver = given.linear_solver;
     o.threads = ra->solver.settings.threads;
     o.max_frames = ra->max_frames;
     o.batch = ra->batch;
@@ -254,12 +246,10 @@ void register_edit_commands(CLI::App& app) {
   CLI::App* log = clip.add_subcommand("log", "The edit log, oldest first");
   log->add_option("FILE", *la, "clothdb database")->required();
   log->callback([la] {
-    db::Reader reader;
+    db::Reader reader = open_reader(*la);
     db::Error err;
     std::vector<db::EditLogEntry> entries;
-    if (reader.open(*la, &err) != db::Status::Ok ||
-        reader.edit_log(&entries, &err) != db::Status::Ok)
-      throw std::runtime_error(err.message);
+    if (reader.edit_log(&entries, &err) != db::Status::Ok) throw std::runtime_error(err.message);
     std::printf("%zu edits in %s\n", entries.size(), la->c_str());
     for (const auto& e : entries)
       std::printf("%5lld  %s  %-10s clip %-6lld %s: %s\n", (long long)e.id, e.time.c_str(),

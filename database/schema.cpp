@@ -573,16 +573,21 @@ void Writer::finish_run(int64_t run, double cpu_seconds, const std::string& note
     throw ClothdbError(Status::NotFound, path_ + ": no run " + std::to_string(run));
 }
 
+codec::EncodeSettings encode_settings(const CodecSettings& codec, double bound) {
+  codec::EncodeSettings s;
+  s.bound = bound;
+  s.key_interval = codec.key_interval;
+  s.zstd_level = codec.zstd_level;
+  return s;
+}
+
 std::vector<uint8_t> Writer::encode_frames(const float* frames, uint32_t frame_count,
                                            uint32_t vertex_count, double bound,
                                            double* max_error) const {
-  codec::EncodeSettings s;
-  s.bound = bound;
-  s.key_interval = codec_.key_interval;
-  s.zstd_level = codec_.zstd_level;
   codec::EncodeStats stats;
   try {
-    std::vector<uint8_t> blob = codec::encode(frames, frame_count, vertex_count, s, &stats);
+    std::vector<uint8_t> blob =
+        codec::encode(frames, frame_count, vertex_count, encode_settings(codec_, bound), &stats);
     if (max_error) *max_error = stats.max_error;
     return blob;
   } catch (const ClothdbError& e) {

@@ -44,6 +44,11 @@ struct CodecSettings {
   int zstd_level = codec::kDefaultZstdLevel;
 };
 
+// The codec's settings for encoding with this file's key interval and zstd level at `bound` (the
+// position or the velocity bound): what the writer stores, and what a worker encoding a clip for it
+// must use.
+codec::EncodeSettings encode_settings(const CodecSettings& codec, double bound);
+
 struct Garment {
   std::vector<uint32_t> triangles;    // 3 vertex indices per triangle
   std::vector<float> rest_positions;  // 3 floats per vertex, m

@@ -61,26 +61,30 @@ const ExploreEdge& edge_of_clip(const EditContext& ctx, const db::ClothClip& row
 }
 
 struct StateData {
-  db::ClothState row;
   std::vector<float> x, v;
 };
 
-StateData read_state(db::Reader& reader, int64_t id) {
-  std::vector<db::ClothState> states;
-  db::Error err;
-  check(reader.cloth_states(&states, &err), err);
+StateData decode_state(db::Reader& reader, int64_t id) {
   StateData s;
-  auto it = std::find_if(states.begin(), states.end(),
-                         [&](const db::ClothState& r) { return r.id == id; });
-  if (it == states.end()) fail(reader.path() + ": no cloth state " + std::to_string(id));
-  s.row = *it;
   codec::DecodeScratch scratch;
+  db::Error err;
   check(reader.read_state(id, &s.x, &s.v, scratch, &err), err);
   return s;
 }
 
+// Where every path begins: the first state stored at the graph's start node (the settled rest
+// state; 0 if there is none).
+int64_t start_state_id(const std::vector<db::ClothState>& states, const ExploreGraph& graph) {
+  int64_t start = 0;
+  for (const auto& s : states)
+    if (node_of_primary_clip(graph, s.primary_clip) == graph.start_node &&
+        (start == 0 || s.id < start))
+      start = s.id;
+  return start;
+}
+
 // The state an end of a clip is in: positions of `at`, velocity from the neighbouring frame
-// (displacement per frame times the rate). `next` > `at` for the start, < for the end.
+// (displacement per frame times the rate). `other` > `at` for the start, < for the end.
 void end_state(const std::vector<float>& frames, size_t per_frame, int at, int other, double rate,
                std::vector<float>* x, std::vector<float>* v) {
   x->assign(frames.begin() + static_cast<long>(per_frame * at),
@@ -131,10 +135,19 @@ std::vector<float> decode_clip_blob(const std::vector<uint8_t>& blob) {
   return out;
 }
 
+// A clip's last frame as the runtime decodes it (only that frame is decoded).
 std::vector<float> last_frame(db::Reader& reader, int64_t clip, size_t per_frame) {
   db::ClothClip row;
-  const std::vector<float> frames = read_clip_frames(reader, clip, &row);
-  return std::vector<float>(frames.end() - static_cast<long>(per_frame), frames.end());
+  db::Error err;
+  check(reader.cloth_clip(clip, &row, &err), err);
+  std::vector<uint8_t> blob;
+  check(reader.clip_blob(clip, &blob, &err), err);
+  std::vector<float> out(per_frame);
+  codec::DecodeScratch scratch;
+  check(codec::decode_frames(blob.data(), blob.size(), uint32_t(row.frame_count - 1), 1, out.data(),
+                             out.size(), scratch, &err),
+        err);
+  return out;
 }
 
 std::string mm(double metres) {
@@ -288,29 +301,41 @@ ImportReport import_clip(EditContext& ctx, int64_t clip, std::vector<float> fram
   std::vector<db::ClothEdge> all_edges;
   db::Error err;
   check(ctx.reader.cloth_edges(&all_edges, &err), err);
-  const StateData start = read_state(ctx.reader, row.start_state);
+  const std::vector<float> start_x = decode_state(ctx.reader, row.start_state).x;
+  // The edges at either end, each with what the clip's end meets there (read once): an out edge's
+  // target positions, or the last frame of the clip an edge into the start state comes from.
+  struct Neighbour {
+    const db::ClothEdge* edge;
+    bool out;
+    std::vector<float> meets;
+  };
+  std::vector<Neighbour> neighbours;
+  for (const db::ClothEdge& e : all_edges) {
+    if (e.from_clip == clip)
+      neighbours.push_back({&e, true, decode_state(ctx.reader, e.to_state).x});
+    else if (e.to_state == row.start_state)
+      neighbours.push_back({&e, false, last_frame(ctx.reader, e.from_clip, per_frame)});
+  }
 
   ImportReport report;
   auto measure = [&] {
     report.start_move = end_move(frames, original, per_frame, 0, std::min(1, n - 1), rate);
     report.end_move = end_move(frames, original, per_frame, n - 1, std::max(0, n - 2), rate);
     report.edges.clear();
-    const std::vector<float> first(frames.begin(), frames.begin() + static_cast<long>(per_frame));
-    const std::vector<float> last(frames.end() - static_cast<long>(per_frame), frames.end());
-    for (const db::ClothEdge& e : all_edges) {
-      const bool into = e.to_state == row.start_state, out = e.from_clip == clip;
-      if (!into && !out) continue;
-      EdgeCheck c{e.id, e.from_clip, e.to_state, into, e.blend_error, 0, 0, false};
-      if (out) {
-        const StateData target = read_state(ctx.reader, e.to_state);
+    const float* first = frames.data();
+    const float* last = frames.data() + per_frame * (n - 1);
+    for (const Neighbour& nb : neighbours) {
+      const db::ClothEdge& e = *nb.edge;
+      EdgeCheck c{e.id, e.from_clip, e.to_state, !nb.out, e.blend_error, 0, 0, false};
+      if (nb.out) {
         // An edge back into the clip's own start state sees both ends move.
-        c.blend_after = e.blend_error + report.end_move + (into ? report.start_move : 0.0);
-        c.pop = transition_pop(last.data(), target.x.data(), per_frame / 3);
+        c.blend_after = e.blend_error + report.end_move +
+                        (e.to_state == row.start_state ? report.start_move : 0.0);
+        c.pop = transition_pop(last, nb.meets.data(), per_frame / 3);
       } else {
-        const std::vector<float> from = last_frame(ctx.reader, e.from_clip, per_frame);
         c.blend_after = e.blend_error + report.start_move;
-        c.pop = std::max(transition_pop(from.data(), start.x.data(), per_frame / 3),
-                         transition_pop(from.data(), first.data(), per_frame / 3));
+        c.pop = std::max(transition_pop(nb.meets.data(), start_x.data(), per_frame / 3),
+                         transition_pop(nb.meets.data(), first, per_frame / 3));
       }
       c.broken = c.blend_after > ctx.epsilon;
       report.edges.push_back(c);
@@ -365,7 +390,7 @@ ResimReport resim_clip(EditContext& ctx, int64_t clip, const ResimOptions& optio
   read_clip_frames(ctx.reader, clip, &row);
   int edge_index = 0;
   const ExploreEdge& edge = edge_of_clip(ctx, row, &edge_index);
-  const StateData start = read_state(ctx.reader, row.start_state);
+  const StateData start = decode_state(ctx.reader, row.start_state);
   JobInput job;
   job.edge = edge_index;
   job.x = start.x;
@@ -397,9 +422,9 @@ ResimReport resim_clip(EditContext& ctx, int64_t clip, const ResimOptions& optio
   for (const auto& s : states) {
     max_state = std::max(max_state, s.id);
     if (node_of_primary_clip(ctx.scene.graph, s.primary_clip) != edge.to_node) continue;
-    const StateData d = read_state(ctx.reader, s.id);
+    StateData d = decode_state(ctx.reader, s.id);
     const double dist = state_distance(end_x, end_v, d.x, d.v, tau);
-    if (dist < best) best = dist, best_id = s.id, best_x = d.x;
+    if (dist < best) best = dist, best_id = s.id, best_x = std::move(d.x);
   }
   std::vector<const db::ClothEdge*> out;
   for (const auto& e : edges)
@@ -408,7 +433,7 @@ ResimReport resim_clip(EditContext& ctx, int64_t clip, const ResimOptions& optio
   ResimReport report;
   report.metrics = to_clip_metrics(r.quality);
   if (!out.empty()) {
-    const StateData old_target = read_state(ctx.reader, out.front()->to_state);
+    const StateData old_target = decode_state(ctx.reader, out.front()->to_state);
     report.end_move = state_distance(end_x, end_v, old_target.x, old_target.v, tau);
   }
   db::Writer::Edit edit(ctx.writer, clip, "resim", ctx.author);
@@ -500,20 +525,17 @@ DeleteReport delete_clip(EditContext& ctx, int64_t clip) {
   if (ctx.reader.cloth_clip(clip, &row, &err) != db::Status::Ok)
     fail(ctx.path + ": no cloth clip " + std::to_string(clip));
   const ExploreGraph& graph = ctx.scene.graph;
-  const StateData start = read_state(ctx.reader, row.start_state);
-  const int node = node_of_primary_clip(graph, start.row.primary_clip);
   std::vector<db::ClothState> states;
   std::vector<db::ClothClip> clips;
   std::vector<db::ClothEdge> edges;
   check(ctx.reader.cloth_states(&states, &err), err);
   check(ctx.reader.cloth_clips(&clips, &err), err);
   check(ctx.reader.cloth_edges(&edges, &err), err);
-  int64_t start_state = 0;
+  const StateData start = decode_state(ctx.reader, row.start_state);
+  int node = -1;
   for (const auto& s : states)
-    if (node_of_primary_clip(graph, s.primary_clip) == graph.start_node &&
-        (start_state == 0 || s.id < start_state))
-      start_state = s.id;
-  if (row.start_state == start_state)
+    if (s.id == row.start_state) node = node_of_primary_clip(graph, s.primary_clip);
+  if (row.start_state == start_state_id(states, graph))
     fail(ctx.path + ": clip " + std::to_string(clip) +
          " starts at the start state, where every path begins; re-simulate it (clip resim) or "
          "import a fix instead");
@@ -535,9 +557,9 @@ DeleteReport delete_clip(EditContext& ctx, int64_t clip) {
       for (const auto& e : graph.edges)
         if (e.from_node == node && !along.count({s.id, e.db_clip})) complete = false;
       if (!complete) continue;
-      const StateData d = read_state(ctx.reader, s.id);
+      StateData d = decode_state(ctx.reader, s.id);
       const double dist = state_distance(start.x, start.v, d.x, d.v, tau);
-      if (dist < best) best = dist, report.replacement = s.id, best_x = d.x;
+      if (dist < best) best = dist, report.replacement = s.id, best_x = std::move(d.x);
     }
     if (report.replacement == 0)
       fail(ctx.path + ": clip " + std::to_string(clip) +
@@ -582,11 +604,8 @@ std::vector<std::string> coverage_gaps(db::Reader& reader, const ExploreGraph& g
   check(reader.cloth_clips(&clips, &err), err);
   check(reader.cloth_edges(&edges, &err), err);
   std::map<int64_t, int> node;
-  int64_t start = 0;
-  for (const auto& s : states) {
-    node[s.id] = node_of_primary_clip(graph, s.primary_clip);
-    if (node[s.id] == graph.start_node && (start == 0 || s.id < start)) start = s.id;
-  }
+  for (const auto& s : states) node[s.id] = node_of_primary_clip(graph, s.primary_clip);
+  const int64_t start = start_state_id(states, graph);
   std::map<std::pair<int64_t, int64_t>, int64_t> clip_of;  // (state, primary clip) -> clip
   for (const auto& c : clips) clip_of[{c.start_state, c.primary_clip}] = c.id;
   std::map<int64_t, std::vector<int64_t>> next;  // clip -> states

@@ -86,13 +86,10 @@ struct Job {
 std::vector<uint8_t> encode_with(const std::vector<float>& frames, uint32_t frame_count,
                                  uint32_t vertices, double bound, const db::CodecSettings& codec,
                                  double* max_error) {
-  // The writer's own settings (db::Writer::encode_frames), so the blob is what it would store.
-  codec::EncodeSettings settings;
-  settings.bound = bound;
-  settings.key_interval = codec.key_interval;
-  settings.zstd_level = codec.zstd_level;
+  // The writer's own settings, so the blob is what it would store.
   codec::EncodeStats stats;
-  std::vector<uint8_t> blob = codec::encode(frames.data(), frame_count, vertices, settings, &stats);
+  std::vector<uint8_t> blob = codec::encode(frames.data(), frame_count, vertices,
+                                            db::encode_settings(codec, bound), &stats);
   if (max_error) *max_error = stats.max_error;
   return blob;
 }
@@ -109,8 +106,6 @@ struct Exploration {
   std::vector<StateRec> states;
   std::set<std::pair<int64_t, int>> done;    // (state id, edge) with a clip
   std::set<std::pair<int64_t, int>> failed;  // unstable in this run: not retried
-
-  int64_t node_anchor(int node) const { return graph.edges[out_edges[node].front()].db_clip; }
 };
 
 // Kim et al. expand the dead end whose unresolved error matters most: its error times how often
@@ -211,8 +206,8 @@ void integrate_batch(Exploration& ex, db::Writer& writer, const std::vector<Job>
       rec.x = std::move(end_x);
       rec.v = std::move(end_v);
       rec.priority = best_state >= 0 ? best : kNoNeighbour;
-      rec.id = writer.add_cloth_state_blobs(ex.node_anchor(rec.node), 0, r.end_x_blob, r.end_v_blob,
-                                            run_id, clip_id);
+      rec.id = writer.add_cloth_state_blobs(node_anchor_clip(ex.graph, rec.node), 0, r.end_x_blob,
+                                            r.end_v_blob, run_id, clip_id);
       writer.add_cloth_edge(clip_id, rec.id, 0.0,
                             transition_pop(r.last.data(), rec.x.data(), r.vertex_count));
       ex.states.push_back(std::move(rec));
@@ -556,8 +551,8 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
     rec.x = roundtrip(raw_x, pos_bound);
     rec.v = roundtrip(raw_v, vel_bound);
     rec.priority = kNoNeighbour;
-    rec.id = writer.add_cloth_state(ex.node_anchor(rec.node), 0, raw_x.data(), raw_v.data(),
-                                    static_cast<uint32_t>(raw_x.size() / 3), run_id);
+    rec.id = writer.add_cloth_state(node_anchor_clip(ex.graph, rec.node), 0, raw_x.data(),
+                                    raw_v.data(), static_cast<uint32_t>(raw_x.size() / 3), run_id);
     states.push_back(std::move(rec));
   }
 
