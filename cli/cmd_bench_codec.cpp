@@ -16,7 +16,7 @@
 #include "commands.hpp"
 #include "database/codec.hpp"
 #include "exchange/point_cache.hpp"
-#include "scenes/hard_cases.hpp"
+#include "hard_cases/hard_cases.hpp"
 
 namespace clothdb::cli {
 

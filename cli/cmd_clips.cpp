@@ -31,7 +31,7 @@ struct ClipTable {
   std::vector<db::ClothClip> clips;
   std::map<int64_t, std::string> primary_name;
   std::map<int64_t, std::vector<db::ClothEdge>> edges_from;  // clip id -> its out edges
-  std::vector<db::ClothState> states;
+  std::vector<db::StoredState> states;
 };
 
 ClipTable read_table(db::Reader& reader) {

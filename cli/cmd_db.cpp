@@ -36,8 +36,15 @@ void print_info(const db::DatabaseInfo& i) {
   if (i.clip_blob_bytes) std::printf(" (%.1f:1)", double(i.clip_raw_bytes) / i.clip_blob_bytes);
   std::printf(", largest codec error %.3g m\n", i.max_clip_error);
   std::printf("cloth states    %.2f MB encoded\n", i.state_blob_bytes / 1e6);
+  if (i.cloth_edges)
+    std::printf(
+        "linked          %llu of %llu clip ends (%.1f %%) link back to a state their clip "
+        "did not make\n",
+        (unsigned long long)i.linked_edges, (unsigned long long)i.cloth_edges,
+        100.0 * double(i.linked_edges) / double(i.cloth_edges));
   std::printf("runs            %llu, %.1f CPU s; %llu edits logged\n", (unsigned long long)i.runs,
               i.run_cpu_seconds, (unsigned long long)i.edits);
+  if (!i.last_run_notes.empty()) std::printf("last run        %s\n", i.last_run_notes.c_str());
   for (const auto& [key, value] : i.meta) {
     // Long values (the scene file) are shown by their first line only.
     const std::string first = value.substr(0, std::min(value.find('\n'), size_t(100)));

@@ -98,7 +98,7 @@ void write_graph_db(const MotionGraph& g, const GraphInput& input, const std::st
     std::printf("%s already holds this motion graph\n", path.c_str());
     return;
   }
-  std::vector<db::ClothState> states;
+  std::vector<db::StoredState> states;
   reader.cloth_states(&states, &err);
   if (!states.empty())
     throw std::runtime_error(path + ": holds cloth states but no motion graph; use a new database");

@@ -7,13 +7,13 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "character_scene/character_scene.hpp"
 #include "cli_util.hpp"
 #include "commands.hpp"
 #include "exchange/body_mesh.hpp"
 #include "exchange/point_cache.hpp"
 #include "render/preview.hpp"
 #include "report/output.hpp"
-#include "scene/character_scene.hpp"
 
 namespace clothdb::cli {
 

@@ -29,5 +29,6 @@ void register_bench_runtime(CLI::App& bench);  // cmd_play.cpp: `clothdb bench r
 void register_edit_commands(CLI::App& app);
 // cmd_bench_character.cpp: `clothdb bench character`
 void register_bench_character(CLI::App& bench);
+void register_bench_played(CLI::App& bench);  // cmd_bench_played.cpp: `clothdb bench played`
 
 }  // namespace clothdb::cli

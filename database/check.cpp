@@ -2,10 +2,13 @@
 
 #include <sqlite3.h>
 
+#include <cmath>
 #include <cstdarg>
 #include <cstdio>
 #include <filesystem>
+#include <map>
 
+#include "database/cloth_graph.hpp"
 #include "database/codec.hpp"
 
 namespace clothdb::db {
@@ -66,6 +69,45 @@ uint64_t count(sqlite3* db, const char* sql) {
     n = uint64_t(sqlite3_column_int64(s, 0));
   sqlite3_finalize(s);
   return n;
+}
+
+// A clip whose end became a new state (an edge with blend error 0) must end where that state is:
+// both were encoded from the same simulated frame, so they differ by at most the codec bound per
+// coordinate each, 2 sqrt(3) bound per vertex. Measured with the contract's state distance
+// (database/cloth_graph.hpp) on positions alone.
+void check_new_state_ends(Reader& reader, CheckReport& report) {
+  Error err;
+  std::vector<ClothEdge> edges;
+  std::vector<ClothClip> clips;
+  if (reader.cloth_edges(&edges, &err) != Status::Ok ||
+      reader.cloth_clips(&clips, &err) != Status::Ok)
+    return;  // reported by the row checks above
+  std::map<int64_t, const ClothClip*> clip_by_id;
+  for (const ClothClip& c : clips) clip_by_id[c.id] = &c;
+  const double tolerance = 2 * std::sqrt(3.0) * reader.codec().position_bound * (1 + 1e-6);
+  codec::DecodeScratch scratch;
+  std::vector<uint8_t> blob;
+  std::vector<float> last, x, v;
+  for (const ClothEdge& e : edges) {
+    if (e.blend_error != 0) continue;
+    const auto c = clip_by_id.find(e.from_clip);
+    if (c == clip_by_id.end() || c->second->frame_count < 1) continue;
+    if (reader.clip_blob(e.from_clip, &blob, &err) != Status::Ok ||
+        reader.read_state(e.to_state, &x, &v, scratch, &err) != Status::Ok)
+      continue;  // a blob that does not decode is reported by check_blob
+    last.resize(x.size());
+    if (codec::decode_frames(blob.data(), blob.size(), uint32_t(c->second->frame_count - 1), 1,
+                             last.data(), last.size(), scratch, &err) != Status::Ok)
+      continue;
+    const std::vector<float> still(x.size(), 0.0f);
+    const double d = state_distance(last, still, x, still, 0.0);
+    if (d > tolerance)
+      report.problems.push_back(format(
+          "cloth edge %lld: clip %lld ends %.3f mm RMS from state %lld, which its end made (blend "
+          "error 0; at most %.3f mm allowed by the codec bound)",
+          (long long)e.id, (long long)e.from_clip, 1e3 * d, (long long)e.to_state,
+          1e3 * tolerance));
+  }
 }
 
 }  // namespace
@@ -208,6 +250,7 @@ CheckReport check_database(const std::string& path) {
     }
   }
   sqlite3_finalize(s);
+  check_new_state_ends(reader, report);
   sqlite3_exec(db, "COMMIT", nullptr, nullptr, nullptr);
   return report;
 }
@@ -237,6 +280,11 @@ DatabaseInfo read_database_info(const std::string& path) {
   info.cloth_edges = count(db, "SELECT count(*) FROM cloth_edge");
   info.runs = count(db, "SELECT count(*) FROM run");
   info.edits = count(db, "SELECT count(*) FROM edit_log");
+  // A clip end that linked back: its edge goes into a state that its own clip did not make.
+  info.linked_edges = count(db,
+                            "SELECT count(*) FROM cloth_edge e JOIN cloth_state s ON s.id = "
+                            "e.to_state WHERE s.source_clip IS NULL OR s.source_clip != "
+                            "e.from_clip");
   info.clips_ok = count(db, "SELECT count(*) FROM cloth_clip WHERE status = 'ok'");
   info.clips_flagged = count(db, "SELECT count(*) FROM cloth_clip WHERE status = 'flagged'");
   info.clips_edited = count(db, "SELECT count(*) FROM cloth_clip WHERE status = 'edited'");
@@ -254,6 +302,11 @@ DatabaseInfo read_database_info(const std::string& path) {
     info.max_clip_error = sqlite3_column_double(s, 0);
     info.run_cpu_seconds = sqlite3_column_double(s, 1);
   }
+  sqlite3_finalize(s);
+  if (sqlite3_prepare_v2(db, "SELECT notes FROM run WHERE notes != '' ORDER BY id DESC LIMIT 1", -1,
+                         &s, nullptr) == SQLITE_OK &&
+      sqlite3_step(s) == SQLITE_ROW && sqlite3_column_text(s, 0))
+    info.last_run_notes = reinterpret_cast<const char*>(sqlite3_column_text(s, 0));
   sqlite3_finalize(s);
   sqlite3_exec(db, "COMMIT", nullptr, nullptr, nullptr);
   return info;

@@ -41,6 +41,8 @@ struct DatabaseInfo {
   uint64_t state_blob_bytes = 0;
   double max_clip_error = 0;  // largest measured codec error, m
   double run_cpu_seconds = 0;
+  uint64_t linked_edges = 0;   // clip ends that linked back to a state their clip did not make
+  std::string last_run_notes;  // the newest run's summary (e.g. the explorer's unresolved errors)
 };
 
 // Throws ClothdbError when the file cannot be opened or is not a clothdb database.

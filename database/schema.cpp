@@ -573,14 +573,6 @@ void Writer::finish_run(int64_t run, double cpu_seconds, const std::string& note
     throw ClothdbError(Status::NotFound, path_ + ": no run " + std::to_string(run));
 }
 
-codec::EncodeSettings encode_settings(const CodecSettings& codec, double bound) {
-  codec::EncodeSettings s;
-  s.bound = bound;
-  s.key_interval = codec.key_interval;
-  s.zstd_level = codec.zstd_level;
-  return s;
-}
-
 std::vector<uint8_t> Writer::encode_frames(const float* frames, uint32_t frame_count,
                                            uint32_t vertex_count, double bound,
                                            double* max_error) const {
@@ -698,116 +690,6 @@ void Writer::set_edge_pop(int64_t edge, double pop) {
     throw ClothdbError(Status::NotFound, path_ + ": no cloth edge " + std::to_string(edge));
 }
 
-int64_t Writer::set_clip_status(int64_t clip, ClipStatus status, const std::string& author,
-                                const std::string& description) {
-  Transaction t(*this);
-  Stmt old(db_, "SELECT status FROM cloth_clip WHERE id = ?");
-  if (!old.ok() || old.bind(1, clip).step() != SQLITE_ROW)
-    throw ClothdbError(Status::NotFound, path_ + ": no cloth clip " + std::to_string(clip));
-  Stmt log(db_, (std::string("INSERT INTO edit_log(time, author, clip, action, description, "
-                             "old_status, new_status) VALUES(") +
-                 kNow + ", ?, ?, 'set-status', ?, ?, ?)")
-                    .c_str());
-  log.bind(1, author).bind(2, clip).bind(3, description).bind(4, old.text(0));
-  log.bind(5, clip_status_name(status));
-  if (!log.ok() || log.step() != SQLITE_DONE) throw_sql("logging an edit");
-  const int64_t id = sqlite3_last_insert_rowid(db_);
-  Stmt up(db_, "UPDATE cloth_clip SET status = ? WHERE id = ?");
-  if (!up.ok() || up.bind(1, clip_status_name(status)).bind(2, clip).step() != SQLITE_DONE)
-    throw_sql("setting a clip status");
-  t.commit();
-  return id;
-}
-
-int64_t Writer::replace_clip_frames(int64_t clip, const float* frames, uint32_t frame_count,
-                                    uint32_t vertex_count, const std::string& author,
-                                    const std::string& description) {
-  double max_error = 0;
-  const auto blob =
-      encode_frames(frames, frame_count, vertex_count, codec_.position_bound, &max_error);
-  Transaction t(*this);
-  Stmt old(db_,
-           "SELECT status, frames, max_error, frame_count, vertex_count FROM cloth_clip "
-           "WHERE id = ?");
-  if (!old.ok() || old.bind(1, clip).step() != SQLITE_ROW)
-    throw ClothdbError(Status::NotFound, path_ + ": no cloth clip " + std::to_string(clip));
-  if (old.i64(3) != frame_count || old.i64(4) != vertex_count)
-    throw ClothdbError(Status::InvalidArgument,
-                       path_ + ": cloth clip " + std::to_string(clip) + " has " +
-                           std::to_string(old.i64(3)) + " frames of " + std::to_string(old.i64(4)) +
-                           " vertices; the edit has " + std::to_string(frame_count) + " of " +
-                           std::to_string(vertex_count));
-  Stmt log(db_, (std::string("INSERT INTO edit_log(time, author, clip, action, description, "
-                             "old_status, new_status, old_frames, old_max_error) VALUES(") +
-                 kNow + ", ?, ?, 'replace-frames', ?, ?, 'edited', ?, ?)")
-                    .c_str());
-  log.bind(1, author).bind(2, clip).bind(3, description).bind(4, old.text(0));
-  log.bind_blob(5, sqlite3_column_blob(old.get(), 1), old.bytes(1)).bind(6, old.f64(2));
-  if (!log.ok() || log.step() != SQLITE_DONE) throw_sql("logging an edit");
-  const int64_t id = sqlite3_last_insert_rowid(db_);
-  Stmt up(db_, "UPDATE cloth_clip SET frames = ?, max_error = ?, status = 'edited' WHERE id = ?");
-  up.bind_blob(1, blob.data(), blob.size()).bind(2, max_error).bind(3, clip);
-  if (!up.ok() || up.step() != SQLITE_DONE) throw_sql("replacing clip frames");
-  t.commit();
-  return id;
-}
-
-int64_t Writer::undo_edit(int64_t edit, const std::string& author) {
-  Transaction t(*this);
-  Stmt e(db_,
-         "SELECT clip, action, old_status, old_frames, old_max_error FROM edit_log "
-         "WHERE id = ?");
-  if (!e.ok() || e.bind(1, edit).step() != SQLITE_ROW)
-    throw ClothdbError(Status::NotFound, path_ + ": no edit " + std::to_string(edit));
-  const int64_t clip = e.i64(0);
-  const std::string action = e.text(1);
-  if (action == "undo")
-    throw ClothdbError(Status::InvalidArgument,
-                       path_ + ": edit " + std::to_string(edit) + " is an undo itself");
-  // Undoing out of order would overwrite later edits of the same clip with stale data.
-  Stmt later(db_,
-             "SELECT id FROM edit_log WHERE clip = ?1 AND id >= ?2 AND action != 'undo' AND "
-             "id NOT IN (SELECT undoes FROM edit_log WHERE undoes IS NOT NULL) "
-             "ORDER BY id DESC LIMIT 1");
-  if (!later.ok()) throw_sql("reading the edit log");
-  const int rc = later.bind(1, clip).bind(2, edit).step();
-  if (rc != SQLITE_ROW || later.i64(0) != edit)
-    throw ClothdbError(
-        Status::InvalidArgument,
-        path_ + ": edit " + std::to_string(edit) +
-            (rc == SQLITE_ROW ? " is followed by edit " + std::to_string(later.i64(0)) +
-                                    " of the same clip; undo that first"
-                              : " was already undone"));
-  Stmt cur(db_, "SELECT status, frames, max_error FROM cloth_clip WHERE id = ?");
-  if (!cur.ok() || cur.bind(1, clip).step() != SQLITE_ROW)
-    throw ClothdbError(Status::NotFound, path_ + ": no cloth clip " + std::to_string(clip));
-  const bool frames = action == "replace-frames";
-  Stmt log(db_, (std::string("INSERT INTO edit_log(time, author, clip, action, description, "
-                             "old_status, new_status, old_frames, old_max_error, undoes) VALUES(") +
-                 kNow + ", ?, ?, 'undo', ?, ?, ?, ?, ?, ?)")
-                    .c_str());
-  log.bind(1, author).bind(2, clip).bind(3, "undo of edit " + std::to_string(edit));
-  log.bind(4, cur.text(0)).bind(5, e.text(2));
-  if (frames) {
-    log.bind_blob(6, sqlite3_column_blob(cur.get(), 1), cur.bytes(1)).bind(7, cur.f64(2));
-  }
-  log.bind(8, edit);
-  if (!log.ok() || log.step() != SQLITE_DONE) throw_sql("logging an undo");
-  const int64_t id = sqlite3_last_insert_rowid(db_);
-  if (frames) {
-    Stmt up(db_, "UPDATE cloth_clip SET status = ?, frames = ?, max_error = ? WHERE id = ?");
-    up.bind(1, e.text(2)).bind_blob(2, sqlite3_column_blob(e.get(), 3), e.bytes(3));
-    up.bind(3, e.f64(4)).bind(4, clip);
-    if (!up.ok() || up.step() != SQLITE_DONE) throw_sql("restoring clip frames");
-  } else {
-    Stmt up(db_, "UPDATE cloth_clip SET status = ? WHERE id = ?");
-    if (!up.ok() || up.bind(1, e.text(2)).bind(2, clip).step() != SQLITE_DONE)
-      throw_sql("restoring a clip status");
-  }
-  t.commit();
-  return id;
-}
-
 // ----------------------------------------------------------------------------------- Edits
 
 Writer::Edit::Edit(Writer& writer, int64_t clip, const std::string& action,
@@ -899,11 +781,11 @@ EditLogEntry Writer::undo_last(const std::string& author) {
   undone.action = last.text(2);
   undone.description = last.text(3);
   undone.has_changeset = last.i64(4) != 0;
-  if (!undone.has_changeset) {
-    undo_edit(undone.id, author);  // an old-style edit (set-status, replace-frames)
-    t.commit();
-    return undone;
-  }
+  if (!undone.has_changeset)
+    throw ClothdbError(Status::InvalidArgument,
+                       path_ + ": edit " + std::to_string(undone.id) + " ('" + undone.action +
+                           "') was logged without a changeset by an early build; it cannot be "
+                           "undone exactly");
   Stmt blob(db_, "SELECT changeset FROM edit_log WHERE id = ?");
   if (!blob.ok() || blob.bind(1, undone.id).step() != SQLITE_ROW)
     throw_sql("reading an edit's changeset");
@@ -1158,7 +1040,7 @@ Status Reader::primary_transitions(std::vector<PrimaryTransition>* out, Error* e
                       });
 }
 
-Status Reader::cloth_states(std::vector<ClothState>* out, Error* err) {
+Status Reader::cloth_states(std::vector<StoredState>* out, Error* err) {
   out->clear();
   return for_each_row(db_, path_,
                       "SELECT id, primary_clip, frame, source_clip, run, length(positions), "

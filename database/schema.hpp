@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "database/codec.hpp"
+#include "database/run_settings.hpp"  // CodecSettings
 #include "database/status.hpp"
 
 struct sqlite3;
@@ -35,19 +36,6 @@ constexpr int32_t kApplicationId = 0x434C4442;  // "CLDB"
 enum class ClipStatus { Ok, Flagged, Edited };
 const char* clip_status_name(ClipStatus status);  // "ok", "flagged", "edited"
 bool parse_clip_status(const std::string& name, ClipStatus* status);
-
-// How cloth is compressed in this file; fixed at creation and stored in `meta`.
-struct CodecSettings {
-  double position_bound = codec::kDefaultPositionBound;  // m, max error per coordinate
-  double velocity_bound = 0.001;  // m/s; 1 mm/s moves a resumed vertex 0.03 mm in a frame
-  uint32_t key_interval = codec::kDefaultKeyInterval;
-  int zstd_level = codec::kDefaultZstdLevel;
-};
-
-// The codec's settings for encoding with this file's key interval and zstd level at `bound` (the
-// position or the velocity bound): what the writer stores, and what a worker encoding a clip for it
-// must use.
-codec::EncodeSettings encode_settings(const CodecSettings& codec, double bound);
 
 struct Garment {
   std::vector<uint32_t> triangles;    // 3 vertex indices per triangle
@@ -83,7 +71,7 @@ struct PrimaryTransition {
 };
 
 // A cloth state: positions and velocities of the garment at a point (primary clip, frame).
-struct ClothState {
+struct StoredState {
   int64_t id = 0;
   int64_t primary_clip = 0;
   int32_t frame = 0;
@@ -158,7 +146,7 @@ struct EditLogEntry {
   std::string time;
   std::string author;
   int64_t clip = 0;
-  // "set-status", "replace-frames", "undo" (Writer::set_clip_status and friends), or an Edit's:
+  // "set-status", "replace-frames" (early builds, no changeset), "undo", or an Edit's:
   // "flag", "unflag", "import", "resim", "delete"
   std::string action;
   std::string description;
@@ -244,17 +232,8 @@ class Writer {
   void set_clip_metrics(int64_t clip, const ClipMetrics& metrics);
   void set_edge_pop(int64_t edge, double pop);
 
-  // Edits, each logged with what it replaced so undo_edit can restore it.
-  int64_t set_clip_status(int64_t clip, ClipStatus status, const std::string& author,
-                          const std::string& description);
-  // Replaces a clip's frames (status becomes Edited); the old blob is kept in the log.
-  int64_t replace_clip_frames(int64_t clip, const float* frames, uint32_t frame_count,
-                              uint32_t vertex_count, const std::string& author,
-                              const std::string& description);
-  int64_t undo_edit(int64_t edit, const std::string& author);
-
   // Reverts the newest edit that is not an undo and not yet undone, exactly (its changeset
-  // inverted, or the old columns for set-status / replace-frames), and logs the undo. Throws
+  // inverted), and logs the undo. Throws
   // NotFound when there is nothing to undo, and InvalidArgument (changing nothing) when rows it
   // changed were changed again outside the log since (e.g. by a resumed precompute).
   EditLogEntry undo_last(const std::string& author);
@@ -350,7 +329,7 @@ class Reader {
   Status motion_files(std::vector<MotionFile>* out, Error* err);
   Status primary_clips(std::vector<PrimaryClip>* out, Error* err);
   Status primary_transitions(std::vector<PrimaryTransition>* out, Error* err);
-  Status cloth_states(std::vector<ClothState>* out, Error* err);
+  Status cloth_states(std::vector<StoredState>* out, Error* err);
   Status cloth_clips(std::vector<ClothClip>* out, Error* err);
   Status cloth_clip(int64_t id, ClothClip* out, Error* err);
   Status cloth_edges(std::vector<ClothEdge>* out, Error* err);

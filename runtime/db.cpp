@@ -8,6 +8,7 @@
 #include <new>
 #include <numeric>
 
+#include "database/cloth_graph.hpp"
 #include "internal.hpp"
 
 namespace clothrt {
@@ -44,18 +45,6 @@ void repack(const float* x, size_t n, const float origin[3], float step, uint16_
     const float v = (x[i] - base[i % 12]) * inv + 0.5f;
     q[i] = uint16_t(std::clamp(v, 0.0f, 65535.0f));
   }
-}
-
-// State distance of docs/SECONDARY_GRAPH.md: RMS over vertices of sqrt(|dx|^2 + (tau |dv|)^2).
-double state_distance(const std::vector<float>& xa, const std::vector<float>& va,
-                      const std::vector<float>& xb, const std::vector<float>& vb, double tau) {
-  const size_t n = xa.size() / 3;
-  double sum = 0;
-  for (size_t i = 0; i < 3 * n; ++i) {
-    const double dx = double(xa[i]) - xb[i], dv = double(va[i]) - vb[i];
-    sum += dx * dx + tau * tau * dv * dv;
-  }
-  return n ? std::sqrt(sum / double(n)) : 0.0;
 }
 
 }  // namespace
@@ -124,7 +113,7 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
 
   std::vector<PrimaryClip> pcs;
   std::vector<PrimaryTransition> transitions;
-  std::vector<ClothState> cstates;
+  std::vector<StoredState> cstates;
   std::vector<ClothClip> cclips;
   std::vector<ClothEdge> cedges;
   if (Status st = reader.primary_clips(&pcs, err); st != Status::Ok) return st;
@@ -277,20 +266,13 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
     }
   }
 
-  // The start clip: meta start_clip holds an id (or, from older tools, a name).
+  // The start clip (database/cloth_graph.hpp: the start-clip rule and how meta holds it).
   start_primary = 0;
   std::string start;
   Error ignore;
-  if (reader.meta("start_clip", &start, &ignore) == Status::Ok) {
-    char* end = nullptr;
-    const long long id = std::strtoll(start.c_str(), &end, 10);
-    auto it = end && *end == '\0' && !start.empty() ? primary_by_id.find(id) : primary_by_id.end();
-    if (it != primary_by_id.end()) {
-      start_primary = it->second;
-    } else {
-      for (int i = 0; i < np; ++i)
-        if (primaries[size_t(i)].name == start) start_primary = i;
-    }
+  if (reader.meta(clothdb::db::meta::kStartClip, &start, &ignore) == Status::Ok) {
+    const int i = clothdb::db::parse_start_clip(start, pcs);
+    if (i >= 0) start_primary = i;
   }
 
   entries.resize(clips.size());
@@ -679,7 +661,7 @@ int32_t Db::search_impl(int clip, uint32_t k, Loader& loader) {
                                     &loader.sv, loader.scratch, &err) != Status::Ok ||
           loader.sx.size() != n || loader.sv.size() != n)
         continue;
-      const double d = state_distance(loader.x, loader.v, loader.sx, loader.sv, tau);
+      const double d = clothdb::db::state_distance(loader.x, loader.v, loader.sx, loader.sv, tau);
       if (d < best_d) {
         best_d = d;
         best = cand;

@@ -43,9 +43,9 @@ TEST(Probe, HoldRepeated) {
     for (int k = 0; k < 30; ++k) {
       PoseRun r = simulate_poses(scene, *solver, hold, 30.0, s);
       std::vector<float> x = flat(s.x), v = flat(s.v);
-      const double d = state_distance(x, v, px, pv, 1.0 / 30);
-      const double dx = state_distance(x, std::vector<float>(v.size(), 0), px,
-                                       std::vector<float>(v.size(), 0), 0);
+      const double d = db::state_distance(x, v, px, pv, 1.0 / 30);
+      const double dx = db::state_distance(x, std::vector<float>(v.size(), 0), px,
+                                           std::vector<float>(v.size(), 0), 0);
       double vmax = 0;
       for (Eigen::Index i = 0; i < s.v.cols(); ++i) vmax = std::max(vmax, s.v.col(i).norm());
       std::printf("  hold %2d: d %.3f mm (pos %.3f mm)  vmax %.4f m/s  strain %.4f\n", k, 1e3 * d,
@@ -102,7 +102,7 @@ TEST(Probe, Explore) {
     db::Reader rd;
     db::Error err;
     rd.open(path, &err);
-    std::vector<db::ClothState> st;
+    std::vector<db::StoredState> st;
     rd.cloth_states(&st, &err);
     codec::DecodeScratch sc;
     std::vector<std::vector<float>> X, V;
@@ -124,7 +124,7 @@ TEST(Probe, Explore) {
     std::vector<double> nn(n, 1e9);
     for (size_t i = 0; i < n; ++i)
       for (size_t j = 0; j < n; ++j)
-        if (i != j) nn[i] = std::min(nn[i], state_distance(X[i], V[i], X[j], V[j], 1.0 / 30));
+        if (i != j) nn[i] = std::min(nn[i], db::state_distance(X[i], V[i], X[j], V[j], 1.0 / 30));
     std::sort(nn.begin(), nn.end());
     if (n > 2)
       std::printf("   nearest-neighbour distance: min %.1f median %.1f max %.1f mm\n", 1e3 * nn[0],
@@ -134,8 +134,8 @@ TEST(Probe, Explore) {
     size_t cnt = 0;
     for (size_t i = 1; i < n && cnt < 200; ++i, ++cnt) {
       std::vector<float> z(V[i].size(), 0);
-      pos_only += state_distance(X[i], z, X[i - 1], z, 0);
-      vel_only += state_distance(z, V[i], z, V[i - 1], 1.0 / 30);
+      pos_only += db::state_distance(X[i], z, X[i - 1], z, 0);
+      vel_only += db::state_distance(z, V[i], z, V[i - 1], 1.0 / 30);
     }
     if (cnt)
       std::printf("   consecutive states: position part %.1f mm, velocity part %.1f mm\n",
@@ -150,7 +150,7 @@ TEST(Probe, Contraction) {
     db::Reader rd;
     db::Error err;
     rd.open(path, &err);
-    std::vector<db::ClothState> st;
+    std::vector<db::StoredState> st;
     rd.cloth_states(&st, &err);
     codec::DecodeScratch sc;
     const Eigen::Isometry3d fr = character_frame(scene, pose);
@@ -172,12 +172,12 @@ TEST(Probe, Contraction) {
       std::vector<double> ratios;
       for (size_t i = 0; i + 1 < st.size() && i < 40; ++i) {
         ClothState a = load(st[i].id), b = load(st[i + 1].id);
-        const double d0 = state_distance(flat(a.x), flat(a.v), flat(b.x), flat(b.v), 1.0 / 30);
+        const double d0 = db::state_distance(flat(a.x), flat(a.v), flat(b.x), flat(b.v), 1.0 / 30);
         auto sa = make_solver(scene.file.solver, scene.model, scene.file.settings);
         auto sb = make_solver(scene.file.solver, scene.model, scene.file.settings);
         simulate_poses(scene, *sa, edges[e], 30.0, a);
         simulate_poses(scene, *sb, edges[e], 30.0, b);
-        const double d1 = state_distance(flat(a.x), flat(a.v), flat(b.x), flat(b.v), 1.0 / 30);
+        const double d1 = db::state_distance(flat(a.x), flat(a.v), flat(b.x), flat(b.v), 1.0 / 30);
         ratios.push_back(d1 / d0);
       }
       std::sort(ratios.begin(), ratios.end());

@@ -33,8 +33,8 @@ TEST(AutoSolver, ChoosesTheCheapestSettingWithinTheBound) {
   options.frames = 8;
   const AutoCalibration cal = calibrate_solvers(scene, poses, clip.rate, options);
   ASSERT_EQ(cal.frames, 8);
-  ASSERT_EQ(cal.candidates.size(), bench_configs(SolverKind::Pbd, true).size() +
-                                       bench_configs(SolverKind::Xpbd, true).size());
+  ASSERT_EQ(cal.candidates.size(), solver_candidates(SolverKind::Pbd, true).size() +
+                                       solver_candidates(SolverKind::Xpbd, true).size());
   for (const AutoCandidate& c : cal.candidates) {
     if (!c.stable) continue;
     EXPECT_TRUE(std::isfinite(c.error)) << c.config.label;

@@ -6,7 +6,7 @@
 #include "cloth/collision.hpp"
 #include "cloth/mesh.hpp"
 #include "cloth/model.hpp"
-#include "scenes/hard_cases.hpp"
+#include "hard_cases/hard_cases.hpp"
 
 using namespace clothdb;
 

@@ -13,7 +13,7 @@
 
 #include "database/checksum.hpp"
 #include "database/codec.hpp"
-#include "scenes/hard_cases.hpp"
+#include "hard_cases/hard_cases.hpp"
 #include "solvers/solver.hpp"
 
 // Counts heap allocations so a test can show decoding into caller buffers allocates nothing.

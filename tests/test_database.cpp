@@ -174,7 +174,7 @@ TEST(Database, WriterReaderRoundTrip) {
   ASSERT_EQ(transitions.size(), 1u);
   EXPECT_EQ(transitions[0].blend_frames, 4);
 
-  std::vector<ClothState> states;
+  std::vector<StoredState> states;
   ASSERT_EQ(r.cloth_states(&states, &err), Status::Ok);
   ASSERT_EQ(states.size(), 2u);
   EXPECT_EQ(states[1].source_clip, f.clip0);
@@ -326,37 +326,45 @@ TEST(Database, EditLogUndoesInOrder) {
   std::vector<uint8_t> original, edited, restored;
   ASSERT_EQ(r.clip_blob(f.clip0, &original, &err), Status::Ok);
 
-  const int64_t e1 = w.set_clip_status(f.clip0, ClipStatus::Flagged, "ana", "pokes through hip");
+  {
+    Writer::Edit e(w, f.clip0, "flag", "ana");
+    w.set_clip_status_unlogged(f.clip0, ClipStatus::Flagged);
+    e.commit("pokes through hip");
+  }
   std::vector<float> fixed = f.frames0;
   for (size_t i = 2; i < fixed.size(); i += 3) fixed[i] += 0.01f;  // push the cloth out by 1 cm
-  const int64_t e2 =
-      w.replace_clip_frames(f.clip0, fixed.data(), 40, kVertices, "ana", "pushed out of the hip");
+  {
+    Writer::Edit e(w, f.clip0, "import", "ana");
+    double max_error = 0;
+    w.replace_clip_blob(f.clip0, w.encode_clip(fixed.data(), 40, kVertices, &max_error), max_error,
+                        ClipStatus::Edited);
+    e.commit("pushed out of the hip");
+  }
   ClothClip c;
   ASSERT_EQ(r.cloth_clip(f.clip0, &c, &err), Status::Ok);
   EXPECT_EQ(c.status, ClipStatus::Edited);
   ASSERT_EQ(r.clip_blob(f.clip0, &edited, &err), Status::Ok);
   EXPECT_NE(edited, original);
 
-  EXPECT_THROW(w.undo_edit(e1, "ben"), ClothdbError);  // e2 must be undone first
-  w.undo_edit(e2, "ben");
+  // Newest first: the import, then the flag.
+  EXPECT_EQ(w.undo_last("ben").action, "import");
   ASSERT_EQ(r.clip_blob(f.clip0, &restored, &err), Status::Ok);
   EXPECT_EQ(restored, original);
   ASSERT_EQ(r.cloth_clip(f.clip0, &c, &err), Status::Ok);
   EXPECT_EQ(c.status, ClipStatus::Flagged);
-  EXPECT_THROW(w.undo_edit(e2, "ben"), ClothdbError);  // already undone
-  const int64_t u1 = w.undo_edit(e1, "ben");
-  EXPECT_THROW(w.undo_edit(u1, "ben"), ClothdbError);  // undo of an undo
+  EXPECT_EQ(w.undo_last("ben").action, "flag");
   ASSERT_EQ(r.cloth_clip(f.clip0, &c, &err), Status::Ok);
   EXPECT_EQ(c.status, ClipStatus::Ok);
+  EXPECT_THROW(w.undo_last("ben"), ClothdbError);  // nothing left to undo
 
   std::vector<EditLogEntry> log;
   ASSERT_EQ(r.edit_log(&log, &err), Status::Ok);
   ASSERT_EQ(log.size(), 4u);
   EXPECT_EQ(log[0].author, "ana");
-  EXPECT_EQ(log[1].action, "replace-frames");
-  EXPECT_TRUE(log[1].has_old_frames);
-  EXPECT_EQ(log[2].undoes, e2);
-  EXPECT_EQ(log[3].undoes, e1);
+  EXPECT_EQ(log[1].action, "import");
+  EXPECT_TRUE(log[1].has_changeset);
+  EXPECT_EQ(log[2].action, "undo");
+  EXPECT_EQ(log[3].action, "undo");
   EXPECT_TRUE(check_database(path).ok());
 }
 
@@ -434,7 +442,7 @@ TEST(Database, CheckReportsADamagedFile) {
     Reader r;
     Error err;
     if (r.open(path, &err) != Status::Ok) _exit(3);
-    std::vector<ClothState> states;
+    std::vector<StoredState> states;
     std::vector<PrimaryClip> clips;
     if (r.cloth_states(&states, &err) != Status::Ok || r.primary_clips(&clips, &err) != Status::Ok)
       _exit(3);

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <map>
 
 #include "database/check.hpp"
@@ -13,57 +14,13 @@
 #include "database/schema.hpp"
 #include "explore/explorer.hpp"
 #include "explore/job_wire.hpp"
+#include "explore/precompute.hpp"
+#include "explore_fixture.hpp"
 
 using namespace clothdb;
+using namespace clothdb::test;
 
 namespace {
-
-const std::string kMotions = std::string(CLOTHDB_SOURCE_DIR) + "/motions/";
-
-CharacterScene small_scene() {
-  SceneFile file = load_scene_file(kMotions + "skirt_walk.json");
-  file.clips = {"01_03_level_walk"};
-  file.skirt.vertices = 200;
-  file.settle_frames = 10;
-  file.settings.substeps = 6;
-  file.settings.iterations = 1;
-  // Fixed here rather than inherited from the bundled scene, so tuning the demo cannot change
-  // how fast this small graph converges.
-  file.skirt.flare = 1.5;
-  file.skirt.length = 0.5;
-  file.settings.tethers = false;
-  // Heavy air drag: the cloth forgets its history within about two edges, so the explorer
-  // converges in a few dozen clips (a light fabric needs Kim et al.'s CPU-hours).
-  file.air_drag = 3.0;
-  return build_character_scene(file);
-}
-
-// The character turning about its root by `angle` (radians) and back: a loop at one node.
-std::vector<std::vector<JointPose>> sway(const std::vector<JointPose>& pose, double angle,
-                                         int frames) {
-  std::vector<std::vector<JointPose>> out;
-  for (int k = 0; k < frames; ++k) {
-    const double a = angle * std::sin(2 * 3.14159265358979 * k / (frames - 1));
-    const Eigen::Quaterniond q(Eigen::AngleAxisd(a, Vec3::UnitY()));
-    std::vector<JointPose> p = pose;
-    for (auto& j : p) {
-      j.position = pose[0].position + q * (j.position - pose[0].position);
-      j.rotation = q * j.rotation;
-    }
-    out.push_back(std::move(p));
-  }
-  return out;
-}
-
-ExploreGraph small_graph(const CharacterScene& scene) {
-  const auto pose = clip_pose(scene.clips.front(), 0);
-  ExploreGraph g;
-  g.node_count = 1;
-  g.rate = 30;
-  g.edges.push_back({0, 0, "hold", std::vector<std::vector<JointPose>>(12, pose), 0});
-  g.edges.push_back({0, 0, "sway", sway(pose, 0.6, 16), 0});
-  return g;
-}
 
 std::string db_path(const std::string& name) {
   return testing::TempDir() + "/clothdb_explore_" + name + ".db";
@@ -106,7 +63,7 @@ std::vector<uint64_t> content(const std::string& path) {
     out.push_back(static_cast<uint64_t>(c.start_state) << 32 |
                   static_cast<uint64_t>(c.primary_clip));
   }
-  std::vector<db::ClothState> states;
+  std::vector<db::StoredState> states;
   r.cloth_states(&states, &err);
   for (const auto& s : states) {
     std::vector<uint8_t> p, v;
@@ -136,7 +93,7 @@ TEST(Explore, ConvergesWithinEpsilonAndCoversEveryWayOut) {
   db::Reader r;
   db::Error err;
   ASSERT_EQ(r.open(path, &err), db::Status::Ok);
-  std::vector<db::ClothState> states;
+  std::vector<db::StoredState> states;
   std::vector<db::ClothClip> clips;
   std::vector<db::ClothEdge> edges;
   std::vector<db::PrimaryClip> primary;
@@ -276,4 +233,110 @@ TEST(Explore, JobsThroughTheWireInAnyOrderGiveTheSameDatabase) {
   EXPECT_TRUE(report.converged);
   EXPECT_GT(wired, 4);
   EXPECT_EQ(content(db_path("omp")), content(db_path("wire")));
+}
+
+// The precompute's orchestration (explore/precompute.hpp), without the CLI.
+TEST(Precompute, InvalidRunSettingsAreRefusedBeforeAFileExists) {
+  const std::string path = temp_db("refused");
+  const struct {
+    const char* field;
+    void (*set)(ExploreOptions&);
+  } cases[] = {
+      {"epsilon_m", [](ExploreOptions& o) { o.epsilon = std::nan(""); }},
+      {"epsilon_m", [](ExploreOptions& o) { o.epsilon = -0.005; }},
+      {"cpu_hours", [](ExploreOptions& o) { o.cpu_hours = -1; }},
+      {"cpu_hours", [](ExploreOptions& o) { o.cpu_hours = std::nan(""); }},
+      {"max_frames", [](ExploreOptions& o) { o.max_frames = -5; }},
+      {"threads", [](ExploreOptions& o) { o.threads = 100000; }},
+  };
+  for (const auto& c : cases) {
+    PrecomputeRequest request;
+    request.scene = kMotions + "skirt_walk.json";
+    request.db = path;
+    request.explore.progress = false;
+    c.set(request.explore);
+    try {
+      run_precompute(request, nullptr);
+      ADD_FAILURE() << c.field << " accepted";
+    } catch (const db::SettingsError& e) {
+      EXPECT_NE(std::string(e.what()).find(c.field), std::string::npos) << e.what();
+    }
+    EXPECT_FALSE(std::filesystem::exists(path)) << c.field;
+  }
+}
+
+TEST(Precompute, MotionGraphRuleAndResumeRule) {
+  CharacterScene scene = small_scene();
+  // Built from the scene's clips when nothing else is given; the database's own graph is taken
+  // as stored (its JSON is kept byte for byte) and --graph is taken over it.
+  const ChosenGraph built = choose_motion_graph(scene, "", "", -1);
+  ASSERT_GT(built.graph.edge_count(), 0);
+  EXPECT_EQ(built.where, scene.file.path.string());
+  const ChosenGraph stored = choose_motion_graph(scene, "", built.json, -1);
+  EXPECT_EQ(stored.json, built.json);
+  EXPECT_EQ(stored.graph.edge_count(), built.graph.edge_count());
+  const std::string graph_file = testing::TempDir() + "/clothdb_explore_graph.json";
+  std::ofstream(graph_file) << built.json;
+  EXPECT_EQ(choose_motion_graph(scene, graph_file, "{\"not\": \"this\"}", -1).where, graph_file);
+  EXPECT_THROW(choose_motion_graph(scene, "", "{not json", -1), std::runtime_error);
+
+  // Resume: a database made with one solver setting refuses a scene giving another, naming the
+  // database; with --auto it takes the stored setting instead.
+  const std::string path = temp_db("resume_rule");
+  ExploreGraph eg = explore_graph(scene, built.graph, "test");
+  {
+    db::Writer writer = db::Writer::create(path);
+    prepare_database(writer, scene, eg, built.json);
+  }
+  PrecomputeRequest request;
+  request.db = path;
+  EXPECT_EQ(choose_solver(request, scene, eg), "");  // same setting: fine
+  CharacterScene changed = scene;
+  changed.file.settings.substeps += 1;
+  try {
+    choose_solver(request, changed, eg);
+    ADD_FAILURE() << "a different solver setting resumed";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find(path), std::string::npos) << e.what();
+  }
+  request.automatic = true;
+  EXPECT_EQ(choose_solver(request, changed, eg), "");
+  EXPECT_EQ(changed.file.settings.substeps, scene.file.settings.substeps);
+}
+
+// Issue 14: a dead end's unresolved error is its state's distance to the nearest OTHER state at
+// the node, newer ones included, so the reported worst falls when a state lands near an old dead
+// end (it used to stay at the distance to the nearest older state forever).
+TEST(Explore, UnresolvedErrorIsTheDistanceToTheNearestOtherStateAtItsNode) {
+  const CharacterScene scene = small_scene();
+  const std::string path = temp_db("unresolved");
+  ExploreOptions options;
+  options.epsilon = 0.0005;  // nothing links: every clip end is a new state
+  options.max_frames = 400;
+  const ExploreReport report = run(scene, path, options);
+  ASSERT_GT(report.dead_ends, 0);
+  db::Reader r;
+  db::Error err;
+  ASSERT_EQ(r.open(path, &err), db::Status::Ok);
+  std::vector<db::StoredState> states;
+  std::vector<db::ClothClip> clips;
+  r.cloth_states(&states, &err);
+  r.cloth_clips(&clips, &err);
+  std::vector<std::vector<float>> x(states.size()), v(states.size());
+  codec::DecodeScratch scratch;
+  for (size_t i = 0; i < states.size(); ++i)
+    ASSERT_EQ(r.read_state(states[i].id, &x[i], &v[i], scratch, &err), db::Status::Ok);
+  double worst = 0;
+  for (size_t i = 0; i < states.size(); ++i) {
+    int clips_from = 0;
+    for (const auto& c : clips) clips_from += c.start_state == states[i].id;
+    if (clips_from == 2) continue;  // both ways out have cloth: no dead end
+    double nearest = INFINITY;
+    for (size_t j = 0; j < states.size(); ++j)
+      if (j != i) nearest = std::min(nearest, db::state_distance(x[i], v[i], x[j], v[j], 1.0 / 30));
+    if (std::isfinite(nearest)) worst = std::max(worst, nearest);
+  }
+  EXPECT_NEAR(report.worst_error, worst, 1e-12);
+  EXPECT_NEAR(report.weighted_worst_error, worst, 1e-12);  // every edge has reach 1 here
+  EXPECT_EQ(report.linked_fraction, 0.0);
 }

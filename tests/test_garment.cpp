@@ -10,8 +10,8 @@
 #include <fstream>
 
 #include "bench/character_bench.hpp"
+#include "character_scene/character_scene.hpp"
 #include "garment/garment.hpp"
-#include "scene/character_scene.hpp"
 
 using namespace clothdb;
 

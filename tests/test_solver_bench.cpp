@@ -6,7 +6,7 @@
 #include <string>
 
 #include "bench/solver_bench.hpp"
-#include "scenes/hard_cases.hpp"
+#include "hard_cases/hard_cases.hpp"
 #include "solvers/solver.hpp"
 
 using namespace clothdb;

@@ -9,7 +9,7 @@
 #include "cloth/collision.hpp"
 #include "cloth/mesh.hpp"
 #include "cloth/model.hpp"
-#include "scenes/hard_cases.hpp"
+#include "hard_cases/hard_cases.hpp"
 #include "solvers/solver.hpp"
 
 using namespace clothdb;

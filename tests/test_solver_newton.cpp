@@ -12,7 +12,7 @@
 
 #include "cloth/mesh.hpp"
 #include "cloth/model.hpp"
-#include "scenes/hard_cases.hpp"
+#include "hard_cases/hard_cases.hpp"
 #include "solvers/shell_energy.hpp"
 #include "solvers/solver.hpp"
 

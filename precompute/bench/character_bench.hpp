@@ -7,8 +7,8 @@
 #include <string>
 #include <vector>
 
+#include "character_scene/character_scene.hpp"
 #include "cloth/collision.hpp"
-#include "scene/character_scene.hpp"
 
 namespace clothdb {
 

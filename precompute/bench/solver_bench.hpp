@@ -7,9 +7,10 @@
 #include <string>
 #include <vector>
 
+#include "hard_cases/hard_cases.hpp"
 #include "report/svg_plot.hpp"
-#include "scenes/hard_cases.hpp"
 #include "solvers/solver.hpp"
+#include "solvers/solver_candidates.hpp"
 
 namespace clothdb {
 
@@ -26,15 +27,9 @@ struct SolverBenchOptions {
   int max_mass_spring_substeps = 200000;
 };
 
-struct BenchConfig {
-  SolverKind kind;
-  SolverSettings settings;
-  std::string label;  // e.g. "substeps=20 iterations=1"
-  // Mass-spring: when > 0, the sub-steps are this multiple of the scene's stability count,
-  // ceil(frame dt / mass_spring_critical_dt(model)), so that the row is stable by construction
-  // (resolved per scene by resolve_config).
-  double critical_multiple = 0;
-};
+// A setting of the sweep: the solver layer's candidate table (solvers/solver_candidates.hpp),
+// which `precompute --auto` chooses from too.
+using BenchConfig = SolverCandidate;
 
 struct BenchRow {
   std::string scene;
@@ -57,19 +52,13 @@ struct BenchRow {
   std::string message;
 };
 
-// Positions of a run against a reference run, frame by frame from frame `first` on (as many as
-// both have): RMS and max over all frames and vertices of |x - x_ref|, and the largest per-frame
-// RMS. Metres; NaN when nothing is compared.
-struct FrameErrors {
-  double rms = NAN, max = NAN, worst_frame_rms = NAN;
-};
-FrameErrors compare_frames(const std::vector<Eigen::Matrix3Xd>& run,
-                           const std::vector<Eigen::Matrix3Xd>& reference, size_t first);
-
-// The settings swept for one solver (fewer when quick).
-std::vector<BenchConfig> bench_configs(SolverKind kind, bool quick);
-// The reference configuration: Newton, LDLT, 8 sub-steps, tolerance 1e-9.
-BenchConfig reference_config();
+// The settings swept for one solver (fewer when quick), and the reference configuration.
+inline std::vector<BenchConfig> bench_configs(SolverKind kind, bool quick) {
+  return solver_candidates(kind, quick);
+}
+inline BenchConfig reference_config() {
+  return reference_candidate();
+}
 // A configuration's settings for one scene: resolves mass-spring's critical multiple into
 // sub-steps (and the label). Returns false when that exceeds options.max_mass_spring_substeps,
 // with `why` saying how many it would need.

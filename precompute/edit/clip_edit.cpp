@@ -30,15 +30,19 @@ void check(db::Status st, const db::Error& err) {
   if (st != db::Status::Ok) fail(err.message);
 }
 
-// The explorer's epsilon of the newest run that recorded one (run settings "epsilon_m").
+// The explorer's epsilon of the newest run that recorded one (its RunSettings record; runs whose
+// settings do not parse, e.g. written by an older build with an invalid value, are passed over).
 double database_epsilon(db::Reader& reader) {
   std::vector<db::Run> runs;
   db::Error err;
   check(reader.runs(&runs, &err), err);
   for (auto it = runs.rbegin(); it != runs.rend(); ++it) {
-    const auto j = nlohmann::json::parse(it->settings, nullptr, false);
-    if (j.is_object() && j.contains("epsilon_m") && j["epsilon_m"].is_number())
-      return j["epsilon_m"].get<double>();
+    try {
+      return db::parse_run_settings_json(it->settings,
+                                         reader.path() + ": run " + std::to_string(it->id))
+          .epsilon;
+    } catch (const db::SettingsError&) {
+    }
   }
   fail(reader.path() +
        ": no run records its epsilon (not made by `clothdb precompute`); give "
@@ -74,13 +78,8 @@ StateData decode_state(db::Reader& reader, int64_t id) {
 
 // Where every path begins: the first state stored at the graph's start node (the settled rest
 // state; 0 if there is none).
-int64_t start_state_id(const std::vector<db::ClothState>& states, const ExploreGraph& graph) {
-  int64_t start = 0;
-  for (const auto& s : states)
-    if (node_of_primary_clip(graph, s.primary_clip) == graph.start_node &&
-        (start == 0 || s.id < start))
-      start = s.id;
-  return start;
+int64_t start_state_id(const std::vector<db::StoredState>& states, const ExploreGraph& graph) {
+  return db::start_state(states, node_edges(graph), graph.start_node);
 }
 
 // The state an end of a clip is in: positions of `at`, velocity from the neighbouring frame
@@ -104,7 +103,7 @@ double end_move(const std::vector<float>& now, const std::vector<float>& before,
   std::vector<float> xa, va, xb, vb;
   end_state(now, per_frame, at, other, rate, &xa, &va);
   end_state(before, per_frame, at, other, rate, &xb, &vb);
-  return state_distance(xa, va, xb, vb, 1.0 / rate);
+  return db::state_distance(xa, va, xb, vb, 1.0 / rate);
 }
 
 // Ramps frames toward `original` so that the two frames at `end` (0 or the last) are the
@@ -411,7 +410,7 @@ ResimReport resim_clip(EditContext& ctx, int64_t clip, const ResimOptions& optio
     check(codec::decode_all(r.end_v_blob.data(), r.end_v_blob.size(), end_v, scratch, &err), err);
   }
   const double tau = 1.0 / ctx.scene.graph.rate;
-  std::vector<db::ClothState> states;
+  std::vector<db::StoredState> states;
   std::vector<db::ClothEdge> edges;
   db::Error err;
   check(ctx.reader.cloth_states(&states, &err), err);
@@ -423,7 +422,7 @@ ResimReport resim_clip(EditContext& ctx, int64_t clip, const ResimOptions& optio
     max_state = std::max(max_state, s.id);
     if (node_of_primary_clip(ctx.scene.graph, s.primary_clip) != edge.to_node) continue;
     StateData d = decode_state(ctx.reader, s.id);
-    const double dist = state_distance(end_x, end_v, d.x, d.v, tau);
+    const double dist = db::state_distance(end_x, end_v, d.x, d.v, tau);
     if (dist < best) best = dist, best_id = s.id, best_x = std::move(d.x);
   }
   std::vector<const db::ClothEdge*> out;
@@ -434,7 +433,7 @@ ResimReport resim_clip(EditContext& ctx, int64_t clip, const ResimOptions& optio
   report.metrics = to_clip_metrics(r.quality);
   if (!out.empty()) {
     const StateData old_target = decode_state(ctx.reader, out.front()->to_state);
-    report.end_move = state_distance(end_x, end_v, old_target.x, old_target.v, tau);
+    report.end_move = db::state_distance(end_x, end_v, old_target.x, old_target.v, tau);
   }
   db::Writer::Edit edit(ctx.writer, clip, "resim", ctx.author);
   ctx.writer.replace_clip_blob(clip, r.clip_blob, r.clip_max_error, db::ClipStatus::Edited);
@@ -468,13 +467,13 @@ ResimReport resim_clip(EditContext& ctx, int64_t clip, const ResimOptions& optio
     eo.threads = std::max(1, options.threads);
     eo.progress = options.progress;
     eo.min_state_id = id;
-    eo.run_settings = "\"carried_forward_from_clip\": " + std::to_string(clip);
+    eo.resim_clip = clip;
     const ExploreReport er = explore(ctx.scene.scene, ctx.scene.graph, ctx.writer, eo);
     report.frames_added = er.frames_this_run;
     report.dead_ends_left = er.dead_ends;
     // What the edit added, and how many generations deep (a new state made by a clip that starts
     // at a new state is one generation further).
-    std::vector<db::ClothState> now;
+    std::vector<db::StoredState> now;
     std::vector<db::ClothClip> clips;
     check(ctx.reader.cloth_states(&now, &err), err);
     check(ctx.reader.cloth_clips(&clips, &err), err);
@@ -525,7 +524,7 @@ DeleteReport delete_clip(EditContext& ctx, int64_t clip) {
   if (ctx.reader.cloth_clip(clip, &row, &err) != db::Status::Ok)
     fail(ctx.path + ": no cloth clip " + std::to_string(clip));
   const ExploreGraph& graph = ctx.scene.graph;
-  std::vector<db::ClothState> states;
+  std::vector<db::StoredState> states;
   std::vector<db::ClothClip> clips;
   std::vector<db::ClothEdge> edges;
   check(ctx.reader.cloth_states(&states, &err), err);
@@ -558,7 +557,7 @@ DeleteReport delete_clip(EditContext& ctx, int64_t clip) {
         if (e.from_node == node && !along.count({s.id, e.db_clip})) complete = false;
       if (!complete) continue;
       StateData d = decode_state(ctx.reader, s.id);
-      const double dist = state_distance(start.x, start.v, d.x, d.v, tau);
+      const double dist = db::state_distance(start.x, start.v, d.x, d.v, tau);
       if (dist < best) best = dist, report.replacement = s.id, best_x = std::move(d.x);
     }
     if (report.replacement == 0)
@@ -596,7 +595,7 @@ DeleteReport delete_clip(EditContext& ctx, int64_t clip) {
 // ---- consistency --------------------------------------------------------------------------------
 
 std::vector<std::string> coverage_gaps(db::Reader& reader, const ExploreGraph& graph) {
-  std::vector<db::ClothState> states;
+  std::vector<db::StoredState> states;
   std::vector<db::ClothClip> clips;
   std::vector<db::ClothEdge> edges;
   db::Error err;

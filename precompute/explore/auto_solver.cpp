@@ -30,8 +30,8 @@ std::vector<float> flat(const Eigen::Matrix3Xd& m) {
 
 // The scene's settings with what the sweep sets (sub-steps, iterations, tolerance, linear
 // solver); one thread, so the CPU time is the cost of one explorer job.
-BenchConfig on_scene(const BenchConfig& c, const SolverSettings& scene_settings) {
-  BenchConfig out = c;
+SolverCandidate on_scene(const SolverCandidate& c, const SolverSettings& scene_settings) {
+  SolverCandidate out = c;
   out.settings = scene_settings;
   out.settings.substeps = c.settings.substeps;
   out.settings.iterations = c.settings.iterations;
@@ -47,7 +47,7 @@ struct Trial {
   double cpu = 0;
 };
 
-Trial simulate(const CharacterScene& scene, const BenchConfig& c, const ClothState& start,
+Trial simulate(const CharacterScene& scene, const SolverCandidate& c, const ClothState& start,
                const std::vector<std::vector<JointPose>>& poses, double rate) {
   Trial t;
   auto solver = make_solver(c.kind, scene.model, c.settings);
@@ -60,12 +60,12 @@ Trial simulate(const CharacterScene& scene, const BenchConfig& c, const ClothSta
 
 }  // namespace
 
-BenchConfig calibration_reference(SolverKind kind, bool newton_reference) {
-  if (newton_reference || kind == SolverKind::Newton) return reference_config();
+SolverCandidate calibration_reference(SolverKind kind, bool newton_reference) {
+  if (newton_reference || kind == SolverKind::Newton) return reference_candidate();
   // The finest setting of the sweep (most sub-steps, then most iterations) with 4 times the
   // sub-steps: XPBD/PBD/mass-spring converge to their own model's motion as the step shrinks.
-  BenchConfig finest = bench_configs(kind, false).front();
-  for (const BenchConfig& c : bench_configs(kind, false))
+  SolverCandidate finest = solver_candidates(kind, false).front();
+  for (const SolverCandidate& c : solver_candidates(kind, false))
     if (std::pair(c.settings.substeps, c.settings.iterations) >
         std::pair(finest.settings.substeps, finest.settings.iterations))
       finest = c;
@@ -103,7 +103,7 @@ AutoCalibration calibrate_solvers(const CharacterScene& scene,
   cal.reference_cpu_ms_per_frame = 1e3 * ref.cpu / cal.frames;
   const std::vector<float> ref_x = flat(ref.end.x), ref_v = flat(ref.end.v);
   for (SolverKind kind : kinds)
-    for (const BenchConfig& base : bench_configs(kind, options.quick)) {
+    for (const SolverCandidate& base : solver_candidates(kind, options.quick)) {
       AutoCandidate cand;
       cand.config = on_scene(base, scene.file.settings);
       const Trial t = simulate(scene, cand.config, start, poses, rate);
@@ -112,8 +112,8 @@ AutoCalibration calibrate_solvers(const CharacterScene& scene,
       cand.message = t.run.message;
       if (cand.stable) {
         const FrameErrors e = compare_frames(t.run.frames, ref.run.frames, 0);
-        cand.error = std::max(e.worst_frame_rms, state_distance(flat(t.end.x), flat(t.end.v), ref_x,
-                                                                ref_v, 1.0 / rate));
+        cand.error = std::max(e.worst_frame_rms, db::state_distance(flat(t.end.x), flat(t.end.v),
+                                                                    ref_x, ref_v, 1.0 / rate));
       }
       cal.candidates.push_back(std::move(cand));
     }
@@ -157,32 +157,6 @@ std::string auto_table(const AutoCalibration& cal, int chosen, double epsilon, d
     o << buf;
   }
   return o.str();
-}
-
-std::string solver_settings_json(SolverKind kind, const SolverSettings& s) {
-  const nlohmann::json j = {{"name", solver_name(kind)},
-                            {"substeps", s.substeps},
-                            {"iterations", s.iterations},
-                            {"tolerance", s.newton_tolerance},
-                            {"linear_solver", linear_solver_name(s.linear_solver)},
-                            {"tethers", s.tethers}};
-  return j.dump();
-}
-
-void parse_solver_settings_json(const std::string& text, const std::string& where, SolverKind* kind,
-                                SolverSettings* s) {
-  const nlohmann::json j = nlohmann::json::parse(text, nullptr, false);
-  try {
-    *kind = parse_solver_kind(j.at("name").get<std::string>());
-    s->substeps = j.at("substeps").get<int>();
-    s->iterations = j.at("iterations").get<int>();
-    s->newton_tolerance = j.at("tolerance").get<double>();
-    s->linear_solver = parse_linear_solver_kind(j.at("linear_solver").get<std::string>());
-    s->tethers = j.at("tethers").get<bool>();
-  } catch (const std::exception& e) {
-    throw std::runtime_error(where + ": not a solver setting recorded by --auto (" + e.what() +
-                             ")");
-  }
 }
 
 }  // namespace clothdb

@@ -74,7 +74,10 @@ struct StateRec {
   int64_t id = 0;
   int node = 0;
   std::vector<float> x, v;  // character space, as stored
-  double priority = 0;      // unresolved error when it was made (distance to the nearest older)
+  // Unresolved error of its dead ends: the distance to the nearest OTHER state at its node (older
+  // or newer), kept up to date as states are added there, so a dead end that a later state came
+  // close to no longer counts as far from everything.
+  double priority = 0;
 };
 
 struct Job {
@@ -104,6 +107,8 @@ struct Exploration {
   int64_t min_state_id = 0;                 // ExploreOptions::min_state_id
   std::vector<std::vector<int>> out_edges;  // per node: edges leaving it
   std::vector<StateRec> states;
+  std::vector<std::vector<int>> states_at_node;  // indices into states, per node
+  long clips = 0, linked = 0;  // clip ends so far, and those that linked back within epsilon
   std::set<std::pair<int64_t, int>> done;    // (state id, edge) with a clip
   std::set<std::pair<int64_t, int>> failed;  // unstable in this run: not retried
 };
@@ -190,12 +195,16 @@ void integrate_batch(Exploration& ex, db::Writer& writer, const std::vector<Job>
                                " along '" + edge.name + "' does not decode: " + err.message);
     double best = std::numeric_limits<double>::infinity();
     int best_state = -1;
-    for (size_t s = 0; s < ex.states.size(); ++s) {
-      if (ex.states[s].node != edge.to_node) continue;
-      const double d = state_distance(end_x, end_v, ex.states[s].x, ex.states[s].v, ex.tau);
-      if (d < best) best = d, best_state = static_cast<int>(s);
+    const std::vector<int>& here = ex.states_at_node[static_cast<size_t>(edge.to_node)];
+    std::vector<double> distance(here.size());
+    for (size_t k = 0; k < here.size(); ++k) {
+      const StateRec& other = ex.states[static_cast<size_t>(here[k])];
+      distance[k] = db::state_distance(end_x, end_v, other.x, other.v, ex.tau);
+      if (distance[k] < best) best = distance[k], best_state = here[k];
     }
+    ++ex.clips;
     if (best_state >= 0 && best <= options.epsilon) {
+      ++ex.linked;
       writer.add_cloth_edge(
           clip_id, ex.states[best_state].id, best,
           transition_pop(r.last.data(), ex.states[best_state].x.data(), r.vertex_count));
@@ -206,10 +215,17 @@ void integrate_batch(Exploration& ex, db::Writer& writer, const std::vector<Job>
       rec.x = std::move(end_x);
       rec.v = std::move(end_v);
       rec.priority = best_state >= 0 ? best : kNoNeighbour;
+      // The states already here have a new neighbour: their dead ends' errors may fall.
+      for (size_t k = 0; k < here.size(); ++k) {
+        StateRec& other = ex.states[static_cast<size_t>(here[k])];
+        other.priority = std::min(other.priority, distance[k]);
+      }
       rec.id = writer.add_cloth_state_blobs(node_anchor_clip(ex.graph, rec.node), 0, r.end_x_blob,
                                             r.end_v_blob, run_id, clip_id);
       writer.add_cloth_edge(clip_id, rec.id, 0.0,
                             transition_pop(r.last.data(), rec.x.data(), r.vertex_count));
+      ex.states_at_node[static_cast<size_t>(rec.node)].push_back(
+          static_cast<int>(ex.states.size()));
       ex.states.push_back(std::move(rec));
     }
   }
@@ -327,43 +343,22 @@ BatchRunner openmp_runner(const CharacterScene& scene, const ExploreGraph& graph
   };
 }
 
-Eigen::Isometry3d character_frame(const CharacterScene& scene, const std::vector<JointPose>& pose) {
-  // Heading: the root's bind-pose +z carried by its rotation, projected onto the floor.
-  const Eigen::Quaterniond motion = pose[0].rotation * scene.bind[0].rotation.inverse();
-  Vec3 forward = motion * Vec3(0, 0, 1);
-  forward.y() = 0;
-  if (forward.norm() < 1e-6) {  // root pitched straight up or down: use its x axis instead
-    forward = motion * Vec3(1, 0, 0);
-    forward = Vec3(-forward.z(), 0, forward.x());
-  }
-  const double yaw = std::atan2(forward.x(), forward.z());
-  Eigen::Isometry3d t = Eigen::Isometry3d::Identity();
-  t.linear() = Eigen::AngleAxisd(yaw, Vec3::UnitY()).toRotationMatrix();
-  t.translation() = Vec3(pose[0].position.x(), 0.0, pose[0].position.z());
-  return t;
+std::vector<db::NodeEdge> node_edges(const ExploreGraph& graph) {
+  std::vector<db::NodeEdge> out;
+  out.reserve(graph.edges.size());
+  for (const ExploreEdge& e : graph.edges) out.push_back({e.from_node, e.to_node, e.db_clip});
+  return out;
 }
 
 int64_t node_anchor_clip(const ExploreGraph& graph, int node) {
-  for (const ExploreEdge& e : graph.edges)
-    if (e.from_node == node) return e.db_clip;
-  throw std::runtime_error("explore: node " + std::to_string(node) + " has no edge leaving it");
+  const int64_t clip = db::node_anchor_clip(node_edges(graph), node);
+  if (clip == 0)
+    throw std::runtime_error("explore: node " + std::to_string(node) + " has no edge leaving it");
+  return clip;
 }
 
 int node_of_primary_clip(const ExploreGraph& graph, int64_t primary_clip) {
-  for (const ExploreEdge& e : graph.edges)
-    if (e.db_clip == primary_clip) return e.from_node;
-  return -1;
-}
-
-double state_distance(const std::vector<float>& xa, const std::vector<float>& va,
-                      const std::vector<float>& xb, const std::vector<float>& vb, double tau) {
-  double sum = 0;
-  const size_t n = xa.size() / 3;
-  for (size_t i = 0; i < 3 * n; ++i) {
-    const double dx = xa[i] - xb[i], dv = va[i] - vb[i];
-    sum += dx * dx + tau * tau * dv * dv;
-  }
-  return n > 0 ? std::sqrt(sum / n) : 0.0;
+  return db::node_of_primary_clip(node_edges(graph), primary_clip);
 }
 
 ExploreGraph explore_graph(const CharacterScene& scene, const MotionGraph& graph,
@@ -381,8 +376,8 @@ DatabaseScene load_database_scene(db::Reader& reader, const std::string& scene_f
                                "': not made by `clothdb precompute`, so its scene is unknown");
     return value;
   };
-  const std::string scene_path = scene_file.empty() ? meta("scene_path") : scene_file;
-  const std::string scene_hash = meta("scene_hash");
+  const std::string scene_path = scene_file.empty() ? meta(db::meta::kScenePath) : scene_file;
+  const std::string scene_hash = meta(db::meta::kSceneHash);
   if (!std::filesystem::exists(scene_path))
     throw std::runtime_error(
         path + ": its scene file " + scene_path +
@@ -397,7 +392,7 @@ DatabaseScene load_database_scene(db::Reader& reader, const std::string& scene_f
   DatabaseScene out{build_character_scene(file), {}};
   nlohmann::json graph_json;
   try {
-    graph_json = nlohmann::json::parse(meta("motion_graph"));
+    graph_json = nlohmann::json::parse(meta(db::meta::kMotionGraph));
   } catch (const nlohmann::json::parse_error& e) {
     throw std::runtime_error(path + ": meta motion_graph: not valid JSON: " + e.what());
   }
@@ -430,7 +425,7 @@ void prepare_database(db::Writer& writer, const CharacterScene& scene, ExploreGr
   if (reader.garment(&existing, &err) == db::Status::Ok) {
     // Resuming: the scene must be the one this database was made from.
     std::string stored;
-    if (reader.meta("scene_hash", &stored, &err) == db::Status::Ok && stored != scene_hash)
+    if (reader.meta(db::meta::kSceneHash, &stored, &err) == db::Status::Ok && stored != scene_hash)
       throw std::runtime_error(writer.path() + ": was made from a different version of " +
                                scene.file.path.string() + " (scene hash " + stored + ", now " +
                                scene_hash + "); use a new --db, or restore the scene file");
@@ -464,15 +459,34 @@ void prepare_database(db::Writer& writer, const CharacterScene& scene, ExploreGr
   g.material = mat;
   g.solver = solver_settings_json(scene.file.solver, scene.file.settings);
   writer.put_garment(g);
-  writer.set_meta("units", "metres, seconds; cloth in character space (docs/SECONDARY_GRAPH.md)");
-  writer.set_meta("scene", scene.file.text);
-  writer.set_meta("scene_path", scene.file.path.string());
-  writer.set_meta("scene_hash", scene_hash);
+  db::set_meta_text(writer, db::meta::kUnits,
+                    "metres, seconds; cloth in character space (docs/SECONDARY_GRAPH.md)");
+  db::set_meta_text(writer, db::meta::kScene, scene.file.text);
+  db::set_meta_text(writer, db::meta::kScenePath, scene.file.path.string());
+  db::set_meta_text(writer, db::meta::kSceneHash, scene_hash);
   tx.commit();
+}
+
+db::RunSettings make_run_settings(const CharacterScene& scene, const ExploreOptions& options,
+                                  const db::CodecSettings& codec) {
+  db::RunSettings run;
+  run.epsilon = options.epsilon;
+  run.solver = scene.file.solver;
+  run.settings = scene.file.settings;
+  run.codec = codec;
+  run.cpu_hours = options.cpu_hours;
+  run.max_frames = options.max_frames;
+  run.threads = options.threads;
+  run.batch = options.batch;
+  run.auto_solver = options.auto_solver;
+  run.resim_clip = options.resim_clip;
+  db::validate_run_settings(run, "run settings");
+  return run;
 }
 
 ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db::Writer& writer,
                       const ExploreOptions& options, const BatchRunner& given_runner) {
+  const db::RunSettings run = make_run_settings(scene, options, writer.codec());
   const BatchRunner runner =
       given_runner ? given_runner : openmp_runner(scene, graph, options.threads);
   ExploreReport report;
@@ -495,7 +509,7 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
   db::Error err;
   if (reader.open_on(writer, &err) != db::Status::Ok)
     throw std::runtime_error(writer.path() + ": " + std::string(err.message));
-  std::vector<db::ClothState> stored_states;
+  std::vector<db::StoredState> stored_states;
   std::vector<db::ClothClip> stored_clips;
   std::vector<db::ClothEdge> stored_edges;
   reader.cloth_states(&stored_states, &err);
@@ -520,22 +534,30 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
   for (const auto& e : stored_edges)
     report.worst_blend_error = std::max(report.worst_blend_error, e.blend_error);
   report.resumed = !states.empty();
-  // Priorities are a function of the states alone (distance to the nearest older state at the
+  // Priorities are a function of the states alone (distance to the nearest other state at the
   // same node), so a resumed run rebuilds the same queue.
+  ex.states_at_node.assign(static_cast<size_t>(graph.node_count), {});
   for (size_t i = 0; i < states.size(); ++i) {
-    double best = kNoNeighbour;
-    for (size_t j = 0; j < i; ++j)
-      if (states[j].node == states[i].node)
-        best = std::min(best,
-                        state_distance(states[i].x, states[i].v, states[j].x, states[j].v, ex.tau));
-    states[i].priority = best;
+    states[i].priority = kNoNeighbour;
+    ex.states_at_node[static_cast<size_t>(states[i].node)].push_back(static_cast<int>(i));
   }
-  const int64_t run_id = writer.begin_run(
-      "{\"epsilon_m\": " + std::to_string(options.epsilon) + ", \"threads\": " +
-      std::to_string(options.threads) + ", \"batch\": " + std::to_string(options.batch) +
-      ", \"solver\": \"" + solver_name(scene.file.solver) +
-      "\", \"solver_settings\": " + solver_settings_json(scene.file.solver, scene.file.settings) +
-      (options.run_settings.empty() ? "" : ", " + options.run_settings) + "}");
+  for (const std::vector<int>& here : ex.states_at_node)
+    for (size_t a = 0; a < here.size(); ++a)
+      for (size_t b = 0; b < a; ++b) {
+        StateRec& sa = states[static_cast<size_t>(here[a])];
+        StateRec& sb = states[static_cast<size_t>(here[b])];
+        const double d = db::state_distance(sa.x, sa.v, sb.x, sb.v, ex.tau);
+        sa.priority = std::min(sa.priority, d);
+        sb.priority = std::min(sb.priority, d);
+      }
+  // Clip ends that linked back: an edge into a state its own clip did not make.
+  {
+    std::map<int64_t, int64_t> made_by;
+    for (const auto& st : stored_states) made_by[st.id] = st.source_clip;
+    ex.clips = static_cast<long>(stored_edges.size());
+    for (const auto& e : stored_edges) ex.linked += made_by[e.to_state] != e.from_clip;
+  }
+  const int64_t run_id = writer.begin_run(db::run_settings_json(run));
   if (states.empty()) {
     SolverSettings settings = scene.file.settings;
     auto solver = make_solver(scene.file.solver, scene.model, settings);
@@ -551,6 +573,7 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
     rec.x = roundtrip(raw_x, pos_bound);
     rec.v = roundtrip(raw_v, vel_bound);
     rec.priority = kNoNeighbour;
+    ex.states_at_node[static_cast<size_t>(rec.node)].push_back(0);
     rec.id = writer.add_cloth_state(node_anchor_clip(ex.graph, rec.node), 0, raw_x.data(),
                                     raw_v.data(), static_cast<uint32_t>(raw_x.size() / 3), run_id);
     states.push_back(std::move(rec));
@@ -565,15 +588,17 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
     double sum = 0;
     int counted = 0;
     for (const Job& j : queue) {
-      // The very first state at a node has no neighbour: its error is the whole unknown; count
-      // it as epsilon-free worst case only when nothing else is known.
-      const double error = states[j.state].priority;  // metres, not weighted by reach
+      // The very first state at a node has no neighbour: its error is the whole unknown; it is
+      // explored first and counted as 0 here (nothing to compare it with yet).
+      const double error = states[j.state].priority;  // metres
       const double e = error >= kNoNeighbour ? 0.0 : error;
       p.worst_error = std::max(p.worst_error, e);
+      p.weighted_worst_error = std::max(p.weighted_worst_error, e * graph.edges[j.edge].reach);
       sum += e;
       ++counted;
     }
     p.mean_error = counted ? sum / counted : 0.0;
+    p.linked_fraction = ex.clips ? static_cast<double>(ex.linked) / ex.clips : 0.0;
     return p;
   };
 
@@ -629,23 +654,34 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
     }
   }
   if (options.progress) std::fprintf(stderr, "\n");
-  writer.finish_run(run_id, report.cpu_seconds,
-                    queue.empty() ? "converged" : std::to_string(queue.size()) + " dead ends left");
+  const CurvePoint& last = report.curve.back();
+  char notes[256];
+  std::snprintf(
+      notes, sizeof notes,
+      "%s; unresolved error worst %.2f mm, reach-weighted worst %.2f mm; %.1f %% of "
+      "clip ends linked within epsilon",
+      queue.empty() ? "converged" : (std::to_string(queue.size()) + " dead ends left").c_str(),
+      1e3 * last.worst_error, 1e3 * last.weighted_worst_error, 100 * last.linked_fraction);
+  writer.finish_run(run_id, report.cpu_seconds, notes);
   report.states = static_cast<int>(states.size());
   report.clips = static_cast<int>(ex.done.size());
   report.dead_ends = static_cast<int>(queue.size());
   report.edges = report.clips;
   report.worst_error = report.curve.back().worst_error;
+  report.weighted_worst_error = report.curve.back().weighted_worst_error;
+  report.linked_fraction = report.curve.back().linked_fraction;
   report.converged = queue.empty();
   return report;
 }
 
 std::string curve_csv(const std::vector<CurvePoint>& curve) {
   std::ostringstream o;
-  o << "cpu_seconds,frames,states,dead_ends,worst_error_mm,mean_error_mm\n";
+  o << "cpu_seconds,frames,states,dead_ends,worst_error_mm,weighted_worst_error_mm,mean_error_mm,"
+       "linked_percent\n";
   for (const auto& p : curve)
     o << p.cpu_seconds << ',' << p.frames << ',' << p.states << ',' << p.dead_ends << ','
-      << 1e3 * p.worst_error << ',' << 1e3 * p.mean_error << '\n';
+      << 1e3 * p.worst_error << ',' << 1e3 * p.weighted_worst_error << ',' << 1e3 * p.mean_error
+      << ',' << 100 * p.linked_fraction << '\n';
   return o.str();
 }
 
@@ -654,7 +690,10 @@ std::string curve_svg(const std::vector<CurvePoint>& curve, double epsilon) {
   spec.title = "Unresolved error against CPU time";
   spec.x_label = "CPU seconds";
   spec.y_label = "unresolved error, mm";
-  PlotSeries worst, mean, eps;
+  PlotSeries worst, weighted, mean, eps;
+  weighted.label = "worst x reach (how often the game takes the edge)";
+  weighted.color = palette_color(2);
+  weighted.line = true;
   worst.label = "worst";
   worst.color = palette_color(1);
   worst.line = true;
@@ -669,6 +708,8 @@ std::string curve_svg(const std::vector<CurvePoint>& curve, double epsilon) {
   for (const auto& p : curve) {
     worst.x.push_back(p.cpu_seconds);
     worst.y.push_back(1e3 * p.worst_error);
+    weighted.x.push_back(p.cpu_seconds);
+    weighted.y.push_back(1e3 * p.weighted_worst_error);
     mean.x.push_back(p.cpu_seconds);
     mean.y.push_back(1e3 * p.mean_error);
   }
@@ -676,7 +717,7 @@ std::string curve_svg(const std::vector<CurvePoint>& curve, double epsilon) {
     eps.x = {curve.front().cpu_seconds, curve.back().cpu_seconds};
     eps.y = {1e3 * epsilon, 1e3 * epsilon};
   }
-  spec.series = {worst, mean, eps};
+  spec.series = {worst, weighted, mean, eps};
   return render_svg(spec);
 }
 

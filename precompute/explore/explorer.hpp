@@ -24,9 +24,11 @@
 #include <string>
 #include <vector>
 
+#include "character_scene/character_scene.hpp"
+#include "database/cloth_graph.hpp"
+#include "database/run_settings.hpp"
 #include "database/schema.hpp"
 #include "quality/clip_quality.hpp"
-#include "scene/character_scene.hpp"
 
 namespace clothdb {
 
@@ -41,6 +43,9 @@ struct ExploreEdge {
   // How often the game takes this edge relative to the most taken one, in (0, 1] (edge_reach in
   // graph/motion_graph.hpp): a dead end's priority is its error times this.
   double reach = 1.0;
+  // Relative likelihood that the game takes this edge at its source node (the manifest's weight,
+  // graph/motion_graph.hpp GraphEdge::weight): what a random walk of the game's view uses.
+  double weight = 1.0;
 };
 
 struct ExploreGraph {
@@ -96,11 +101,18 @@ struct ExploreOptions {
   int threads = 1;           // OpenMP threads across jobs (each job's solver runs on one)
   int batch = 8;             // dead ends per batch (fixed: the result does not depend on threads)
   bool progress = true;      // a progress bar on stderr
-  std::string run_settings;  // more JSON members for the run row, e.g. "\"auto_solver\": true"
+  bool auto_solver = false;  // recorded in the run: the scene's solver was chosen by --auto
   // Only dead ends of states with at least this id (0: every dead end). `clothdb clip resim`
   // explores from the states its edit made and leaves the rest of the database as it is.
   int64_t min_state_id = 0;
+  long resim_clip = 0;  // recorded in the run: a `clip resim` of this clip carried forward
 };
+
+// The run's typed record (database/run_settings.hpp): the scene's solver and settings, the
+// options, and the database's codec. Throws db::SettingsError naming the first invalid field
+// (NaN or negative epsilon or budget, ...) before anything is simulated or written.
+db::RunSettings make_run_settings(const CharacterScene& scene, const ExploreOptions& options,
+                                  const db::CodecSettings& codec);
 
 struct CurvePoint {
   double cpu_seconds = 0;
@@ -108,7 +120,9 @@ struct CurvePoint {
   int states = 0;
   int dead_ends = 0;
   double worst_error = 0;  // m, largest unresolved error among dead ends (0 when none)
-  double mean_error = 0;   // m
+  double weighted_worst_error = 0;  // m, largest unresolved error x the edge's reach
+  double mean_error = 0;            // m
+  double linked_fraction = 0;       // clip ends so far that linked back within epsilon
 };
 
 struct ExploreReport {
@@ -120,6 +134,8 @@ struct ExploreReport {
   long frames_this_run = 0;
   double cpu_seconds = 0;        // this run
   double worst_error = 0;        // m
+  double weighted_worst_error = 0;  // m, x the edge's reach
+  double linked_fraction = 0;       // of all clip ends in the database
   double worst_blend_error = 0;  // m, largest recorded blend error on a cloth edge
   bool converged = false;        // no dead end left above epsilon
   bool resumed = false;
@@ -128,18 +144,13 @@ struct ExploreReport {
   std::vector<CurvePoint> curve;  // one point per batch (this run)
 };
 
-// Character space (docs/SECONDARY_GRAPH.md): the root projected to the floor, facing +z.
-Eigen::Isometry3d character_frame(const CharacterScene& scene, const std::vector<JointPose>& pose);
-
-// The primary clip a cloth state at `node` is stored at: the first edge leaving the node (the
-// explorer's convention, docs/SECONDARY_GRAPH.md).
+// The graph's edges as the cloth-graph contract sees them (database/cloth_graph.hpp), where the
+// node-anchor, start-clip and start-state rules are defined.
+std::vector<db::NodeEdge> node_edges(const ExploreGraph& graph);
+// db::node_anchor_clip on this graph; throws std::runtime_error if no edge leaves the node.
 int64_t node_anchor_clip(const ExploreGraph& graph, int node);
-// The node a stored state is at, from its primary clip (-1 if no edge of the graph is that clip).
+// db::node_of_primary_clip on this graph (-1 if no edge of the graph is that clip).
 int node_of_primary_clip(const ExploreGraph& graph, int64_t primary_clip);
-
-// RMS over vertices of sqrt(|dx|^2 + (tau |dv|)^2), metres.
-double state_distance(const std::vector<float>& xa, const std::vector<float>& va,
-                      const std::vector<float>& xb, const std::vector<float>& vb, double tau);
 
 // The explorer's view of a motion graph built from the scene's clips: one edge per graph edge,
 // named as its primary clip in the database ("clip[first-last]" or "clip[frame]->clip[frame]"),

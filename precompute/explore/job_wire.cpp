@@ -11,11 +11,10 @@ namespace clothdb {
 static_assert(std::endian::native == std::endian::little, "the wire format is little-endian");
 
 // A new field in one of these structs must go into its encoder and decoder below (and bump
-// kWireVersion); the sizes catch a field added without that on the platform we build on.
+// kWireVersion); the sizes catch a field added without that on the platform we build on. The
+// solver and codec settings travel as their one serialiser's JSON (database/run_settings.hpp), so
+// a new solver option needs nothing here.
 #if defined(__x86_64__) && defined(__GLIBCXX__)
-static_assert(sizeof(SolverSettings) == 80, "SolverSettings changed: update encode_job/decode_job");
-static_assert(sizeof(db::CodecSettings) == 24,
-              "CodecSettings changed: update encode_job/decode_job");
 static_assert(sizeof(JobInput) == 168, "JobInput changed: update encode_job/decode_job");
 static_assert(sizeof(ClipQuality) == 40, "ClipQuality changed: update encode_result/decode_result");
 static_assert(sizeof(JobResult) == 200, "JobResult changed: update encode_result/decode_result");
@@ -174,26 +173,11 @@ std::vector<uint8_t> encode_job(uint64_t seq, const JobInput& job) {
   o.i32(job.edge);
   o.floats(job.x);
   o.floats(job.v);
-  o.u32(static_cast<uint32_t>(job.solver));
-  const SolverSettings& s = job.settings;
-  o.i32(s.substeps);
-  o.i32(s.iterations);
-  o.f64(s.pbd_stretch_stiffness);
-  o.f64(s.pbd_bend_stiffness);
-  o.f64(s.provot_critical_rate);
-  o.f64(s.newton_tolerance);
-  o.i32(s.newton_max_iterations);
-  o.i32(s.newton_max_halvings);
-  o.u32(static_cast<uint32_t>(s.linear_solver));
-  o.i32(s.threads);
-  o.u32(s.tethers ? 1 : 0);
-  o.u32(static_cast<uint32_t>(s.newton_guess));
-  o.f64(s.newton_reuse_contraction);
-  o.u32(s.newton_exact_hessian ? 1 : 0);
-  o.f64(job.codec.position_bound);
-  o.f64(job.codec.velocity_bound);
-  o.u32(job.codec.key_interval);
-  o.i32(job.codec.zstd_level);
+  db::RunSettings run;
+  run.solver = job.solver;
+  run.settings = job.settings;
+  run.codec = job.codec;
+  o.str(db::run_settings_json(run));
   return o.take();
 }
 
@@ -207,35 +191,15 @@ JobInput decode_job(const uint8_t* data, size_t size, uint64_t* seq) {
   if (job.x.size() != job.v.size() || job.x.size() % 3 != 0)
     in.fail("v", std::to_string(job.x.size()) + " position and " + std::to_string(job.v.size()) +
                      " velocity floats: must be equal multiples of 3");
-  const uint32_t solver = in.u32("solver");
-  if (solver > static_cast<uint32_t>(SolverKind::Newton))
-    in.fail("solver", "unknown kind " + std::to_string(solver));
-  job.solver = static_cast<SolverKind>(solver);
-  SolverSettings& s = job.settings;
-  s.substeps = in.i32("substeps");
-  s.iterations = in.i32("iterations");
-  s.pbd_stretch_stiffness = in.f64("pbd_stretch_stiffness");
-  s.pbd_bend_stiffness = in.f64("pbd_bend_stiffness");
-  s.provot_critical_rate = in.f64("provot_critical_rate");
-  s.newton_tolerance = in.f64("newton_tolerance");
-  s.newton_max_iterations = in.i32("newton_max_iterations");
-  s.newton_max_halvings = in.i32("newton_max_halvings");
-  const uint32_t linear = in.u32("linear_solver");
-  if (linear > static_cast<uint32_t>(LinearSolverKind::ConjugateGradientIC))
-    in.fail("linear_solver", "unknown kind " + std::to_string(linear));
-  s.linear_solver = static_cast<LinearSolverKind>(linear);
-  s.threads = in.i32("threads");
-  s.tethers = in.u32("tethers") != 0;
-  const uint32_t guess = in.u32("newton_guess");
-  if (guess > static_cast<uint32_t>(SolverSettings::Guess::Extrapolate))
-    in.fail("newton_guess", "unknown kind " + std::to_string(guess));
-  s.newton_guess = static_cast<SolverSettings::Guess>(guess);
-  s.newton_reuse_contraction = in.f64("newton_reuse_contraction");
-  s.newton_exact_hessian = in.u32("newton_exact_hessian") != 0;
-  job.codec.position_bound = in.f64("position_bound");
-  job.codec.velocity_bound = in.f64("velocity_bound");
-  job.codec.key_interval = in.u32("key_interval");
-  job.codec.zstd_level = in.i32("zstd_level");
+  const std::string settings = in.str("settings");
+  try {
+    const db::RunSettings run = db::parse_run_settings_json(settings, "job message: settings");
+    job.solver = run.solver;
+    job.settings = run.settings;
+    job.codec = run.codec;
+  } catch (const db::SettingsError& e) {
+    in.fail("settings", e.what());
+  }
   in.finish();
   return job;
 }

@@ -18,7 +18,8 @@
 
 namespace clothdb {
 
-constexpr uint32_t kWireVersion = 3;  // 2: clip quality metrics and the last frame; 3: Newton options
+constexpr uint32_t kWireVersion = 4;  // 2: clip quality metrics and the last frame; 3: Newton
+                                      // options; 4: solver and codec settings as RunSettings JSON
 
 class WireError : public std::runtime_error {
  public:

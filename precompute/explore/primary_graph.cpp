@@ -39,6 +39,7 @@ ExploreGraph make_explore_graph(const MotionGraph& graph, const std::vector<Moti
                        clips[ge.target_clip].name + "[" + std::to_string(ge.target_frame) + "]";
     x.poses = edge_poses(graph, clips, static_cast<int>(e));
     x.reach = reach[e];
+    x.weight = ge.weight;
     eg.edges.push_back(std::move(x));
   }
   return eg;
@@ -83,19 +84,16 @@ void write_primary_graph(db::Writer& writer, ExploreGraph& graph, const std::str
         t.to_frame = 0;
         writer.add_primary_transition(t);
       }
-  for (const auto& e : graph.edges)
-    if (e.from_node == graph.start_node) {
-      writer.set_meta("start_clip", std::to_string(e.db_clip));
-      break;
-    }
-  writer.set_meta("motion_graph", graph_json);
+  if (const int64_t start = db::start_clip(node_edges(graph), graph.start_node))
+    db::set_meta_integer(writer, db::meta::kStartClip, start);
+  db::set_meta_text(writer, db::meta::kMotionGraph, graph_json);
   tx.commit();
 }
 
 std::string stored_motion_graph(db::Reader& reader) {
   std::string text;
   db::Error err;
-  if (reader.meta("motion_graph", &text, &err) != db::Status::Ok) return "";
+  if (reader.meta(db::meta::kMotionGraph, &text, &err) != db::Status::Ok) return "";
   return text;
 }
 

@@ -5,7 +5,6 @@
 #include <stdexcept>
 #include <string>
 
-#include "explore/explorer.hpp"
 #include "solvers/solver.hpp"
 
 namespace clothdb {

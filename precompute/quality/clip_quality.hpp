@@ -44,10 +44,10 @@
 #include <cstddef>
 #include <vector>
 
+#include "character_scene/character_scene.hpp"
 #include "cloth/collision.hpp"
 #include "cloth/model.hpp"
 #include "database/schema.hpp"
-#include "scene/character_scene.hpp"
 
 namespace clothdb {
 
@@ -84,7 +84,7 @@ ClipQuality measure_clip(const ClothModel& model, const float* frames, int frame
                          std::vector<FrameQuality>* per_frame = nullptr);
 
 // Body capsules at every pose, each in that pose's character space: the space a clip along these
-// poses is stored in (character_frame in explore/explorer.hpp).
+// poses is stored in (character_frame in character_scene/character_scene.hpp).
 std::vector<std::vector<CapsuleCollider>> character_space_capsules(
     const CharacterScene& scene, const std::vector<std::vector<JointPose>>& poses);
 

@@ -9,6 +9,7 @@
 
 #include "cloth/collision.hpp"
 #include "cloth/model.hpp"
+#include "database/run_settings.hpp"  // SolverKind, SolverSettings: what a database records
 
 namespace clothdb {
 
@@ -19,58 +20,6 @@ struct ClothState {
 
 // The state at rest positions with zero velocity.
 ClothState rest_state(const ClothModel& model);
-
-enum class SolverKind { MassSpring, Pbd, Xpbd, Newton };
-const char* solver_name(SolverKind kind);  // "mass-spring", "pbd", "xpbd", "newton"
-// Parses a name as above; throws std::invalid_argument naming the accepted values.
-SolverKind parse_solver_kind(const std::string& name);
-
-// ConjugateGradient: Jacobi (diagonal) preconditioner; ConjugateGradientIC: incomplete Cholesky.
-enum class LinearSolverKind { SimplicialLDLT, Cholmod, ConjugateGradient, ConjugateGradientIC };
-const char* linear_solver_name(LinearSolverKind kind);  // "ldlt", "cholmod", "pcg", "pcg-ic"
-LinearSolverKind parse_linear_solver_kind(const std::string& name);
-
-struct SolverSettings {
-  int substeps = 1;     // sub-steps per step (all solvers)
-  int iterations = 10;  // constraint iterations per sub-step (PBD, XPBD)
-  // PBD constraint stiffness in [0, 1] (Mueller 2007); negative: derived from the material so that
-  // PBD approximates the same cloth (see pbd.cpp).
-  double pbd_stretch_stiffness = 1.0;
-  double pbd_bend_stiffness = -1.0;
-  // Provot's critical deformation rate for the mass-spring solver (0.1 = 10 %).
-  double provot_critical_rate = 0.1;
-  // Newton: stop when the free-DOF force residual's infinity norm is below
-  // newton_tolerance * (max vertex weight m g), or after newton_max_iterations (then halve dt).
-  double newton_tolerance = 1e-6;
-  int newton_max_iterations = 25;
-  int newton_max_halvings = 6;
-  // Newton's first iterate (seed 004 Algorithm 1 line 22 starts from x_n): Start is x_n;
-  // Inertial is x_n + h v_n; Extrapolate is x_n + h v_n + h^2 a with a the acceleration of the
-  // previous sub-step this solver produced (when it continues from that state, otherwise as
-  // Inertial). Whichever candidate has the lower incremental potential Phi is used, so a bad
-  // prediction never costs more than starting from x_n. Off (Start) by default: on a stretched
-  // hanging sheet it ended 2e-5 m from the plain loop's solution after six frames, more than the
-  // tolerance explains, which is not understood yet (docs/BENCHMARKS.md, Newton study).
-  enum class Guess { Start, Inertial, Extrapolate };
-  Guess newton_guess = Guess::Start;
-  // Chord (modified) Newton: keep the last factorisation while each iteration still reduces the
-  // force residual to at most this fraction of the previous one; 0 refactorises every iteration.
-  // The stale matrix is positive definite, so its direction is still a descent direction and the
-  // line search still guarantees progress; only the convergence rate changes (linear, not
-  // quadratic), and the tolerance test is the same. Off by default: on seed 004's grids it cost
-  // more CPU time than it saved (`clothdb bench newton`, docs/BENCHMARKS.md).
-  double newton_reuse_contraction = 0.0;
-  // Try the exact Hessian first (quadratic convergence near a minimum) and fall back to the
-  // projected element Hessians when it is indefinite; false: the projected ones only (no wasted
-  // factorisation of an indefinite matrix when the cloth is compressed or buckling).
-  bool newton_exact_hessian = true;
-  LinearSolverKind linear_solver = LinearSolverKind::SimplicialLDLT;
-  int threads = 1;  // OpenMP threads; results are identical whatever this is
-  // XPBD: long-range attachments (Kim, Chentanez & Mueller 2012): each free vertex may be no
-  // farther from its geodesically nearest pin than its rest path along the mesh. Cheap, and what
-  // keeps a hanging garment from stretching when few iterations leave the constraints soft.
-  bool tethers = true;
-};
 
 struct StepInputs {
   const Environment* env = nullptr;  // required

@@ -13,51 +13,6 @@ ClothState rest_state(const ClothModel& model) {
   return s;
 }
 
-const char* solver_name(SolverKind kind) {
-  switch (kind) {
-    case SolverKind::MassSpring:
-      return "mass-spring";
-    case SolverKind::Pbd:
-      return "pbd";
-    case SolverKind::Xpbd:
-      return "xpbd";
-    case SolverKind::Newton:
-      return "newton";
-  }
-  return "unknown";
-}
-
-SolverKind parse_solver_kind(const std::string& name) {
-  for (SolverKind k :
-       {SolverKind::MassSpring, SolverKind::Pbd, SolverKind::Xpbd, SolverKind::Newton})
-    if (name == solver_name(k)) return k;
-  throw std::invalid_argument("unknown solver '" + name +
-                              "' (expected mass-spring, pbd, xpbd or newton)");
-}
-
-const char* linear_solver_name(LinearSolverKind kind) {
-  switch (kind) {
-    case LinearSolverKind::SimplicialLDLT:
-      return "ldlt";
-    case LinearSolverKind::Cholmod:
-      return "cholmod";
-    case LinearSolverKind::ConjugateGradient:
-      return "pcg";
-    case LinearSolverKind::ConjugateGradientIC:
-      return "pcg-ic";
-  }
-  return "unknown";
-}
-
-LinearSolverKind parse_linear_solver_kind(const std::string& name) {
-  for (LinearSolverKind k :
-       {LinearSolverKind::SimplicialLDLT, LinearSolverKind::Cholmod,
-        LinearSolverKind::ConjugateGradient, LinearSolverKind::ConjugateGradientIC})
-    if (name == linear_solver_name(k)) return k;
-  throw std::invalid_argument("unknown linear solver '" + name +
-                              "' (expected ldlt, cholmod, pcg or pcg-ic)");
-}
-
 bool state_is_sane(const ClothState& state, double max_speed) {
   if (!state.x.allFinite() || !state.v.allFinite()) return false;
   const double max_speed2 = max_speed * max_speed;

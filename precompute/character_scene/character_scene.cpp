@@ -1,4 +1,4 @@
-#include "scene/character_scene.hpp"
+#include "character_scene/character_scene.hpp"
 
 #include <chrono>
 #include <fstream>
@@ -57,7 +57,6 @@ struct Fields {
   }
 };
 
-
 }  // namespace
 
 SceneFile load_scene_file(const std::filesystem::path& file) {
@@ -76,8 +75,10 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   }
   const Fields f{file.string()};
   if (!j.is_object()) f.fail("(top level)", "expected an object");
-  f.only(j, {"name", "manifest", "clips", "garment", "material", "solver", "colliders", "air_drag",
-             "settle_frames"}, "");
+  f.only(j,
+         {"name", "manifest", "clips", "garment", "material", "solver", "colliders", "air_drag",
+          "settle_frames"},
+         "");
   s.name = f.string(j, "name", "", file.stem().string());
   const std::string manifest = f.string(j, "manifest", "", "");
   if (manifest.empty()) f.fail("manifest", "required: the motion manifest (JSON) this scene uses");
@@ -85,9 +86,11 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   if (manifest_path.is_relative()) manifest_path = file.parent_path() / manifest_path;
   s.manifest = load_manifest(manifest_path);
   if (j.contains("clips")) {
-    if (!j["clips"].is_array() || j["clips"].empty()) f.fail("clips", "expected a non-empty array of clip names");
+    if (!j["clips"].is_array() || j["clips"].empty())
+      f.fail("clips", "expected a non-empty array of clip names");
     for (size_t i = 0; i < j["clips"].size(); ++i) {
-      if (!j["clips"][i].is_string()) f.fail("clips[" + std::to_string(i) + "]", "expected a string");
+      if (!j["clips"][i].is_string())
+        f.fail("clips[" + std::to_string(i) + "]", "expected a string");
       const std::string name = j["clips"][i].get<std::string>();
       try {
         s.manifest.require(name);
@@ -100,7 +103,8 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
     for (const auto& c : s.manifest.clips) s.clips.push_back(c.name);
   }
 
-  if (!j.contains("garment")) f.fail("garment", "required: {\"type\": \"skirt\" | \"cape\" | \"mesh\", ...}");
+  if (!j.contains("garment"))
+    f.fail("garment", "required: {\"type\": \"skirt\" | \"cape\" | \"mesh\", ...}");
   const json& g = f.object(j, "garment", "");
   const std::string type = f.string(g, "type", "garment.", "");
   if (type == "skirt") {
@@ -128,7 +132,8 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
     if (mesh_file.is_relative()) mesh_file = file.parent_path() / mesh_file;
     s.mesh.file = mesh_file.string();
     s.mesh.scale = f.number(g, "scale", "garment.", 1.0, true);
-    s.mesh.weld_tolerance = f.number(g, "weld_tolerance", "garment.", s.mesh.weld_tolerance, false, true);
+    s.mesh.weld_tolerance =
+        f.number(g, "weld_tolerance", "garment.", s.mesh.weld_tolerance, false, true);
     s.mesh.bone = f.string(g, "bone", "garment.", "");
     const json& p = f.object(g, "pins", "garment.");
     if (p.contains("vertex_group")) {
@@ -147,37 +152,38 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
       s.mesh.pins.bone = f.string(p, "bone", "garment.pins.", "");
       s.mesh.pins.distance = f.number(p, "distance", "garment.pins.", s.mesh.pins.distance, true);
     } else {
-      f.fail("garment.pins", "required: {\"vertex_group\": NAME} | {\"height_band\": [lo, hi]} | {\"bone\": NAME, \"distance\": M}");
+      f.fail("garment.pins",
+             "required: {\"vertex_group\": NAME} | {\"height_band\": [lo, hi]} | {\"bone\": NAME, "
+             "\"distance\": M}");
     }
   } else {
     f.fail("garment.type", "expected \"skirt\", \"cape\" or \"mesh\", got \"" + type + "\"");
   }
 
   const json& m = f.object(j, "material", "");
-  f.only(m, {"density", "youngs_modulus", "poisson", "thickness", "bending_stiffness", "damping"}, "material.");
+  f.only(m, {"density", "youngs_modulus", "poisson", "thickness", "bending_stiffness", "damping"},
+         "material.");
   s.material.density = f.number(m, "density", "material.", s.material.density, true);
-  s.material.youngs_modulus = f.number(m, "youngs_modulus", "material.", s.material.youngs_modulus, true);
+  s.material.youngs_modulus =
+      f.number(m, "youngs_modulus", "material.", s.material.youngs_modulus, true);
   s.material.poisson = f.number(m, "poisson", "material.", s.material.poisson, false, true);
   if (s.material.poisson >= 0.5) f.fail("material.poisson", "expected a value in [0, 0.5)");
   s.material.thickness = f.number(m, "thickness", "material.", s.material.thickness, true);
-  s.material.bending_stiffness = f.number(m, "bending_stiffness", "material.", s.material.bending_stiffness);
+  s.material.bending_stiffness =
+      f.number(m, "bending_stiffness", "material.", s.material.bending_stiffness);
   s.material.damping = f.number(m, "damping", "material.", s.material.damping, false, true);
 
   const json& so = f.object(j, "solver", "");
-  f.only(so, {"name", "substeps", "iterations", "tolerance", "linear_solver", "threads", "tethers"}, "solver.");
+  // The scene's defaults where the block is silent; parsed and checked by the one serialiser of
+  // solver settings (database/run_settings.hpp), so every field a database records may be set here.
+  s.solver = SolverKind::Xpbd;
+  s.settings.substeps = 10;
+  s.settings.iterations = 1;
+  s.settings.threads = 1;
   try {
-    s.solver = parse_solver_kind(f.string(so, "name", "solver.", "xpbd"));
-    s.settings.linear_solver = parse_linear_solver_kind(f.string(so, "linear_solver", "solver.", "ldlt"));
-  } catch (const std::invalid_argument& e) {
-    f.fail("solver", e.what());
-  }
-  s.settings.substeps = f.integer(so, "substeps", "solver.", 10, 1);
-  s.settings.iterations = f.integer(so, "iterations", "solver.", 1, 1);
-  s.settings.newton_tolerance = f.number(so, "tolerance", "solver.", s.settings.newton_tolerance, true);
-  s.settings.threads = f.integer(so, "threads", "solver.", 1, 1);
-  if (so.contains("tethers")) {
-    if (!so["tethers"].is_boolean()) f.fail("solver.tethers", "expected true or false");
-    s.settings.tethers = so["tethers"].get<bool>();
+    parse_solver_settings_json(so.dump(), file.string(), &s.solver, &s.settings, "solver.");
+  } catch (const SettingsError& e) {
+    throw SceneError(e.what());
   }
 
   const json& c = f.object(j, "colliders", "");
@@ -188,7 +194,8 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   if (c.contains("bones")) {
     if (!c["bones"].is_array()) f.fail("colliders.bones", "expected an array of bone names");
     for (size_t i = 0; i < c["bones"].size(); ++i) {
-      if (!c["bones"][i].is_string()) f.fail("colliders.bones[" + std::to_string(i) + "]", "expected a string");
+      if (!c["bones"][i].is_string())
+        f.fail("colliders.bones[" + std::to_string(i) + "]", "expected a string");
       s.body.bones.push_back(c["bones"][i].get<std::string>());
     }
   }
@@ -201,7 +208,8 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   }
   s.margin = f.number(c, "margin", "colliders.", s.margin, true);
   s.friction_static = f.number(c, "friction_static", "colliders.", s.friction_static, false, true);
-  s.friction_kinetic = f.number(c, "friction_kinetic", "colliders.", s.friction_kinetic, false, true);
+  s.friction_kinetic =
+      f.number(c, "friction_kinetic", "colliders.", s.friction_kinetic, false, true);
   try {
     s.collider_motion = parse_collider_motion(
         f.string(c, "motion", "colliders.", collider_motion_name(s.collider_motion)));
@@ -218,7 +226,8 @@ int CharacterScene::clip_index(const std::string& name) const {
     if (clips[i].name == name) return static_cast<int>(i);
   std::string list;
   for (const auto& c : clips) list += (list.empty() ? "" : ", ") + c.name;
-  throw SceneError(file.path.string() + ": no clip '" + name + "' in this scene (clips: " + list + ")");
+  throw SceneError(file.path.string() + ": no clip '" + name + "' in this scene (clips: " + list +
+                   ")");
 }
 
 CharacterScene build_character_scene(const SceneFile& file) {
@@ -237,9 +246,15 @@ CharacterScene build_character_scene(const SceneFile& file) {
   }
   scene.bind = rest_pose(scene.skeleton);
   switch (file.garment_kind) {
-    case GarmentKind::Skirt: scene.garment = make_skirt(scene.skeleton, file.skirt); break;
-    case GarmentKind::Cape: scene.garment = make_cape(scene.skeleton, file.cape); break;
-    case GarmentKind::Mesh: scene.garment = import_garment(scene.skeleton, file.mesh); break;
+    case GarmentKind::Skirt:
+      scene.garment = make_skirt(scene.skeleton, file.skirt);
+      break;
+    case GarmentKind::Cape:
+      scene.garment = make_cape(scene.skeleton, file.cape);
+      break;
+    case GarmentKind::Mesh:
+      scene.garment = import_garment(scene.skeleton, file.mesh);
+      break;
   }
   scene.model = make_model(scene.garment.mesh, file.material, scene.garment.pins);
   if (file.auto_distance > 0) {
@@ -249,9 +264,11 @@ CharacterScene build_character_scene(const SceneFile& file) {
     const MotionClip& clip = scene.clips.front();
     for (int f = 0; f < clip.frame_count; f += std::max(1, clip.frame_count / 8)) {
       const Eigen::Matrix3Xd x = carry_garment(scene.garment, scene.bind, clip_pose(clip, f));
-      for (const auto& cap : make_body_near(scene.skeleton, clip, x, file.auto_distance, file.body, f).capsules) {
+      for (const auto& cap :
+           make_body_near(scene.skeleton, clip, x, file.auto_distance, file.body, f).capsules) {
         bool have = false;
-        for (const auto& m : merged.capsules) have |= (m.joint == cap.joint && m.child == cap.child);
+        for (const auto& m : merged.capsules)
+          have |= (m.joint == cap.joint && m.child == cap.child);
         if (!have) merged.capsules.push_back(cap);
       }
     }
@@ -288,7 +305,8 @@ ClothState settle_garment(const CharacterScene& scene, Solver& solver,
   std::vector<std::vector<JointPose>> poses(scene.file.settle_frames + 1, pose);
   if (scene.file.settle_frames > 0) {
     const PoseRun run = simulate_poses(scene, solver, poses, 30.0, state);
-    if (!run.stable) throw SceneError(scene.file.path.string() + ": the garment does not settle: " + run.message);
+    if (!run.stable)
+      throw SceneError(scene.file.path.string() + ": the garment does not settle: " + run.message);
   }
   state.v.setZero();
   return state;
@@ -325,6 +343,22 @@ PoseRun simulate_poses(const CharacterScene& scene, Solver& solver,
   }
   run.end_velocity = state.v;
   return run;
+}
+
+Eigen::Isometry3d character_frame(const CharacterScene& scene, const std::vector<JointPose>& pose) {
+  // Heading: the root's bind-pose +z carried by its rotation, projected onto the floor.
+  const Eigen::Quaterniond motion = pose[0].rotation * scene.bind[0].rotation.inverse();
+  Vec3 forward = motion * Vec3(0, 0, 1);
+  forward.y() = 0;
+  if (forward.norm() < 1e-6) {  // root pitched straight up or down: use its x axis instead
+    forward = motion * Vec3(1, 0, 0);
+    forward = Vec3(-forward.z(), 0, forward.x());
+  }
+  const double yaw = std::atan2(forward.x(), forward.z());
+  Eigen::Isometry3d t = Eigen::Isometry3d::Identity();
+  t.linear() = Eigen::AngleAxisd(yaw, Vec3::UnitY()).toRotationMatrix();
+  t.translation() = Vec3(pose[0].position.x(), 0.0, pose[0].position.z());
+  return t;
 }
 
 }  // namespace clothdb

@@ -1,6 +1,6 @@
 // The hard cases of the core issue, built from procedural sheets. Every scene is small by default
 // (a few hundred vertices) so tests run fast; benchmarks pass a larger resolution.
-#include "scenes/hard_cases.hpp"
+#include "hard_cases/hard_cases.hpp"
 
 #include <chrono>
 #include <cmath>

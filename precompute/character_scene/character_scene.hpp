@@ -17,6 +17,8 @@
 //                  "bending_stiffness": 1e-5, "damping": 1e-3},
 //     "solver": {"name": "xpbd", "substeps": 10, "iterations": 1, "tolerance": 1e-6,
 //                "linear_solver": "ldlt", "threads": 1, "tethers": true},
+//        // any field of SolverSettings, read and checked by its one serialiser
+//        // (database/run_settings.hpp: solver_settings_json); defaults as above
 //     "colliders": {"bones": ["Hips", "LeftUpLeg"], "auto_distance": 0.2,
 //                   "radius": {"Hips": 0.12}, "margin": 0.004,
 //                   "friction_static": 0.4, "friction_kinetic": 0.3,
@@ -36,7 +38,7 @@
 #include "character/manifest.hpp"
 #include "cloth/model.hpp"
 #include "garment/garment.hpp"
-#include "scenes/hard_cases.hpp"
+#include "hard_cases/hard_cases.hpp"
 #include "solvers/solver.hpp"
 
 namespace clothdb {
@@ -101,7 +103,7 @@ ClothState settle_garment(const CharacterScene& scene, Solver& solver,
 struct PoseRun {
   std::vector<Eigen::Matrix3Xd> frames;  // one per pose after the first (the state after each step)
   std::vector<FrameMetrics> metrics;
-  Eigen::Matrix3Xd end_velocity;         // velocities after the last step
+  Eigen::Matrix3Xd end_velocity;  // velocities after the last step
   bool stable = true;
   std::string message;
   double seconds = 0;  // solver time
@@ -113,5 +115,9 @@ struct PoseRun {
 PoseRun simulate_poses(const CharacterScene& scene, Solver& solver,
                        const std::vector<std::vector<JointPose>>& poses, double rate,
                        ClothState& state);
+
+// Character space (docs/SECONDARY_GRAPH.md), where a clothdb file stores cloth: the root
+// projected to the floor, facing +z (its bind-pose +z carried by its rotation).
+Eigen::Isometry3d character_frame(const CharacterScene& scene, const std::vector<JointPose>& pose);
 
 }  // namespace clothdb

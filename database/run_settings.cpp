@@ -1,0 +1,362 @@
+#include "database/run_settings.hpp"
+
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <nlohmann/json.hpp>
+#include <set>
+
+namespace clothdb {
+
+using json = nlohmann::json;
+
+namespace {
+
+// Limits: far beyond any useful setting, near enough that a typo (2^40 sub-steps, 1e5 threads)
+// is refused before it allocates or spawns anything.
+constexpr int kMaxSubsteps = 100000;
+constexpr int kMaxIterations = 10000;
+constexpr int kMaxThreads = 1024;
+constexpr int kMaxHalvings = 30;
+
+std::string shown(double d) {
+  char buf[40];
+  std::snprintf(buf, sizeof buf, "%g", d);
+  return buf;
+}
+
+[[noreturn]] void refuse(const std::string& where, const std::string& field,
+                         const std::string& problem) {
+  throw SettingsError(where + ": " + field + ": " + problem);
+}
+
+// The field table. Every serialiser, parser and validator below is one visitor over it, so a
+// field added here is written, read and checked everywhere a setting travels.
+template <class V>
+void visit_solver_fields(SolverSettings& s, V& v) {
+  v.integer("substeps", s.substeps, 1, kMaxSubsteps);
+  v.integer("iterations", s.iterations, 1, kMaxIterations);
+  v.number("pbd_stretch_stiffness", s.pbd_stretch_stiffness, 0.0, 1.0);
+  // Negative: derived from the material (pbd.cpp).
+  v.number("pbd_bend_stiffness", s.pbd_bend_stiffness, -1.0, 1.0);
+  v.number("provot_critical_rate", s.provot_critical_rate, 1e-6, 10.0);
+  v.number("tolerance", s.newton_tolerance, 1e-16, 1.0);
+  v.integer("newton_max_iterations", s.newton_max_iterations, 1, kMaxIterations);
+  v.integer("newton_max_halvings", s.newton_max_halvings, 0, kMaxHalvings);
+  v.choice("newton_guess", s.newton_guess,
+           {{"start", SolverSettings::Guess::Start},
+            {"inertial", SolverSettings::Guess::Inertial},
+            {"extrapolate", SolverSettings::Guess::Extrapolate}});
+  v.number("newton_reuse_contraction", s.newton_reuse_contraction, 0.0, 0.999);
+  v.boolean("newton_exact_hessian", s.newton_exact_hessian);
+  v.choice("linear_solver", s.linear_solver,
+           {{"ldlt", LinearSolverKind::SimplicialLDLT},
+            {"cholmod", LinearSolverKind::Cholmod},
+            {"pcg", LinearSolverKind::ConjugateGradient},
+            {"pcg-ic", LinearSolverKind::ConjugateGradientIC}});
+  v.integer("threads", s.threads, 1, kMaxThreads);
+  v.boolean("tethers", s.tethers);
+}
+
+template <class V>
+void visit_codec_fields(db::CodecSettings& c, V& v) {
+  v.number("position_bound", c.position_bound, 1e-9, 1.0);
+  v.number("velocity_bound", c.velocity_bound, 1e-9, 100.0);
+  int key = static_cast<int>(c.key_interval);
+  v.integer("key_interval", key, 0, 1 << 20);
+  c.key_interval = static_cast<uint32_t>(key);
+  v.integer("zstd_level", c.zstd_level, 1, 22);
+}
+
+template <class V>
+void visit_run_fields(db::RunSettings& r, V& v) {
+  // Up to 1 m: a bound larger than the garment means nothing.
+  v.number("epsilon_m", r.epsilon, 1e-9, 1.0);
+  v.number("cpu_hours", r.cpu_hours, 0.0, 1e6);
+  long frames = r.max_frames;
+  v.integer64("max_frames", frames, 0, 1L << 40);
+  r.max_frames = frames;
+  v.integer("threads", r.threads, 1, kMaxThreads);
+  v.integer("batch", r.batch, 1, 1 << 16);
+  v.boolean("auto_solver", r.auto_solver);
+  long clip = r.resim_clip;
+  v.integer64("resim_clip", clip, 0, std::numeric_limits<long>::max());
+  r.resim_clip = clip;
+}
+
+void check_range(const std::string& where, const std::string& field, double d, double lo,
+                 double hi) {
+  if (!std::isfinite(d) || d < lo || d > hi)
+    refuse(
+        where, field,
+        "must be a finite number in [" + shown(lo) + ", " + shown(hi) + "] (got " + shown(d) + ")");
+}
+
+void check_range(const std::string& where, const std::string& field, long long i, long long lo,
+                 long long hi) {
+  if (i < lo || i > hi)
+    refuse(where, field,
+           "must be an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "] (got " +
+               std::to_string(i) + ")");
+}
+
+struct Validator {
+  std::string where, prefix;
+  void number(const char* name, double& d, double lo, double hi) {
+    check_range(where, prefix + name, d, lo, hi);
+  }
+  void integer(const char* name, int& i, int lo, int hi) {
+    check_range(where, prefix + name, static_cast<long long>(i), lo, hi);
+  }
+  void integer64(const char* name, long& i, long lo, long hi) {
+    check_range(where, prefix + name, static_cast<long long>(i), lo, hi);
+  }
+  void boolean(const char*, bool&) {}
+  template <class E>
+  void choice(const char* name, E& e, std::initializer_list<std::pair<const char*, E>> options) {
+    for (const auto& o : options)
+      if (o.second == e) return;
+    refuse(where, prefix + name, "unknown value " + std::to_string(static_cast<int>(e)));
+  }
+};
+
+struct ToJson {
+  json out = json::object();
+  bool include_threads = true;
+  void number(const char* name, double& d, double, double) { out[name] = d; }
+  void integer(const char* name, int& i, int, int) {
+    if (include_threads || std::string(name) != "threads") out[name] = i;
+  }
+  void integer64(const char* name, long& i, long, long) { out[name] = i; }
+  void boolean(const char* name, bool& b) { out[name] = b; }
+  template <class E>
+  void choice(const char* name, E& e, std::initializer_list<std::pair<const char*, E>> options) {
+    for (const auto& o : options)
+      if (o.second == e) out[name] = o.first;
+  }
+};
+
+struct FromJson {
+  const json& in;
+  std::string where, prefix;
+  std::set<std::string> seen;
+  const json* get(const char* name) {
+    seen.insert(name);
+    auto it = in.find(name);
+    return it == in.end() ? nullptr : &*it;
+  }
+  void number(const char* name, double& d, double lo, double hi) {
+    const json* v = get(name);
+    if (!v) return;
+    if (!v->is_number()) refuse(where, prefix + name, "expected a number, got " + v->dump());
+    d = v->get<double>();
+    check_range(where, prefix + name, d, lo, hi);
+  }
+  long long whole(const char* name, const json* v, long long lo, long long hi) {
+    // Integers only, checked before narrowing: 2^40 sub-steps must not wrap to a small number.
+    if (v->is_number_unsigned()) {
+      const auto u = v->get<unsigned long long>();
+      if (u > static_cast<unsigned long long>(hi))
+        refuse(where, prefix + name,
+               "must be an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) +
+                   "] (got " + v->dump() + ")");
+      return static_cast<long long>(u);
+    }
+    if (!v->is_number_integer())
+      refuse(where, prefix + name, "expected an integer, got " + v->dump());
+    const long long i = v->get<long long>();
+    check_range(where, prefix + name, i, lo, hi);
+    return i;
+  }
+  void integer(const char* name, int& i, int lo, int hi) {
+    if (const json* v = get(name)) i = static_cast<int>(whole(name, v, lo, hi));
+  }
+  void integer64(const char* name, long& i, long lo, long hi) {
+    if (const json* v = get(name)) i = static_cast<long>(whole(name, v, lo, hi));
+  }
+  void boolean(const char* name, bool& b) {
+    const json* v = get(name);
+    if (!v) return;
+    if (!v->is_boolean()) refuse(where, prefix + name, "expected true or false, got " + v->dump());
+    b = v->get<bool>();
+  }
+  template <class E>
+  void choice(const char* name, E& e, std::initializer_list<std::pair<const char*, E>> options) {
+    const json* v = get(name);
+    if (!v) return;
+    std::string names;
+    for (const auto& o : options) {
+      if (v->is_string() && v->get<std::string>() == o.first) {
+        e = o.second;
+        return;
+      }
+      names += std::string(names.empty() ? "" : ", ") + o.first;
+    }
+    refuse(where, prefix + name, "expected one of " + names + ", got " + v->dump());
+  }
+  // Fields the table does not know are refused: a misspelt option must not be silently ignored.
+  void only(std::initializer_list<const char*> also = {}) {
+    for (const char* a : also) seen.insert(a);
+    for (auto it = in.begin(); it != in.end(); ++it)
+      if (!seen.count(it.key()))
+        refuse(where, prefix + it.key(), "unknown field (expected one of the documented fields)");
+  }
+};
+
+json parse_object(const std::string& text, const std::string& where) {
+  const json j = json::parse(text, nullptr, false);
+  if (j.is_discarded()) throw SettingsError(where + ": not valid JSON");
+  if (!j.is_object()) throw SettingsError(where + ": expected a JSON object");
+  return j;
+}
+
+json solver_object(SolverKind kind, SolverSettings s, bool include_threads) {
+  ToJson w;
+  w.include_threads = include_threads;
+  visit_solver_fields(s, w);
+  w.out["name"] = solver_name(kind);
+  return w.out;
+}
+
+void solver_from_object(const json& j, const std::string& where, const std::string& prefix,
+                        SolverKind* kind, SolverSettings* s) {
+  FromJson r{j, where, prefix, {}};
+  if (const json* name = r.get("name")) {
+    if (!name->is_string()) refuse(where, prefix + "name", "expected a string");
+    try {
+      *kind = parse_solver_kind(name->get<std::string>());
+    } catch (const std::invalid_argument& e) {
+      refuse(where, prefix + "name", e.what());
+    }
+  }
+  visit_solver_fields(*s, r);
+  r.only();
+}
+
+}  // namespace
+
+const char* solver_name(SolverKind kind) {
+  switch (kind) {
+    case SolverKind::MassSpring:
+      return "mass-spring";
+    case SolverKind::Pbd:
+      return "pbd";
+    case SolverKind::Xpbd:
+      return "xpbd";
+    case SolverKind::Newton:
+      return "newton";
+  }
+  return "unknown";
+}
+
+SolverKind parse_solver_kind(const std::string& name) {
+  for (SolverKind k :
+       {SolverKind::MassSpring, SolverKind::Pbd, SolverKind::Xpbd, SolverKind::Newton})
+    if (name == solver_name(k)) return k;
+  throw std::invalid_argument("unknown solver '" + name +
+                              "' (expected mass-spring, pbd, xpbd or newton)");
+}
+
+const char* linear_solver_name(LinearSolverKind kind) {
+  switch (kind) {
+    case LinearSolverKind::SimplicialLDLT:
+      return "ldlt";
+    case LinearSolverKind::Cholmod:
+      return "cholmod";
+    case LinearSolverKind::ConjugateGradient:
+      return "pcg";
+    case LinearSolverKind::ConjugateGradientIC:
+      return "pcg-ic";
+  }
+  return "unknown";
+}
+
+LinearSolverKind parse_linear_solver_kind(const std::string& name) {
+  for (LinearSolverKind k :
+       {LinearSolverKind::SimplicialLDLT, LinearSolverKind::Cholmod,
+        LinearSolverKind::ConjugateGradient, LinearSolverKind::ConjugateGradientIC})
+    if (name == linear_solver_name(k)) return k;
+  throw std::invalid_argument("unknown linear solver '" + name +
+                              "' (expected ldlt, cholmod, pcg or pcg-ic)");
+}
+
+std::string solver_settings_json(SolverKind kind, const SolverSettings& settings,
+                                 bool include_threads) {
+  validate_solver_settings(settings, "solver settings");
+  return solver_object(kind, settings, include_threads).dump();
+}
+
+void parse_solver_settings_json(const std::string& text, const std::string& where, SolverKind* kind,
+                                SolverSettings* settings, const std::string& field_prefix) {
+  solver_from_object(parse_object(text, where), where, field_prefix, kind, settings);
+}
+
+void validate_solver_settings(const SolverSettings& settings, const std::string& where) {
+  SolverSettings copy = settings;
+  Validator v{where, ""};
+  visit_solver_fields(copy, v);
+}
+
+namespace db {
+
+void validate_run_settings(const RunSettings& run, const std::string& where) {
+  RunSettings copy = run;
+  Validator v{where, ""};
+  visit_run_fields(copy, v);
+  v.prefix = "solver.";
+  visit_solver_fields(copy.settings, v);
+  v.prefix = "codec.";
+  visit_codec_fields(copy.codec, v);
+}
+
+std::string run_settings_json(const RunSettings& run) {
+  validate_run_settings(run, "run settings");
+  RunSettings copy = run;
+  ToJson w;
+  visit_run_fields(copy, w);
+  w.out["solver"] = solver_object(run.solver, run.settings, true);
+  ToJson c;
+  visit_codec_fields(copy.codec, c);
+  w.out["codec"] = c.out;
+  return w.out.dump();
+}
+
+RunSettings parse_run_settings_json(const std::string& text, const std::string& where,
+                                    const RunSettings& defaults) {
+  const json j = parse_object(text, where);
+  RunSettings run = defaults;
+  FromJson r{j, where, "", {}};
+  visit_run_fields(run, r);
+  const auto solver = j.find("solver");
+  if (solver != j.end() && solver->is_object()) {
+    solver_from_object(*solver, where, "solver.", &run.solver, &run.settings);
+  } else if (solver != j.end() && solver->is_string()) {
+    // Schema-3 runs written before this record: "solver": "xpbd", "solver_settings": {...}.
+    try {
+      run.solver = parse_solver_kind(solver->get<std::string>());
+    } catch (const std::invalid_argument& e) {
+      refuse(where, "solver", e.what());
+    }
+    const auto legacy = j.find("solver_settings");
+    if (legacy != j.end() && legacy->is_object())
+      solver_from_object(*legacy, where, "solver_settings.", &run.solver, &run.settings);
+  } else if (solver != j.end()) {
+    refuse(where, "solver", "expected an object");
+  }
+  const auto codec = j.find("codec");
+  if (codec != j.end()) {
+    if (!codec->is_object()) refuse(where, "codec", "expected an object");
+    FromJson c{*codec, where, "codec.", {}};
+    visit_codec_fields(run.codec, c);
+    c.only();
+  }
+  // Older rows also carried these as free-form members.
+  r.only({"solver", "codec", "solver_settings", "carried_forward_from_clip"});
+  if (const auto it = j.find("carried_forward_from_clip"); it != j.end() && it->is_number_integer())
+    run.resim_clip = it->get<long>();
+  validate_run_settings(run, where);
+  return run;
+}
+
+}  // namespace db
+}  // namespace clothdb

@@ -1,0 +1,145 @@
+// How a clothdb file was made: the solver, its settings, the codec, epsilon and the budget of a
+// precompute run, as one typed record with ONE serialiser (JSON). Every place that records or
+// carries these settings uses it: the database (the run row's settings and the garment's solver
+// column), the scene file's "solver" block, and the MPI job wire (explore/job_wire.hpp). A new
+// solver option is added in this file only (the field table in run_settings.cpp) and then survives
+// resume, MPI and edits.
+//
+// Plain C++ (no Eigen, no SQLite): the solvers include it for SolverSettings, the database for
+// CodecSettings. The runtime does not need it (clothdb_run_settings is a separate target, the
+// only one here that uses nlohmann-json).
+//
+// Validation happens where a record is built from text (and in validate()): NaN, negative or
+// out-of-range values are refused with an exception whose message names the field, e.g.
+// "run settings: epsilon_m: must be a finite number > 0 (got nan)".
+#pragma once
+
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+
+#include "database/codec.hpp"
+
+namespace clothdb {
+
+enum class SolverKind { MassSpring, Pbd, Xpbd, Newton };
+const char* solver_name(SolverKind kind);  // "mass-spring", "pbd", "xpbd", "newton"
+// Parses a name as above; throws std::invalid_argument naming the accepted values.
+SolverKind parse_solver_kind(const std::string& name);
+
+// ConjugateGradient: Jacobi (diagonal) preconditioner; ConjugateGradientIC: incomplete Cholesky.
+enum class LinearSolverKind { SimplicialLDLT, Cholmod, ConjugateGradient, ConjugateGradientIC };
+const char* linear_solver_name(LinearSolverKind kind);  // "ldlt", "cholmod", "pcg", "pcg-ic"
+LinearSolverKind parse_linear_solver_kind(const std::string& name);
+
+struct SolverSettings {
+  int substeps = 1;     // sub-steps per step (all solvers)
+  int iterations = 10;  // constraint iterations per sub-step (PBD, XPBD)
+  // PBD constraint stiffness in [0, 1] (Mueller 2007); negative: derived from the material so that
+  // PBD approximates the same cloth (see pbd.cpp).
+  double pbd_stretch_stiffness = 1.0;
+  double pbd_bend_stiffness = -1.0;
+  // Provot's critical deformation rate for the mass-spring solver (0.1 = 10 %).
+  double provot_critical_rate = 0.1;
+  // Newton: stop when the free-DOF force residual's infinity norm is below
+  // newton_tolerance * (max vertex weight m g), or after newton_max_iterations (then halve dt).
+  double newton_tolerance = 1e-6;
+  int newton_max_iterations = 25;
+  int newton_max_halvings = 6;
+  // Newton's first iterate (seed 004 Algorithm 1 line 22 starts from x_n): Start is x_n;
+  // Inertial is x_n + h v_n; Extrapolate is x_n + h v_n + h^2 a with a the acceleration of the
+  // previous sub-step this solver produced (when it continues from that state, otherwise as
+  // Inertial). Whichever candidate has the lower incremental potential Phi is used, so a bad
+  // prediction never costs more than starting from x_n. Off (Start) by default: on a stretched
+  // hanging sheet it ended 2e-5 m from the plain loop's solution after six frames, more than the
+  // tolerance explains, which is not understood yet (docs/BENCHMARKS.md, Newton study).
+  enum class Guess { Start, Inertial, Extrapolate };
+  Guess newton_guess = Guess::Start;
+  // Chord (modified) Newton: keep the last factorisation while each iteration still reduces the
+  // force residual to at most this fraction of the previous one; 0 refactorises every iteration.
+  // The stale matrix is positive definite, so its direction is still a descent direction and the
+  // line search still guarantees progress; only the convergence rate changes (linear, not
+  // quadratic), and the tolerance test is the same. Off by default: on seed 004's grids it cost
+  // more CPU time than it saved (`clothdb bench newton`, docs/BENCHMARKS.md).
+  double newton_reuse_contraction = 0.0;
+  // Try the exact Hessian first (quadratic convergence near a minimum) and fall back to the
+  // projected element Hessians when it is indefinite; false: the projected ones only (no wasted
+  // factorisation of an indefinite matrix when the cloth is compressed or buckling).
+  bool newton_exact_hessian = true;
+  LinearSolverKind linear_solver = LinearSolverKind::SimplicialLDLT;
+  int threads = 1;  // OpenMP threads; results are identical whatever this is
+  // XPBD: long-range attachments (Kim, Chentanez & Mueller 2012): each free vertex may be no
+  // farther from its geodesically nearest pin than its rest path along the mesh. Cheap, and what
+  // keeps a hanging garment from stretching when few iterations leave the constraints soft.
+  bool tethers = true;
+};
+
+// Thrown for an invalid setting; what() is "<where>: <field>: <problem>".
+struct SettingsError : std::invalid_argument {
+  using std::invalid_argument::invalid_argument;
+};
+
+// The solver part, as JSON text: {"name": "xpbd", "substeps": 10, ...} with every field of
+// SolverSettings (the scene file's "solver" block uses the same names; "tolerance" is
+// newton_tolerance). threads is included only when include_threads (it never changes a result,
+// so what a database records to compare settings leaves it out).
+std::string solver_settings_json(SolverKind kind, const SolverSettings& settings,
+                                 bool include_threads = false);
+// Parses text as above; fields it does not hold keep the values of `*settings` (so an older
+// database's shorter record, or a scene's partial block, reads with the caller's defaults).
+// Unknown fields, wrong types and invalid values throw SettingsError naming `where` and the field.
+// field_prefix goes before each field name in messages (a scene file's block: "solver.").
+void parse_solver_settings_json(const std::string& text, const std::string& where, SolverKind* kind,
+                                SolverSettings* settings, const std::string& field_prefix = "");
+// Throws SettingsError naming `where` and the first invalid field.
+void validate_solver_settings(const SolverSettings& settings, const std::string& where);
+
+namespace db {
+
+using clothdb::SettingsError;
+
+// How cloth is compressed in a file; fixed at creation and stored in `meta` (codec.*).
+struct CodecSettings {
+  double position_bound = codec::kDefaultPositionBound;  // m, max error per coordinate
+  double velocity_bound = 0.001;  // m/s; 1 mm/s moves a resumed vertex 0.03 mm in a frame
+  uint32_t key_interval = codec::kDefaultKeyInterval;
+  int zstd_level = codec::kDefaultZstdLevel;
+};
+
+// The codec's settings for encoding with this file's key interval and zstd level at `bound` (the
+// position or the velocity bound): what the writer stores, and what a worker encoding a clip for it
+// must use.
+inline codec::EncodeSettings encode_settings(const CodecSettings& codec, double bound) {
+  codec::EncodeSettings s;
+  s.bound = bound;
+  s.key_interval = codec.key_interval;
+  s.zstd_level = codec.zstd_level;
+  return s;
+}
+
+// What a precompute run is given: the record stored in the run row, carried to every MPI worker.
+struct RunSettings {
+  double epsilon = 0.005;  // m: a clip end links back when the state distance is at most this
+  SolverKind solver = SolverKind::Xpbd;
+  SolverSettings settings;
+  CodecSettings codec;
+  double cpu_hours = 0;      // budget: CPU hours of simulation in this run (0: none)
+  long max_frames = 0;       // budget: cloth frames simulated in this run (0: none)
+  int threads = 1;           // OpenMP threads across jobs
+  int batch = 8;             // dead ends per batch (fixed: the result does not depend on threads)
+  bool auto_solver = false;  // the solver setting was chosen by `precompute --auto`
+  long resim_clip = 0;       // > 0: a `clip resim` of this clip carried forward (not a precompute)
+};
+
+// One serialiser: JSON text with every field ({"epsilon_m": ..., "solver": {...}, "codec": {...},
+// "cpu_hours": ..., "max_frames": ..., "threads": ..., "batch": ...}). Validates first.
+std::string run_settings_json(const RunSettings& run);
+// Parses and validates; throws SettingsError naming `where` and the field. Fields missing from
+// the text keep the values of `defaults` (records written before a field existed).
+RunSettings parse_run_settings_json(const std::string& text, const std::string& where,
+                                    const RunSettings& defaults = {});
+// Throws SettingsError naming `where` and the first invalid field.
+void validate_run_settings(const RunSettings& run, const std::string& where);
+
+}  // namespace db
+}  // namespace clothdb
