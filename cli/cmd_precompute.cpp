@@ -13,6 +13,7 @@
 
 #include "cli_util.hpp"
 #include "commands.hpp"
+#include "database/writer_lock.hpp"
 #include "explore/auto_solver.hpp"
 #include "explore/explorer.hpp"
 #include "explore/primary_graph.hpp"
@@ -140,7 +141,8 @@ void register_precompute(CLI::App& app) {
          "--threads", args->threads,
          "OpenMP threads (0: all cores). Under mpirun: each worker rank's threads inside one "
          "simulation (0: 1)")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(number_in(0, max_solver_threads()));
   cmd->add_option("--batch", args->batch,
                   "Dead ends simulated per batch; fixed so the result does not depend on --threads")
       ->capture_default_str()
@@ -190,6 +192,13 @@ void register_precompute(CLI::App& app) {
                 "Under mpirun: one line per job handed out, lost or late");
 #endif
   cmd->callback([args] {
+#ifdef CLOTHDB_MPI
+    const bool owner_rank = mpi::size() <= 1 || mpi::rank() == 0;
+#else
+    const bool owner_rank = true;
+#endif
+    // One writer per database: a second run is refused here, before the scene and graph set-up.
+    const auto lock = owner_rank ? db::WriterLock::acquire(args->db) : nullptr;
     const SceneFile file = load_scene_file(args->scene);
     CharacterScene scene = build_character_scene(file);
     // Under mpirun only rank 0 touches the database (and chooses the graph); workers are given
