@@ -151,8 +151,15 @@ void register_simulate(CLI::App& app) {
       for (const auto& [f, x] : preview_frames) {
         all.conservativeResize(3, all.cols() + x.cols());
         all.rightCols(x.cols()) = x;
+        // The whole figure in view, not only the cloth: previews show a person.
+        for (const CapsuleCollider& c : body_capsules(whole_skeleton, scene.skeleton,
+                                                      clip_pose(clip, f), clip_pose(clip, f))) {
+          all.conservativeResize(3, all.cols() + 2);
+          all.col(all.cols() - 2) = c.a + Vec3(0, c.radius, 0);
+          all.col(all.cols() - 1) = c.b + Vec3(0, c.radius, 0);
+        }
       }
-      PreviewCamera cam = frame_points(all, 1.6);
+      PreviewCamera cam = frame_points(all, 1.25);
       for (const auto& [f, x] : preview_frames) {
         PreviewScene ps;
         ps.cloth = &x;

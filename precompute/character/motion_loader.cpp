@@ -238,11 +238,10 @@ LoadedMotion load_motion(const std::filesystem::path& file, const MotionLoadOpti
     unsigned bones = 0;
     for (unsigned m = 0; m < scene->mNumMeshes; ++m) bones += scene->mMeshes[m]->mNumBones;
     if (bones == 0)
-      throw fail("assimp " + std::to_string(aiGetVersionMajor()) + "." +
-                 std::to_string(aiGetVersionMinor()) +
-                 " read neither bones nor animation clips from it; if the file has a skeleton, "
-                 "this assimp cannot read it from this format: convert it to BVH, glTF or FBX "
-                 "(e.g. in Blender)");
+      throw fail("no skeleton and no animation as read by assimp " +
+                 std::to_string(aiGetVersionMajor()) + "." + std::to_string(aiGetVersionMinor()) +
+                 ": if the file does hold a skeleton, this assimp cannot read it from this "
+                 "format; convert it to BVH, glTF or FBX (e.g. in Blender)");
     throw fail("no animation: the file has a skinned mesh but no animation clips");
   }
   const aiAnimation* anim = nullptr;
