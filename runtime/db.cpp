@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <new>
@@ -439,7 +440,15 @@ Status Db::load(int clip, Loader& loader, Error* err) {
   // Growing a loader buffer is the only thing here that can throw; a throw must not leave the
   // entry Loading forever.
   try {
-    return load_impl(clip, loader, err);
+    const Status st = load_impl(clip, loader, err);
+    // Codec errors name neither the file nor the clip: say which clip of which file is damaged.
+    if (st != Status::Ok && std::strncmp(err->message, path.c_str(), path.size()) != 0) {
+      char what[sizeof err->message];
+      std::snprintf(what, sizeof what, "%s", err->message);
+      err->set(st, "%s: cloth clip %lld: %s", path.c_str(), (long long)clips[size_t(clip)].id,
+               what);
+    }
+    return st;
   } catch (const std::bad_alloc&) {
     return err->set(Status::IoError, "%s: out of memory decoding cloth clip %lld", path.c_str(),
                     (long long)clips[size_t(clip)].id);
