@@ -761,9 +761,9 @@ TEST(Character, ImplausibleSkeletonIsWarnedNamingTheManifestField) {
     return testing::internal::GetCapturedStderr();
   };
   const std::string tall = write_manifest("");
-  EXPECT_NE(tall.find("m tall (a person is 0.5 to 3 m): set " + manifest.string() +
-                      ": clips[0].scale"),
-            std::string::npos)
+  EXPECT_NE(
+      tall.find("m tall (a person is 0.5 to 3 m): set " + manifest.string() + ": clips[0].scale"),
+      std::string::npos)
       << tall;
   const std::string lying = write_manifest(R"(, "scale": 0.0564444, "up_axis": "z")");
   EXPECT_NE(lying.find("as if lying down: set " + manifest.string() + ": clips[0].up_axis"),

@@ -232,15 +232,16 @@ std::pair<std::string, std::string> import_obj(const std::string& name, const st
 std::string two_quads(double gap) {
   const std::string x = std::to_string(gap);
   return "o left\nv -0.2 1.0 0.2\nv 0 1.0 0.2\nv 0 0.6 0.2\nv -0.2 0.6 0.2\nf 1 4 3 2\n"
-         "o right\nv " + x + " 1.0 0.2\nv 0.2 1.0 0.2\nv 0.2 0.6 0.2\nv " + x +
-         " 0.6 0.2\nf 5 8 7 6\n";
+         "o right\nv " +
+         x + " 1.0 0.2\nv 0.2 1.0 0.2\nv 0.2 0.6 0.2\nv " + x + " 0.6 0.2\nf 5 8 7 6\n";
 }
 
 }  // namespace
 
 TEST(Garment, ImportRefusesDamagedAndImplausibleGeometry) {
-  auto [far, far_log] = import_obj("far.obj", "v 0 1 0\nv 0.2 1 0\nv 0 0.8 0\nv 1e30 0.8 0\n"
-                                              "f 1 3 2\nf 2 3 4\n");
+  auto [far, far_log] = import_obj("far.obj",
+                                   "v 0 1 0\nv 0.2 1 0\nv 0 0.8 0\nv 1e30 0.8 0\n"
+                                   "f 1 3 2\nf 2 3 4\n");
   EXPECT_NE(far.find("far.obj: the garment is 1e+30 m across"), std::string::npos) << far;
   EXPECT_NE(far.find("a vertex is at (1e+30, 0.8, 0)"), std::string::npos) << far;
   EXPECT_NE(far.find("garment.scale"), std::string::npos) << far;
@@ -250,14 +251,15 @@ TEST(Garment, ImportRefusesDamagedAndImplausibleGeometry) {
             std::string::npos)
       << nan;
   // A 20 um needle: refused with its id before it shows up as 18,000 % strain.
-  auto [needle, needle_log] =
-      import_obj("needle.obj", "v 0 1 0\nv 0.2 1 0\nv 0.1 1.00002 0\nv 0.1 0.8 0\n"
-                               "f 1 3 2\nf 1 2 4\n");
+  auto [needle, needle_log] = import_obj("needle.obj",
+                                         "v 0 1 0\nv 0.2 1 0\nv 0.1 1.00002 0\nv 0.1 0.8 0\n"
+                                         "f 1 3 2\nf 1 2 4\n");
   EXPECT_NE(needle.find("needle triangles 0 "), std::string::npos) << needle;
   EXPECT_NE(needle.find("garment.weld_tolerance"), std::string::npos) << needle;
   // Collinear points: a zero-area triangle.
-  auto [flat, flat_log] = import_obj("flat.obj", "v 0 1 0\nv 0.1 1 0\nv 0.2 1 0\nv 0.1 0.8 0\n"
-                                                 "f 1 2 3\nf 1 4 2\n");
+  auto [flat, flat_log] = import_obj("flat.obj",
+                                     "v 0 1 0\nv 0.1 1 0\nv 0.2 1 0\nv 0.1 0.8 0\n"
+                                     "f 1 2 3\nf 1 4 2\n");
   EXPECT_NE(flat.find("degenerate (zero-area) triangles 0"), std::string::npos) << flat;
   // A weld tolerance that merges most of the garment.
   auto [weld, weld_log] = import_obj("weld.obj", two_quads(0.0), 0.3);
@@ -274,8 +276,7 @@ TEST(Garment, ImportWarnsOfAnOpenSeamJustAboveTheWeldTolerance) {
   auto [open, open_log] = import_obj("open.obj", two_quads(3e-5));
   EXPECT_EQ(open, "");
   EXPECT_NE(open_log.find("an open seam: 4 boundary vertices"), std::string::npos) << open_log;
-  EXPECT_NE(open_log.find("closest gap 0.03 mm, seam length 0.4 m"), std::string::npos)
-      << open_log;
+  EXPECT_NE(open_log.find("closest gap 0.03 mm, seam length 0.4 m"), std::string::npos) << open_log;
   EXPECT_NE(open_log.find("raise garment.weld_tolerance"), std::string::npos) << open_log;
 }
 
