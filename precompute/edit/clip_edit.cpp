@@ -1,7 +1,6 @@
 #include "edit/clip_edit.hpp"
 
 #include <Eigen/Geometry>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -331,8 +330,9 @@ void refuse_foreign_frames(const std::vector<float>& frames, const std::vector<f
     const Vec3 axis = aa.axis();
     int k = 0;
     axis.cwiseAbs().maxCoeff(&k);
-    const bool y_up = best_r.isApprox((Eigen::Matrix3d() << 1, 0, 0, 0, 0, 1, 0, -1, 0).finished()) ||
-                      best_r.isApprox((Eigen::Matrix3d() << 1, 0, 0, 0, 0, -1, 0, 1, 0).finished());
+    const bool y_up =
+        best_r.isApprox((Eigen::Matrix3d() << 1, 0, 0, 0, 0, 1, 0, -1, 0).finished()) ||
+        best_r.isApprox((Eigen::Matrix3d() << 1, 0, 0, 0, 0, -1, 0, 1, 0).finished());
     std::snprintf(b, sizeof b,
                   "clip import: the frames are the clip rotated by %.0f degrees about %s%c (RMS "
                   "%.3g mm from that rotation, %.3g m from the clip): an axis conversion in the "

@@ -1,10 +1,10 @@
 #include "garment/garment.hpp"
 
-#include <assimp/Importer.hpp>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
 
 #include <algorithm>
+#include <assimp/Importer.hpp>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -79,9 +79,9 @@ Garment pin_rows_to(Garment g, const std::vector<int>& pins, int joint) {
 
 // Garment geometry checks at load (issue 18): damage and unit mistakes are reported against the
 // file, not found later as a blank preview or a solver blow-up.
-constexpr double kMaxGarmentExtent = 20.0;   // m: bounding-box diagonal of any plausible garment
-constexpr double kNeedleQuality = 0.01;      // 2 area / longest edge^2 (equilateral: 0.87)
-constexpr double kSeamFactor = 5.0;          // open seams: gaps up to this many weld tolerances
+constexpr double kMaxGarmentExtent = 20.0;    // m: bounding-box diagonal of any plausible garment
+constexpr double kNeedleQuality = 0.01;       // 2 area / longest edge^2 (equilateral: 0.87)
+constexpr double kSeamFactor = 5.0;           // open seams: gaps up to this many weld tolerances
 constexpr double kWeldRefuseFraction = 0.25;  // of distinct positions merged by the weld
 constexpr double kWeldWarnFraction = 0.02;
 
@@ -181,12 +181,14 @@ void check_welded(const ClothMesh& mesh, const MeshGarmentSpec& spec) {
     char b[64];
     std::snprintf(b, sizeof b, "%g", kNeedleQuality);
     std::string msg = spec.file + ":";
-    if (!degenerate.empty()) msg += " degenerate (zero-area) triangles " + id_list(degenerate) + ";";
+    if (!degenerate.empty())
+      msg += " degenerate (zero-area) triangles " + id_list(degenerate) + ";";
     if (!needles.empty())
       msg += " needle triangles " + id_list(needles) + " (2 area / longest edge^2 < " + b +
              "): they stretch without bound in simulation;";
-    throw GarmentError(msg + " fix them in the file, or collapse their short edges with a "
-                             "larger garment.weld_tolerance (triangle ids after welding)");
+    throw GarmentError(msg +
+                       " fix them in the file, or collapse their short edges with a "
+                       "larger garment.weld_tolerance (triangle ids after welding)");
   }
   // Open seams: boundary vertices within a few weld tolerances of another boundary vertex.
   std::map<std::pair<int, int>, int> uses;
@@ -213,9 +215,8 @@ void check_welded(const ClothMesh& mesh, const MeshGarmentSpec& spec) {
   std::sort(order.begin(), order.end(),
             [&](int a, int b) { return mesh.rest(0, a) < mesh.rest(0, b); });
   for (size_t i = 0; i < order.size(); ++i)
-    for (size_t j = i + 1; j < order.size() &&
-                           mesh.rest(0, order[j]) - mesh.rest(0, order[i]) <= reach;
-         ++j) {
+    for (size_t j = i + 1;
+         j < order.size() && mesh.rest(0, order[j]) - mesh.rest(0, order[i]) <= reach; ++j) {
       const double d = (mesh.rest.col(order[i]) - mesh.rest.col(order[j])).norm();
       if (d <= reach && !uses.count({std::min(order[i], order[j]), std::max(order[i], order[j])})) {
         near_partner.insert(order[i]);

@@ -39,7 +39,7 @@ struct Fields {
     if (!obj.contains(key)) return fallback;
     const json& v = obj.at(key);
     const bool in_range =
-        v.is_number_unsigned()  ? v.get<uint64_t>() <= uint64_t(std::max(maximum, 0)) &&
+        v.is_number_unsigned() ? v.get<uint64_t>() <= uint64_t(std::max(maximum, 0)) &&
                                      int64_t(v.get<uint64_t>()) >= minimum
         : v.is_number_integer() ? v.get<int64_t>() >= minimum && v.get<int64_t>() <= maximum
                                 : false;
@@ -127,7 +127,8 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
     s.skirt.flare = f.number(g, "flare", "garment.", s.skirt.flare, true);
     s.skirt.length = f.number(g, "length", "garment.", s.skirt.length, true);
     s.skirt.raise = f.number(g, "raise", "garment.", s.skirt.raise);
-    s.skirt.vertices = f.integer(g, "vertices", "garment.", s.skirt.vertices, 16, kMaxGeneratedVertices);
+    s.skirt.vertices =
+        f.integer(g, "vertices", "garment.", s.skirt.vertices, 16, kMaxGeneratedVertices);
   } else if (type == "cape") {
     f.only(g, {"type", "bone", "width", "length", "back_offset", "vertices"}, "garment.");
     s.garment_kind = GarmentKind::Cape;
@@ -135,7 +136,8 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
     s.cape.width = f.number(g, "width", "garment.", 0.0, false, true);
     s.cape.length = f.number(g, "length", "garment.", s.cape.length, true);
     s.cape.back_offset = f.number(g, "back_offset", "garment.", 0.0, false, true);
-    s.cape.vertices = f.integer(g, "vertices", "garment.", s.cape.vertices, 16, kMaxGeneratedVertices);
+    s.cape.vertices =
+        f.integer(g, "vertices", "garment.", s.cape.vertices, 16, kMaxGeneratedVertices);
   } else if (type == "mesh") {
     f.only(g, {"type", "file", "scale", "weld_tolerance", "pins", "bone"}, "garment.");
     s.garment_kind = GarmentKind::Mesh;
