@@ -432,7 +432,7 @@ int Player::advance(double dt) {
   // Cycle detection (Brent): the walk is a function of (primary clip, cloth clip) at each node
   // once nothing is named and nothing is random; `saved_*` is the walk at the last power-of-two
   // checkpoint, compared with every later node.
-  constexpr uint64_t kMaxNodePasses = uint64_t(1) << 16;
+  constexpr uint64_t kMaxNodePasses = uint64_t(1) << 12;
   uint64_t passes = 0, power = 1, lam = 0;
   int64_t saved_key = -1;
   // Seconds of clips passed since this call began, summed from their lengths: a cycle's period
