@@ -2,6 +2,9 @@
 #pragma once
 
 #include <CLI/CLI.hpp>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <sstream>
 #include <string>
@@ -11,6 +14,36 @@
 #include "solvers/solver.hpp"
 
 namespace clothdb::cli {
+
+// A number as %g: range errors must not print DBL_MAX as 300 digits.
+inline std::string fmt_g(double v) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%g", v);
+  return b;
+}
+
+// Option validators that refuse NaN and infinities (CLI::PositiveNumber lets NaN through, since
+// every comparison with it is false) and print their bounds with %g. `lo_open`: lo itself is
+// refused.
+inline CLI::Validator number_in(double lo, double hi, bool lo_open = false) {
+  std::string desc = (lo_open ? "(" : "[") + fmt_g(lo) + ", " + fmt_g(hi) + "]";
+  return CLI::Validator(
+      [lo, hi, lo_open, desc](std::string& in) -> std::string {
+        char* end = nullptr;
+        const double v = std::strtod(in.c_str(), &end);
+        if (in.empty() || !end || *end != '\0' || !std::isfinite(v) || v < lo || v > hi ||
+            (lo_open && v == lo))
+          return in + " is not a number in " + desc;
+        return {};
+      },
+      "NUMBER in " + desc);
+}
+inline CLI::Validator positive_number(double hi = 1e12) {
+  return number_in(0, hi, true);
+}
+inline CLI::Validator non_negative_number(double hi = 1e12) {
+  return number_in(0, hi);
+}
 
 inline std::vector<std::string> split_list(const std::string& s) {
   std::vector<std::string> out;
@@ -58,11 +91,11 @@ struct SolverOptions {
     cmd.add_option("--solver", solver, "mass-spring | pbd | xpbd | newton")->capture_default_str();
     cmd.add_option("--substeps", settings.substeps, "Sub-steps per frame")
         ->capture_default_str()
-        ->check(CLI::PositiveNumber);
+        ->check(number_in(1, kMaxSubsteps));
     cmd.add_option("--iterations", settings.iterations,
                    "Constraint iterations per sub-step (PBD, XPBD)")
         ->capture_default_str()
-        ->check(CLI::PositiveNumber);
+        ->check(number_in(1, kMaxIterations));
     cmd.add_option("--tolerance", settings.newton_tolerance,
                    "Newton force tolerance (relative to max m g)")
         ->capture_default_str();
@@ -71,7 +104,7 @@ struct SolverOptions {
         ->capture_default_str();
     cmd.add_option("--threads", settings.threads, "OpenMP threads")
         ->capture_default_str()
-        ->check(CLI::PositiveNumber);
+        ->check(number_in(1, max_solver_threads()));
   }
   SolverKind kind() const { return parse_solver_kind(solver); }
   SolverSettings resolved() const {

@@ -60,7 +60,7 @@ void register_bench_character(CLI::App& bench) {
   cmd->add_option("--clip", args->options.clip, "Clip name (default: the scene's first clip)");
   cmd->add_option("--frames", args->options.frames, "Frames of the clip to simulate after settling")
       ->capture_default_str()
-      ->check(CLI::Range(2, 1000000));
+      ->check(number_in(2, 1000000));
   cmd->add_option("--vertices", args->vertices,
                   "Override the procedural garment's vertex count (skirt, cape)");
   cmd->add_option("--solvers", args->solvers, "Comma-separated solvers (default: the scene's)");

@@ -189,10 +189,10 @@ void register_bench_codec(CLI::App& bench) {
       ->capture_default_str();
   cmd->add_option("--vertices", args->vertices, "Approximate vertex count of the simulated sheet")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   cmd->add_option("--frames", args->frames, "Frames to simulate at 30 fps")
       ->capture_default_str()
-      ->check(CLI::Range(2, 100000));
+      ->check(number_in(2, 100000));
   cmd->add_option("--bounds", args->bounds, "Comma-separated error bounds in mm")
       ->capture_default_str();
   cmd->add_option("--key-intervals", args->key_intervals,
@@ -202,7 +202,7 @@ void register_bench_codec(CLI::App& bench) {
       ->capture_default_str();
   cmd->add_option("--repeat", args->repeat, "Timing repetitions (best is reported)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   cmd->add_option("--save-frames", args->save,
                   "Write the frames to this PC2 file, to rerun with --input");
   args->solver.add_to(*cmd);

@@ -27,7 +27,7 @@ void register_bench_solvers(CLI::App& bench) {
   cmd->add_option("--solvers", args->solvers, "Comma-separated solvers (default: all four)");
   cmd->add_option("--frames", args->options.frames, "Frames per run at 30 fps")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   cmd->add_option("--resolution", args->options.resolution,
                   "Nodes per side of the hard-case sheets (0: scene default)")
       ->capture_default_str();
@@ -92,12 +92,12 @@ void register_bench_newton(CLI::App& bench) {
   cmd->add_option("--scenes", args->scenes, "Comma-separated scenes")->capture_default_str();
   cmd->add_option("--frames", args->frames, "Frames per run at 30 fps")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   cmd->add_option(
          "--repeat", args->repeat,
          "Runs per variant; the fastest (CPU time) is kept, against a shared machine's noise")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   cmd->add_option("--only", args->only,
                   "Comma-separated substrings: run only the variants whose label contains one, "
                   "e.g. 'ldlt tol=1e-06'");

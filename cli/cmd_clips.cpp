@@ -312,9 +312,10 @@ void show_clip(const ShowArgs& a) {
   if (reader.garment(&garment, &err) != db::Status::Ok) throw std::runtime_error(err.message);
   const int n = int(garment.vertex_count());
   const ClipScene cs = clip_scene(reader, t, c, a.scene, garment.vertex_count());
-  std::vector<std::vector<CapsuleCollider>> body;
+  std::vector<std::vector<CapsuleCollider>> body, skeleton;
   if (cs.edge) {
     body = character_space_capsules(cs.scene->scene, cs.edge->poses);
+    skeleton = character_space_skeleton(cs.scene->scene, cs.edge->poses);
     std::vector<FrameQuality> per_frame;
     measure_clip(cs.scene->scene, cs.edge->poses, frames, &per_frame);
     write_frame_plot(a.svg, c.id, per_frame);
@@ -341,12 +342,13 @@ void show_clip(const ShowArgs& a) {
   }
   double floor = all.row(1).minCoeff();
   for (int f : shown)
-    for (const auto& cap : body.empty() ? std::vector<CapsuleCollider>{} : body[size_t(f)]) {
-      floor = std::min({floor, cap.a.y() - cap.radius, cap.b.y() - cap.radius});
-      all.conservativeResize(3, all.cols() + 2);
-      all.col(all.cols() - 2) = cap.a;
-      all.col(all.cols() - 1) = cap.b;
-    }
+    for (const auto* caps : {&body, &skeleton})
+      for (const auto& cap : caps->empty() ? std::vector<CapsuleCollider>{} : (*caps)[size_t(f)]) {
+        floor = std::min({floor, cap.a.y() - cap.radius, cap.b.y() - cap.radius});
+        all.conservativeResize(3, all.cols() + 2);
+        all.col(all.cols() - 2) = cap.a;
+        all.col(all.cols() - 1) = cap.b;
+      }
   const PreviewCamera cam = frame_points(all, 1.15);
   std::vector<std::vector<uint8_t>> tiles;
   const int size = a.tile_size;
@@ -356,6 +358,7 @@ void show_clip(const ShowArgs& a) {
     scene.cloth = &m;
     scene.triangles = &triangles;
     if (!body.empty()) scene.capsules = body[size_t(f)];
+    if (!skeleton.empty()) scene.skeleton = skeleton[size_t(f)];
     scene.floor_height = floor - 0.01;
     std::vector<uint8_t> tile = render_preview(scene, cam, size, size);
     const bool worst = f == c.worst_frame;
@@ -393,7 +396,7 @@ void register_clip_quality_commands(CLI::App& app) {
   list->add_option("FILE", la->file, "clothdb database")->required();
   list->add_option("--worst", la->worst, "Show the N worst clips (0: all)")
       ->capture_default_str()
-      ->check(CLI::NonNegativeNumber);
+      ->check(non_negative_number());
   list->add_option("--by", la->by,
                    "strain | penetration | mean-penetration | jitter | halved | pop")
       ->capture_default_str();
@@ -418,13 +421,13 @@ void register_clip_quality_commands(CLI::App& app) {
       "Scene file the database was made from, if not at its stored path (for the body)");
   show->add_option("--tiles", sa->tiles, "Frames on the sheet")
       ->capture_default_str()
-      ->check(CLI::Range(1, 64));
+      ->check(number_in(1, 64));
   show->add_option("--columns", sa->columns, "Tiles per row")
       ->capture_default_str()
-      ->check(CLI::Range(1, 16));
+      ->check(number_in(1, 16));
   show->add_option("--tile-size", sa->tile_size, "Tile width and height, pixels")
       ->capture_default_str()
-      ->check(CLI::Range(64, 1024));
+      ->check(number_in(64, 1024));
   show->callback([sa] {
     ShowArgs a = *sa;
     if (a.png.empty()) a.png = a.file + ".clip" + std::to_string(a.id) + ".png";

@@ -70,16 +70,25 @@ void register_db_commands(CLI::App& app) {
       "check",
       "Integrity check: SQLite's own check and foreign keys, every blob's checksums "
       "(by decoding it), blob sizes against their rows, every edge, clip and state "
-      "pointing at rows that exist. Exits 1 on any problem, listing each.");
+      "pointing at rows that exist, and everything the runtime relies on (garment arrays and "
+      "triangle indices, transitions complete at every node, cloth edges landing at their "
+      "clip's end node, meta versions). Exits 1 on any problem, listing each; states without a "
+      "clip along some way out of their node are listed as warnings (the runtime falls back), "
+      "an error with --strict.");
   check->add_option("FILE", *file, "clothdb database")->required();
-  check->callback([file] {
+  auto strict = std::make_shared<bool>(false);
+  check->add_flag("--strict", *strict, "Treat warnings (unexplored ways out) as problems");
+  check->callback([file, strict] {
     const db::CheckReport report = db::check_database(*file);
     for (const auto& p : report.problems) std::printf("problem: %s\n", p.c_str());
-    if (!report.ok())
+    for (const auto& w : report.warnings) std::printf("warning: %s\n", w.c_str());
+    if (!report.ok() || (*strict && !report.warnings.empty()))
       throw std::runtime_error(*file + ": " + std::to_string(report.problems.size()) +
-                               " problem(s) found");
-    std::printf("%s: ok (%llu blobs decoded, %llu graph rows checked)\n", file->c_str(),
-                (unsigned long long)report.blobs_checked, (unsigned long long)report.rows_checked);
+                               " problem(s), " + std::to_string(report.warnings.size()) +
+                               " warning(s) found");
+    std::printf("%s: ok (%llu blobs decoded, %llu graph rows checked, %zu warning(s))\n",
+                file->c_str(), (unsigned long long)report.blobs_checked,
+                (unsigned long long)report.rows_checked, report.warnings.size());
   });
 }
 

@@ -112,7 +112,7 @@ void register_edit_commands(CLI::App& app) {
       ->capture_default_str();
   imp->add_option("--ramp-frames", ia->ramp_frames, "--on-break ramp: frames to fade over")
       ->capture_default_str()
-      ->check(CLI::Range(0, 1000));
+      ->check(number_in(0, 1000));
   imp->callback([ia] {
     const OnBreak on_break = parse_on_break(ia->on_break);
     EditContext ctx = open(ia->c);
@@ -162,7 +162,7 @@ void register_edit_commands(CLI::App& app) {
       ->capture_default_str();
   res->add_option("--batch", ra->batch, "Carried-forward dead ends per batch")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   res->add_flag("--quiet", ra->quiet, "No progress bar");
   res->callback([ra, res] {
     EditContext ctx = open(ra->c);

@@ -169,30 +169,30 @@ void register_graph_commands(CLI::App& app) {
   b->add_option("--clips", build->clips, "Comma-separated clip names (default: every clip)");
   b->add_option("--window", build->settings.window, "Frames per window of the distance")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   b->add_option("--blend", build->settings.blend, "Frames of a transition's blend")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   auto* threshold = b->add_option("--threshold", build->threshold,
                                   "Absolute threshold: largest RMS distance in metres");
   auto* percentile =
       b->add_option("--percentile", build->percentile,
                     "Relative threshold: this percentile (0-100) of the window distances of "
                     "each pair of clips (default 0.03)")
-          ->check(CLI::Range(0.0, 100.0));
+          ->check(number_in(0.0, 100.0));
   threshold->excludes(percentile);
   b->add_option("--max-distance", build->settings.max_distance,
                 "With a percentile: never above this RMS distance, metres")
       ->capture_default_str()
-      ->check(CLI::NonNegativeNumber);
+      ->check(non_negative_number());
   b->add_option("--spacing", build->settings.spacing,
                 "Radius in frames of the neighbourhood a transition is the minimum of")
       ->capture_default_str()
-      ->check(CLI::NonNegativeNumber);
+      ->check(non_negative_number());
   b->add_option("--self-offset", build->settings.min_self_offset,
                 "Within a clip, ignore frame pairs closer than this")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   b->add_flag("--no-prune", build->no_prune,
               "Keep every node (do not prune to the largest strongly connected component)");
   b->callback([build] {

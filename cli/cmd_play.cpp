@@ -19,8 +19,8 @@
 #include <thread>
 #include <vector>
 
-#include "clothrt.h"
 #include "cli_util.hpp"
+#include "clothrt.h"
 #include "commands.hpp"
 #include "database/codec.hpp"
 #include "database/schema.hpp"
@@ -116,7 +116,69 @@ struct PlayArgs {
   int preview_every = 30, width = 480, height = 360;
 };
 
+// Limits of `play`, checked before anything is allocated or written: the whole clip is held in
+// memory (PC2 writes it in one piece), so the frame count times the garment size is capped.
+constexpr double kMaxPlaySeconds = 3600;
+constexpr double kMaxPlayFps = 1000;
+constexpr size_t kMaxPlayBytes = size_t(2) << 30;  // positions held for the PC2, 2 GiB
+constexpr int kMaxPreviewSide = 8192;
+
+void validate_play(const PlayArgs& a) {
+  auto bad = [](const std::string& what) { throw std::invalid_argument(what); };
+  if (!std::isfinite(a.seconds) || a.seconds < 0 || a.seconds > kMaxPlaySeconds)
+    bad("--seconds " + fmt_g(a.seconds) + ": expected a number of seconds in [0, " +
+        fmt_g(kMaxPlaySeconds) + "] (0: to the end of --path)");
+  if (a.path == "random" && !(a.seconds > 0))
+    bad("--path random needs --seconds > 0 (it never ends by itself)");
+  if (!std::isfinite(a.fps) || a.fps < 0 || a.fps > kMaxPlayFps)
+    bad("--fps " + fmt_g(a.fps) + ": expected a frame rate in (0, " + fmt_g(kMaxPlayFps) +
+        "] Hz, or 0 for the database's");
+  if (!std::isfinite(a.blend_frames) || a.blend_frames < 0 || a.blend_frames > 1e6)
+    bad("--blend-frames " + fmt_g(a.blend_frames) + ": expected a number of frames in [0, 1e6]");
+  if (a.preview_every < 0) bad("--preview-every must be >= 0 (0: no previews)");
+  if (a.width < 16 || a.width > kMaxPreviewSide || a.height < 16 || a.height > kMaxPreviewSide)
+    bad("--width " + std::to_string(a.width) + " --height " + std::to_string(a.height) +
+        ": preview sides must be in [16, " + std::to_string(kMaxPreviewSide) + "] pixels");
+}
+
+// Where `play` writes before everything is in place: a hidden directory inside --out, moved into
+// place file by file once all are written, and removed on failure (with --out itself if this run
+// created it), so a failed run changes nothing.
+struct Staging {
+  std::filesystem::path out, dir;
+  bool created_out = false, done = false;
+  explicit Staging(const std::string& o) : out(o) {
+    std::error_code ec;
+    if (std::filesystem::exists(out, ec) && !std::filesystem::is_directory(out, ec))
+      throw std::runtime_error(o + ": exists and is not a directory");
+    created_out = !std::filesystem::exists(out, ec);
+    dir = out / (".play-partial-" + std::to_string(::getpid()));
+    make_directories(dir.string());
+  }
+  std::string path(const std::string& name) const { return (dir / name).string(); }
+  void commit(const std::vector<std::string>& names) {
+    for (const std::string& name : names) {
+      const std::filesystem::path target = out / name;
+      std::error_code ec;
+      if (std::filesystem::is_directory(dir / name)) std::filesystem::remove_all(target, ec);
+      std::filesystem::rename(dir / name, target, ec);
+      if (ec)
+        throw std::runtime_error(target.string() + ": cannot move into place: " + ec.message());
+    }
+    std::error_code ec;
+    std::filesystem::remove_all(dir, ec);
+    done = true;
+  }
+  ~Staging() {
+    if (done) return;
+    std::error_code ec;
+    std::filesystem::remove_all(dir, ec);
+    if (created_out) std::filesystem::remove(out, ec);  // only if empty
+  }
+};
+
 void run_play(const PlayArgs& a) {
+  validate_play(a);
   clothrt_db_options options;
   clothrt_db_options_init(&options);
   Runtime rt(a.file, options);
@@ -135,8 +197,21 @@ void run_play(const PlayArgs& a) {
   clothrt_clip_info first;
   rt.check(clothrt_db_clip_info(rt.db, 0, &first), "clip info");
   const double fps = a.fps > 0 ? a.fps : first.frame_rate;
+  if (!(fps > 0) || !std::isfinite(fps) || fps > kMaxPlayFps)
+    throw std::runtime_error(a.file + ": primary clip " + std::to_string(first.id) +
+                             " has frame rate " + fmt_g(first.frame_rate) + "; give --fps in (0, " +
+                             fmt_g(kMaxPlayFps) + "]");
   const uint32_t vertices = clothrt_db_vertex_count(rt.db);
   const size_t n = size_t(vertices) * 3;
+  // Every frame is kept for the PC2: cap the frames before allocating any of them.
+  const size_t max_kept = std::max<size_t>(1, kMaxPlayBytes / (n * sizeof(float)));
+  const double asked = a.seconds * fps + 1;
+  if (a.seconds > 0 && asked > double(max_kept))
+    throw std::invalid_argument("--seconds " + fmt_g(a.seconds) + " at " + fmt_g(fps) + " fps is " +
+                                fmt_g(asked) + " frames of " + std::to_string(vertices) +
+                                " vertices; at most " + std::to_string(max_kept) + " frames (" +
+                                std::to_string(kMaxPlayBytes >> 20) +
+                                " MiB) fit: lower --seconds or --fps");
   std::vector<uint32_t> tri(size_t(clothrt_db_triangle_count(rt.db)) * 3);
   rt.check(clothrt_db_triangles(rt.db, tri.data(), tri.size()), "triangles");
 
@@ -151,6 +226,10 @@ void run_play(const PlayArgs& a) {
   const long max_frames = a.seconds > 0 ? long(std::lround(a.seconds * fps)) + 1 : 0;
   for (long f = 0;; ++f) {
     if (max_frames && f >= max_frames) break;
+    if (size_t(f) >= max_kept)
+      throw std::runtime_error("--path plays more than " + std::to_string(max_kept) + " frames (" +
+                               std::to_string(kMaxPlayBytes >> 20) +
+                               " MiB of positions): give --seconds or a lower --fps");
     int rc = CLOTHRT_OK;
     if (f > 0) {
       const uint64_t before = info.transitions;
@@ -178,16 +257,18 @@ void run_play(const PlayArgs& a) {
         << clothrt_status_name(rc) << '\n';
   }
 
-  make_directories(a.out);
   std::vector<std::array<int, 3>> triangles(tri.size() / 3);
   for (size_t t = 0; t < triangles.size(); ++t)
     triangles[t] = {int(tri[3 * t]), int(tri[3 * t + 1]), int(tri[3 * t + 2])};
-  write_obj(a.out + "/garment.obj", "garment", pc.positions.data(), pc.vertex_count, triangles);
-  write_pc2(a.out + "/cloth.pc2", pc);
-  write_file_atomic(a.out + "/path.csv", csv.str());
+  Staging stage(a.out);
+  std::vector<std::string> written = {"garment.obj", "cloth.pc2", "path.csv"};
+  write_obj(stage.path("garment.obj"), "garment", pc.positions.data(), pc.vertex_count, triangles);
+  write_pc2(stage.path("cloth.pc2"), pc);
+  write_file_atomic(stage.path("path.csv"), csv.str());
   int previews = 0;
   if (a.preview_every > 0) {
-    make_directories(a.out + "/previews");
+    written.push_back("previews");
+    make_directories(stage.path("previews"));
     Eigen::Matrix3Xd all(3, 0);
     auto frame_matrix = [&](int f) {
       Eigen::Matrix3Xd m(3, vertices);
@@ -210,10 +291,12 @@ void run_play(const PlayArgs& a) {
       scene.floor_height = all.row(1).minCoeff() - 0.05;
       char name[64];
       std::snprintf(name, sizeof name, "/previews/frame_%04d.png", f);
-      write_png(a.out + name, render_preview(scene, cam, a.width, a.height), a.width, a.height);
+      write_png(stage.dir.string() + name, render_preview(scene, cam, a.width, a.height), a.width,
+                a.height);
       ++previews;
     }
   }
+  stage.commit(written);
   clothrt_stats stats;
   clothrt_db_stats(rt.db, &stats);
   std::printf(
@@ -482,11 +565,7 @@ void register_play_commands(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--width", a->width, "Preview width")->capture_default_str();
   cmd->add_option("--height", a->height, "Preview height")->capture_default_str();
-  cmd->callback([a] {
-    if (a->path == "random" && !(a->seconds > 0))
-      throw std::runtime_error("--path random needs --seconds > 0");
-    run_play(*a);
-  });
+  cmd->callback([a] { run_play(*a); });
 }
 
 void register_bench_runtime(CLI::App& bench) {

@@ -45,7 +45,8 @@ void register_precompute(CLI::App& app) {
          "--threads", args->explore.threads,
          "OpenMP threads (0: all cores). Under mpirun: each worker rank's threads inside one "
          "simulation (0: 1)")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(number_in(0, max_solver_threads()));
   cmd->add_option("--batch", args->explore.batch,
                   "Dead ends simulated per batch; fixed so the result does not depend on --threads")
       ->capture_default_str()

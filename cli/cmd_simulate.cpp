@@ -49,13 +49,20 @@ void register_simulate(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--solver", args->solver,
                   "Override the scene's solver: mass-spring | pbd | xpbd | newton");
-  cmd->add_option("--substeps", args->substeps, "Override the scene's sub-steps");
-  cmd->add_option("--iterations", args->iterations, "Override the scene's iterations");
+  cmd->add_option("--substeps", args->substeps, "Override the scene's sub-steps")
+      ->check(number_in(0, kMaxSubsteps));
+  cmd->add_option("--iterations", args->iterations, "Override the scene's iterations")
+      ->check(number_in(0, kMaxIterations));
   cmd->add_option("--linear-solver", args->linear_solver,
                   "Override Newton's linear solver: ldlt | cholmod | pcg | pcg-ic");
-  cmd->add_option("--threads", args->threads, "Override the scene's OpenMP threads");
-  cmd->add_option("--width", args->width, "Preview width")->capture_default_str();
-  cmd->add_option("--height", args->height, "Preview height")->capture_default_str();
+  cmd->add_option("--threads", args->threads, "Override the scene's OpenMP threads")
+      ->check(number_in(0, max_solver_threads()));
+  cmd->add_option("--width", args->width, "Preview width")
+      ->capture_default_str()
+      ->check(number_in(16, 8192));
+  cmd->add_option("--height", args->height, "Preview height")
+      ->capture_default_str()
+      ->check(number_in(16, 8192));
   cmd->callback([args] {
     SceneFile file = load_scene_file(args->scene);
     if (!args->solver.empty()) file.solver = parse_solver_kind(args->solver);
@@ -84,6 +91,9 @@ void register_simulate(CLI::App& app) {
                            clip_pose(clip, f));
     };
     append_capsule_mesh_positions(capsules_at(0), body);
+    Body whole_skeleton;  // previews: every bone, thinner than the colliders
+    whole_skeleton.capsules = all_bone_capsules(scene.skeleton);
+    for (BoneCapsule& c : whole_skeleton.capsules) c.radius *= 0.6;
     std::ostringstream csv;
     csv << "frame,max_strain,max_penetration_mm,mean_penetration_mm,kinetic_energy_J,step_"
            "halvings\n";
@@ -141,13 +151,22 @@ void register_simulate(CLI::App& app) {
       for (const auto& [f, x] : preview_frames) {
         all.conservativeResize(3, all.cols() + x.cols());
         all.rightCols(x.cols()) = x;
+        // The whole figure in view, not only the cloth: previews show a person.
+        for (const CapsuleCollider& c : body_capsules(whole_skeleton, scene.skeleton,
+                                                      clip_pose(clip, f), clip_pose(clip, f))) {
+          all.conservativeResize(3, all.cols() + 2);
+          all.col(all.cols() - 2) = c.a + Vec3(0, c.radius, 0);
+          all.col(all.cols() - 1) = c.b + Vec3(0, c.radius, 0);
+        }
       }
-      PreviewCamera cam = frame_points(all, 1.6);
+      PreviewCamera cam = frame_points(all, 1.25);
       for (const auto& [f, x] : preview_frames) {
         PreviewScene ps;
         ps.cloth = &x;
         ps.triangles = &scene.model.mesh.triangles;
         ps.capsules = capsules_at(f);
+        ps.skeleton =
+            body_capsules(whole_skeleton, scene.skeleton, clip_pose(clip, f), clip_pose(clip, f));
         ps.floor_height = 0.0;
         char name[64];
         std::snprintf(name, sizeof name, "/previews/frame_%04d.png", f);

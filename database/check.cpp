@@ -5,8 +5,10 @@
 #include <cmath>
 #include <cstdarg>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <map>
+#include <set>
 
 #include "database/cloth_graph.hpp"
 #include "database/codec.hpp"
@@ -110,6 +112,217 @@ void check_new_state_ends(Reader& reader, CheckReport& report) {
   }
 }
 
+// Lists the first findings of one kind and then how many more there were.
+struct Findings {
+  std::vector<std::string>* out;
+  std::string kind;
+  int count = 0;
+  static constexpr int kMax = 20;
+  Findings(std::vector<std::string>* o, std::string k) : out(o), kind(std::move(k)) {}
+  void add(const std::string& what) {
+    if (++count <= kMax) out->push_back(kind + ": " + what);
+  }
+  ~Findings() {
+    if (count > kMax) out->push_back(format("%s: ... and %d more", kind.c_str(), count - kMax));
+  }
+};
+
+int find_root(std::vector<int>& parent, int i) {
+  while (parent[size_t(i)] != i) i = parent[size_t(i)] = parent[size_t(parent[size_t(i)])];
+  return i;
+}
+
+// The garment row and its arrays, as the runtime reads them.
+void check_garment(sqlite3* db, CheckReport& report) {
+  Findings f(&report.problems, "garment");
+  const uint64_t rows = count(db, "SELECT count(*) FROM garment");
+  if (rows != 1) {
+    f.add(rows == 0 ? "no garment row: the runtime cannot open this file"
+                    : format("%llu garment rows, expected one", (unsigned long long)rows));
+    if (rows == 0) return;
+  }
+  sqlite3_stmt* s = nullptr;
+  if (sqlite3_prepare_v2(db,
+                         "SELECT vertex_count, triangle_count, triangles, "
+                         "length(rest_positions) FROM garment LIMIT 1",
+                         -1, &s, nullptr) != SQLITE_OK ||
+      sqlite3_step(s) != SQLITE_ROW) {
+    f.add(std::string("cannot read: ") + sqlite3_errmsg(db));
+    sqlite3_finalize(s);
+    return;
+  }
+  const int64_t vertices = sqlite3_column_int64(s, 0), triangles = sqlite3_column_int64(s, 1);
+  const uint8_t* tri = static_cast<const uint8_t*>(sqlite3_column_blob(s, 2));
+  const int64_t tri_bytes = sqlite3_column_bytes(s, 2), rest_bytes = sqlite3_column_int64(s, 3);
+  if (vertices <= 0) f.add(format("vertex_count %lld", (long long)vertices));
+  if (triangles < 0) f.add(format("triangle_count %lld", (long long)triangles));
+  if (rest_bytes != vertices * 12)
+    f.add(format("rest positions hold %lld bytes, %lld vertices need %lld", (long long)rest_bytes,
+                 (long long)vertices, (long long)vertices * 12));
+  if (tri_bytes != triangles * 12) {
+    f.add(format("triangle array holds %lld bytes, %lld triangles need %lld (truncated?)",
+                 (long long)tri_bytes, (long long)triangles, (long long)triangles * 12));
+  } else if (tri) {
+    Findings bad(&report.problems, "garment triangle");
+    for (int64_t t = 0; t < triangles; ++t)
+      for (int k = 0; k < 3; ++k) {
+        uint32_t v;
+        std::memcpy(&v, tri + 12 * t + 4 * k, 4);
+        if (int64_t(v) >= vertices)
+          bad.add(format("triangle %lld: vertex index %u is out of range (%lld vertices)",
+                         (long long)t, v, (long long)vertices));
+      }
+  }
+  sqlite3_finalize(s);
+}
+
+// The primary and cloth graphs as the runtime joins them (runtime/db.cpp): nodes are the classes
+// of clip ends joined by transitions.
+void check_graph(Reader& reader, CheckReport& report) {
+  std::vector<PrimaryClip> pcs;
+  std::vector<PrimaryTransition> transitions;
+  std::vector<ClothState> states;
+  std::vector<ClothClip> clips;
+  std::vector<ClothEdge> edges;
+  Error err;
+  if (reader.primary_clips(&pcs, &err) != Status::Ok ||
+      reader.primary_transitions(&transitions, &err) != Status::Ok ||
+      reader.cloth_states(&states, &err) != Status::Ok ||
+      reader.cloth_clips(&clips, &err) != Status::Ok ||
+      reader.cloth_edges(&edges, &err) != Status::Ok) {
+    report.problems.push_back(std::string("graph: cannot read: ") + err.message);
+    return;
+  }
+  std::map<int64_t, int> primary;
+  for (size_t i = 0; i < pcs.size(); ++i) primary[pcs[i].id] = int(i);
+  {
+    Findings f(&report.problems, "primary clip");
+    for (const PrimaryClip& p : pcs)
+      if (p.frame_count < 2 || !(p.frame_rate > 0) || !std::isfinite(p.frame_rate))
+        f.add(format("%lld: %d frames at %g Hz (needs >= 2 frames at a positive rate)",
+                     (long long)p.id, p.frame_count, p.frame_rate));
+  }
+  const int np = int(pcs.size());
+  std::vector<int> parent(size_t(2 * np));
+  for (int i = 0; i < 2 * np; ++i) parent[size_t(i)] = i;
+  std::set<std::pair<int, int>> joined;
+  {
+    Findings f(&report.problems, "primary transition");
+    for (const PrimaryTransition& t : transitions) {
+      auto a = primary.find(t.from_clip), b = primary.find(t.to_clip);
+      if (a == primary.end() || b == primary.end()) continue;  // reported above
+      const PrimaryClip& from = pcs[size_t(a->second)];
+      if (t.from_frame != from.frame_count - 1 || t.to_frame != 0)
+        f.add(
+            format("%lld: joins frame %d of clip %lld (last %d) to frame %d of clip %lld; "
+                   "transitions join a clip's last frame to the next clip's first",
+                   (long long)t.id, t.from_frame, (long long)t.from_clip, from.frame_count - 1,
+                   t.to_frame, (long long)t.to_clip));
+      parent[size_t(find_root(parent, 2 * a->second + 1))] = find_root(parent, 2 * b->second);
+      joined.insert({a->second, b->second});
+    }
+  }
+  auto src = [&](int p) { return find_root(parent, 2 * p); };
+  auto tgt = [&](int p) { return find_root(parent, 2 * p + 1); };
+  std::map<int, std::vector<int>> into, out_of;  // node -> primary clips
+  for (int i = 0; i < np; ++i) {
+    into[tgt(i)].push_back(i);
+    out_of[src(i)].push_back(i);
+  }
+  {
+    // A node is where every clip into it may continue with every clip out of it; a missing pair
+    // means a transition row was lost.
+    Findings f(&report.problems, "primary transition");
+    for (const auto& [node, ins] : into)
+      for (int a : ins)
+        for (int b : out_of[node])
+          if (!joined.count({a, b}))
+            f.add(format("missing from clip %lld to clip %lld (both meet at one node)",
+                         (long long)pcs[size_t(a)].id, (long long)pcs[size_t(b)].id));
+  }
+  std::map<int64_t, int> state_node;  // state id -> node
+  for (const ClothState& s : states) {
+    auto p = primary.find(s.primary_clip);
+    if (p != primary.end()) state_node[s.id] = src(p->second);
+  }
+  std::map<int64_t, size_t> clip_index;
+  std::set<std::pair<int64_t, int>> explored;  // (state, primary index)
+  std::set<int> with_cloth;                    // primary indices with some cloth clip
+  {
+    Findings f(&report.problems, "cloth clip");
+    for (size_t i = 0; i < clips.size(); ++i) {
+      const ClothClip& c = clips[i];
+      clip_index[c.id] = i;
+      auto p = primary.find(c.primary_clip);
+      auto s = state_node.find(c.start_state);
+      if (p == primary.end() || s == state_node.end()) continue;  // reported above
+      const PrimaryClip& pc = pcs[size_t(p->second)];
+      if (c.first_frame != 0 || c.frame_count != pc.frame_count)
+        f.add(format(
+            "%lld: covers frames %d..+%d of primary clip %lld (%d frames); clips span "
+            "whole primary clips",
+            (long long)c.id, c.first_frame, c.frame_count, (long long)pc.id, pc.frame_count));
+      if (s->second != src(p->second))
+        f.add(
+            format("%lld: starts from state %lld, which is not at primary clip %lld's source "
+                   "node",
+                   (long long)c.id, (long long)c.start_state, (long long)pc.id));
+      explored.insert({c.start_state, p->second});
+      with_cloth.insert(p->second);
+    }
+  }
+  std::set<int64_t> has_edge;
+  {
+    Findings f(&report.problems, "cloth edge");
+    for (const ClothEdge& e : edges) {
+      auto c = clip_index.find(e.from_clip);
+      auto s = state_node.find(e.to_state);
+      if (c == clip_index.end() || s == state_node.end()) continue;  // reported above
+      has_edge.insert(e.from_clip);
+      auto p = primary.find(clips[c->second].primary_clip);
+      if (p != primary.end() && s->second != tgt(p->second))
+        f.add(
+            format("%lld: leads to state %lld, which is not at the end node of clip %lld "
+                   "(primary clip %lld)",
+                   (long long)e.id, (long long)e.to_state, (long long)e.from_clip,
+                   (long long)pcs[size_t(p->second)].id));
+    }
+  }
+  {
+    Findings f(&report.problems, "cloth clip");
+    for (const ClothClip& c : clips) {
+      auto p = primary.find(c.primary_clip);
+      if (p == primary.end() || has_edge.count(c.id)) continue;
+      bool way_on = false;
+      for (int b : out_of[tgt(p->second)]) way_on |= with_cloth.count(b) > 0;
+      if (way_on)
+        f.add(
+            format("%lld: has no cloth edge out, though its end node has clips with cloth "
+                   "leaving it",
+                   (long long)c.id));
+    }
+  }
+  {
+    Findings f(&report.warnings, "unexplored");
+    for (const ClothState& s : states) {
+      auto n = state_node.find(s.id);
+      if (n == state_node.end()) continue;
+      for (int b : out_of[n->second])
+        if (with_cloth.count(b) && !explored.count({s.id, b}))
+          f.add(
+              format("state %lld has no clip along primary clip %lld (the runtime falls back "
+                     "to the nearest state that has one)",
+                     (long long)s.id, (long long)pcs[size_t(b)].id));
+    }
+  }
+  std::string start;
+  if (reader.meta("start_clip", &start, &err) == Status::Ok) {
+    bool found = false;
+    for (const PrimaryClip& p : pcs) found |= std::to_string(p.id) == start || p.name == start;
+    if (!found) report.problems.push_back("meta: start_clip '" + start + "' names no primary clip");
+  }
+}
+
 }  // namespace
 
 CheckReport check_database(const std::string& path) {
@@ -200,6 +413,8 @@ CheckReport check_database(const std::string& path) {
                 "%g)', id, max_strain, max_penetration) FROM cloth_clip WHERE max_strain < 0 OR "
                 "max_penetration < 0",
           report, "metrics");
+  check_garment(db, report);
+  check_graph(reader, report);
   report.rows_checked = count(db,
                               "SELECT (SELECT count(*) FROM cloth_edge) + "
                               "(SELECT count(*) FROM cloth_clip) + "

@@ -12,6 +12,10 @@ namespace clothdb::db {
 
 struct CheckReport {
   std::vector<std::string> problems;  // empty: the file is sound
+  // Sound but incomplete: ways out of a node that a state has no clip along ("unexplored"; the
+  // runtime falls back to the nearest state that has one). The demo database has some by design:
+  // its budget ends the exploration before every state is expanded.
+  std::vector<std::string> warnings;
   uint64_t blobs_checked = 0;
   uint64_t rows_checked = 0;
   bool ok() const { return problems.empty(); }
@@ -21,7 +25,14 @@ struct CheckReport {
 // SQLite's integrity_check and foreign_key_check, that the file is a clothdb database this build
 // reads, every blob's header and chunk checksums (by decoding it fully), that each blob agrees
 // with its row (frame and vertex counts, garment size) and that every edge, clip, state and
-// transition points at rows that exist.
+// transition points at rows that exist. Then everything the runtime relies on (runtime/db.cpp
+// refuses the same at open): one garment row whose arrays match its counts and whose triangle
+// indices are in range; primary clips of >= 2 frames at a finite positive rate; transitions
+// joining a clip's last frame to the next clip's first, and complete at every node (every clip
+// into a node to every clip out of it); cloth clips spanning their primary clip from a state at
+// its source node; every cloth clip with an edge out when its end node has a way on, landing at
+// that node; meta version keys this build knows; a start clip that exists.
+// At most kMaxFindingsPerKind findings of one kind are listed, then a count of the rest.
 CheckReport check_database(const std::string& path);
 
 struct DatabaseInfo {

@@ -13,6 +13,7 @@
 #include <utility>
 
 #include "database/codec.hpp"
+#include "database/writer_lock.hpp"
 
 namespace clothdb::db {
 namespace {
@@ -266,7 +267,9 @@ Status recognise(sqlite3* db, const std::string& path, int* version, CodecSettin
   if (user_version < 1)
     return fail(err, Status::Corrupt, "%s: clothdb schema version %lld: creation never finished",
                 path.c_str(), (long long)user_version);
-  Stmt m(db, "SELECT key, value FROM meta WHERE key = 'format' OR key LIKE 'codec.%'");
+  Stmt m(db,
+         "SELECT key, value FROM meta WHERE key IN ('format', 'format_version') OR key LIKE "
+         "'codec.%'");
   if (!m.ok())
     return fail(err, Status::Corrupt, "%s: no meta table: %s", path.c_str(), sqlite3_errmsg(db));
   bool format = false;
@@ -275,6 +278,24 @@ Status recognise(sqlite3* db, const std::string& path, int* version, CodecSettin
   while (m.step() == SQLITE_ROW) {
     const std::string key = m.text(0);
     if (key == "format") format = m.text(1) == "clothdb";
+    // Version keys must be versions this build knows: a newer one is refused like a newer
+    // schema, anything else (text, negative) as damage.
+    const int known = key == "format_version"         ? kSchemaVersion
+                      : key == "codec.format_version" ? int(codec::kFormatVersion)
+                                                      : 0;
+    if (known > 0) {
+      const std::string value = m.text(1);
+      char* end = nullptr;
+      const long long v = std::strtoll(value.c_str(), &end, 10);
+      const bool integer = !value.empty() && end && *end == '\0';
+      if (integer && v > known)
+        return fail(err, Status::NewerVersion,
+                    "%s: meta %s is %lld, newer than this build reads (up to %d)", path.c_str(),
+                    key.c_str(), v, known);
+      if (!integer || v < 1)
+        return fail(err, Status::Corrupt, "%s: meta %s is '%s', not a version (1..%d)",
+                    path.c_str(), key.c_str(), value.c_str(), known);
+    }
     if (key == "codec.position_bound") {
       c.position_bound = m.f64(1);
       ++found;
@@ -328,7 +349,8 @@ bool parse_clip_status(const std::string& name, ClipStatus* status) {
 Writer::Writer(sqlite3* db, std::string path) : db_(db), path_(std::move(path)) {}
 
 Writer::Writer(Writer&& other) noexcept
-    : db_(std::exchange(other.db_, nullptr)),
+    : lock_(std::move(other.lock_)),
+      db_(std::exchange(other.db_, nullptr)),
       path_(std::move(other.path_)),
       codec_(other.codec_),
       transaction_depth_(other.transaction_depth_) {}
@@ -337,6 +359,7 @@ Writer& Writer::operator=(Writer&& other) noexcept {
   if (this != &other) {
     sqlite3_close_v2(db_);
     db_ = std::exchange(other.db_, nullptr);
+    lock_ = std::move(other.lock_);
     path_ = std::move(other.path_);
     codec_ = other.codec_;
     transaction_depth_ = other.transaction_depth_;
@@ -383,7 +406,12 @@ Writer Writer::create(const std::string& path, const CodecSettings& codec) {
       codec.zstd_level > 22)
     throw ClothdbError(Status::InvalidArgument,
                        path + ": codec settings need positive bounds and zstd level 1..22");
+  auto lock = WriterLock::acquire(path);
+  if (std::filesystem::exists(path, ec))  // created by the lock's previous holder meanwhile
+    throw ClothdbError(Status::InvalidArgument,
+                       path + " already exists; clothdb does not overwrite databases");
   Writer w(open_connection(path, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE), path);
+  w.lock_ = std::move(lock);
   w.codec_ = codec;
   // WAL must be chosen outside a transaction; it is persistent in the file.
   w.exec("PRAGMA journal_mode=WAL");
@@ -421,7 +449,9 @@ Writer Writer::open(const std::string& path) {
   std::error_code ec;
   if (!std::filesystem::exists(path, ec))
     throw ClothdbError(Status::IoError, "cannot open " + path + ": no such file");
+  auto lock = WriterLock::acquire(path);
   Writer w(open_connection(path, SQLITE_OPEN_READWRITE), path);
+  w.lock_ = std::move(lock);
   Error err;
   int version = 0;
   if (recognise(w.db_, path, &version, &w.codec_, &err) != Status::Ok)
@@ -922,6 +952,9 @@ Status Reader::open(const std::string& path, Error* err) {
   close();
   path_ = path;
   std::error_code ec;
+  if (std::filesystem::is_directory(path, ec))
+    return fail(err, Status::IoError, "cannot open %s: is a directory, not a database file",
+                path.c_str());
   if (!std::filesystem::is_regular_file(path, ec))
     return fail(err, Status::IoError, "cannot open %s: no such file", path.c_str());
   const int rc = sqlite3_open_v2(path.c_str(), &db_, SQLITE_OPEN_READONLY, nullptr);

@@ -13,6 +13,7 @@
 
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -179,6 +180,8 @@ struct NewClothClip {
   }
 };
 
+class WriterLock;
+
 class Writer {
  public:
   // Creates a new database; refuses to overwrite an existing file.
@@ -294,6 +297,7 @@ class Writer {
   uint32_t garment_vertices();  // 0 if no garment yet
   void check_vertex_count(uint32_t vertex_count, const char* what);
 
+  std::shared_ptr<WriterLock> lock_;  // one writer per database (writer_lock.hpp)
   sqlite3* db_ = nullptr;
   std::string path_;
   CodecSettings codec_;

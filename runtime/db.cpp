@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <new>
@@ -110,6 +111,12 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
     return err->set(Status::Corrupt, "%s: the garment has no vertices", file.c_str());
   if (vertex_count > clothdb::codec::kMaxVertices)
     return err->set(Status::Corrupt, "%s: garment of %u vertices", file.c_str(), vertex_count);
+  // clothrt_db_triangles hands these to the game's index buffer: never an index out of range.
+  for (size_t i = 0; i < triangles.size(); ++i)
+    if (triangles[i] >= vertex_count)
+      return err->set(Status::Corrupt,
+                      "%s: garment triangle %zu has vertex index %u (the garment has %u vertices)",
+                      file.c_str(), i / 3, triangles[i], vertex_count);
 
   std::vector<PrimaryClip> pcs;
   std::vector<PrimaryTransition> transitions;
@@ -148,6 +155,12 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
     if (a == primary_by_id.end() || b == primary_by_id.end())
       return err->set(Status::Corrupt, "%s: primary transition %lld names a missing clip",
                       file.c_str(), (long long)t.id);
+    if (t.from_frame != pcs[size_t(a->second)].frame_count - 1 || t.to_frame != 0)
+      return err->set(Status::Corrupt,
+                      "%s: primary transition %lld joins frame %d of clip %lld to frame %d of "
+                      "clip %lld, not a clip's last frame to the next one's first",
+                      file.c_str(), (long long)t.id, t.from_frame, (long long)t.from_clip,
+                      t.to_frame, (long long)t.to_clip);
     const int ra = find_root(parent, 2 * a->second + 1), rb = find_root(parent, 2 * b->second);
     parent[size_t(ra)] = rb;
     succ[size_t(a->second)].push_back(b->second);
@@ -170,6 +183,17 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
     p.succ_end = uint32_t(successors.size());
     max_successors = std::max(max_successors, p.succ_end - p.succ_begin);
   }
+  // At a node every clip in continues with every clip out: fewer successors than clips leaving
+  // the node means a transition row was lost (the game could not take that way).
+  std::vector<uint32_t> leaving(size_t(nodes), 0);
+  for (const PrimaryInfo& p : primaries) ++leaving[size_t(p.src_node)];
+  for (const PrimaryInfo& p : primaries)
+    if (p.succ_end - p.succ_begin != leaving[size_t(p.tgt_node)])
+      return err->set(Status::Corrupt,
+                      "%s: primary clip %lld continues with %u of the %u clips leaving its end "
+                      "node (a primary transition is missing)",
+                      file.c_str(), (long long)p.id, p.succ_end - p.succ_begin,
+                      leaving[size_t(p.tgt_node)]);
 
   std::unordered_map<int64_t, int> state_by_id;
   states.resize(cstates.size());
@@ -398,7 +422,15 @@ Status Db::load(int clip, Loader& loader, Error* err) {
   // Growing a loader buffer is the only thing here that can throw; a throw must not leave the
   // entry Loading forever.
   try {
-    return load_impl(clip, loader, err);
+    const Status st = load_impl(clip, loader, err);
+    // Codec errors name neither the file nor the clip: say which clip of which file is damaged.
+    if (st != Status::Ok && std::strncmp(err->message, path.c_str(), path.size()) != 0) {
+      char what[sizeof err->message];
+      std::snprintf(what, sizeof what, "%s", err->message);
+      err->set(st, "%s: cloth clip %lld: %s", path.c_str(), (long long)clips[size_t(clip)].id,
+               what);
+    }
+    return st;
   } catch (const std::bad_alloc&) {
     return err->set(Status::IoError, "%s: out of memory decoding cloth clip %lld", path.c_str(),
                     (long long)clips[size_t(clip)].id);

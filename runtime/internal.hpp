@@ -182,7 +182,7 @@ struct Db {
   int32_t search_impl(int clip, uint32_t k, Loader& loader);
   void lru_remove(int clip);  // mu held
   void lru_push_front(int clip);
-  void trim_to_cap();                           // mu held: frees pooled buffers while over the cap
+  void trim_to_cap();  // mu held: frees pooled buffers while over the cap
   // mu held: records how a load of `clip` ended (Ready and in the LRU, or Failed with its buffer
   // back in the pool). Callers notify loaded_cv.
   void finish_load(int clip, Status st);
@@ -212,12 +212,16 @@ struct Player {
   void release_prefetch();
   void request(uint32_t k);
   int transition();
+  bool pass_node();
+  int load_current();
   template <typename Out>
   void sample(Out&& out) const;
 
   bool started_ = false;
   int primary_ = -1;
   int clip_ = -1;  // -1 while holding
+  // clip_ was reached by pass_node() and is neither pinned nor in view_ yet (only inside advance).
+  bool unloaded_ = false;
   ClipView view_;
   double t_ = 0;  // frames into the primary clip
   // The pose shown is clip(t) + max(0, r0 - t / blend_span) * offset_. When holding it is offset_.

@@ -142,7 +142,8 @@ int Player::start_clip(int clip) {
     return to_code(st);
   }
   release_prefetch();
-  if (clip_ >= 0) db->unpin(clip_);
+  if (clip_ >= 0 && !unloaded_) db->unpin(clip_);
+  unloaded_ = false;
   clip_ = clip;
   view_ = v;
   primary_ = db->clips[size_t(clip)].primary;
@@ -357,6 +358,60 @@ int Player::transition() {
   return code;
 }
 
+bool Player::pass_node() {
+  const uint32_t k = uint32_t(next_k_);
+  const PrimaryInfo& from = db->primaries[size_t(primary_)];
+  const int next_primary = db->successors[from.succ_begin + k];
+  const PrimaryInfo& to = db->primaries[size_t(next_primary)];
+  int target = -1;
+  bool fallback = holding_;
+  if (holding_) {
+    target = db->candidates[to.cand_begin];
+  } else {
+    int32_t v = db->slots[db->clips[size_t(clip_)].slot_begin + k].load(std::memory_order_acquire);
+    if (v < 0 && v != kSlotNone) v = db->resolve_now(clip_, k);
+    if (v >= 0) {
+      target = v >> 1;
+      fallback = v & 1;
+    }
+  }
+  if (target < 0) return false;  // transition() reports it and holds
+  release_prefetch();
+  if (clip_ >= 0 && !unloaded_) db->unpin(clip_);
+  clip_ = target;
+  unloaded_ = true;
+  holding_ = false;
+  fallback_ = fallback;
+  fallbacks_ += fallback;
+  r0_ = 0;  // the clip is passed whole: a blend into it has ended (or is cut) by its end
+  ++transitions_;
+  primary_ = next_primary;
+  next_k_ = -1;
+  next_named_ = false;
+  if (random_) choose_next();
+  return true;
+}
+
+int Player::load_current() {
+  if (!unloaded_) return CLOTHRT_OK;
+  unloaded_ = false;
+  ClipView v;
+  bool stalled = false;
+  Error e;
+  if (Status st = db->acquire(clip_, &v, &stalled, &e); st != Status::Ok) {
+    // As transition() does when a clip cannot be read: hold the last pose shown.
+    error = e;
+    clip_ = -1;
+    holding_ = true;
+    fallback_ = false;
+    r0_ = 0;
+    return to_code(st);
+  }
+  if (stalled) db->stalls.fetch_add(1, std::memory_order_relaxed);
+  view_ = v;
+  return CLOTHRT_OK;
+}
+
 int Player::advance(double dt) {
   if (!started_) {
     error.set(Status::InvalidArgument, "advance: the player has not been started");
@@ -369,15 +424,32 @@ int Player::advance(double dt) {
   }
   int code = CLOTHRT_OK;
   const PrimaryInfo* p = &db->primaries[size_t(primary_)];
-  t_ += dt * p->rate;
+  // Beyond 1e250 s every step lands alike (the wrap below); the cap keeps t_ finite.
+  t_ += std::min(dt, 1e250) * p->rate;
+  // Work is bounded whatever dt is (clothrt.h): clips the step passes whole are passed without
+  // loading them (pass_node), a deterministic walk is cut short by whole cycles, and after
+  // kMaxNodePasses nodes the rest of the step is wrapped modulo the next clip's length.
+  // Cycle detection (Brent): the walk is a function of (primary clip, cloth clip) at each node
+  // once nothing is named and nothing is random; `saved_*` is the walk at the last power-of-two
+  // checkpoint, compared with every later node.
+  constexpr uint64_t kMaxNodePasses = uint64_t(1) << 12;
+  uint64_t passes = 0, power = 1, lam = 0;
+  int64_t saved_key = -1;
+  // Seconds of clips passed since this call began, summed from their lengths: a cycle's period
+  // taken as a difference of `carry` values near 1e9 s would be off by microseconds, which times
+  // 1e8 turns would land seconds away.
+  double elapsed = 0, saved_elapsed = 0;
+  uint64_t saved_transitions = 0, saved_fallbacks = 0;
   for (;;) {
     const double end = double(p->frames - 1);
-    if (!prefetch_issued_ && (end - t_) / p->rate <= db->options.prefetch_seconds) {
-      // The random pick is made at the start of a clip; a game that has not named the next clip
-      // yet gets all candidates prefetched.
-      issue_prefetch();
-    } else if (prefetch_issued_) {
-      poll_prefetch();
+    if (!unloaded_) {
+      if (!prefetch_issued_ && (end - t_) / p->rate <= db->options.prefetch_seconds) {
+        // The random pick is made at the start of a clip; a game that has not named the next
+        // clip yet gets all candidates prefetched.
+        issue_prefetch();
+      } else if (prefetch_issued_) {
+        poll_prefetch();
+      }
     }
     if (t_ < end) break;
     if (choose_next() < 0) {
@@ -385,12 +457,48 @@ int Player::advance(double dt) {
       t_ = end;
       break;
     }
-    const double carry = (t_ - end) / p->rate;
-    const int c = transition();
-    if (c != CLOTHRT_OK) code = c;
+    double carry = (t_ - end) / p->rate;  // seconds of the step left past this node
+    const PrimaryInfo& ahead =
+        db->primaries[size_t(db->successors[p->succ_begin + uint32_t(next_k_)])];
+    const double ahead_seconds = double(ahead.frames - 1) / ahead.rate;
+    bool passed = false;
+    elapsed += ahead_seconds;
+    if (carry >= ahead_seconds) {
+      if (passes < kMaxNodePasses)
+        passed = pass_node();
+      else
+        carry = std::fmod(carry, ahead_seconds);  // the documented cap on a random walk
+    }
+    if (!passed) {
+      if (const int c = load_current(); c != CLOTHRT_OK) code = c;  // the last frame shown
+      const int c = transition();
+      if (c != CLOTHRT_OK) code = c;
+    }
     p = &db->primaries[size_t(primary_)];
+    if (passed) {
+      ++passes;
+      const int64_t key = int64_t(primary_) << 32 | uint32_t(clip_);
+      if (!random_ && key == saved_key && elapsed > saved_elapsed) {
+        // A cycle of the deterministic walk: skip as many whole turns as the step holds.
+        const double period = elapsed - saved_elapsed;
+        const double turns = std::floor(carry / period);
+        carry -= turns * period;
+        const uint64_t whole = uint64_t(std::min(turns, 1e15));  // counters saturate, not wrap
+        transitions_ += whole * (transitions_ - saved_transitions);
+        fallbacks_ += whole * (fallbacks_ - saved_fallbacks);
+        saved_key = -2;  // less than one turn is left: no further checkpoints needed
+      } else if (saved_key != -2 && ++lam == power) {
+        saved_key = key;
+        saved_elapsed = elapsed;
+        saved_transitions = transitions_;
+        saved_fallbacks = fallbacks_;
+        power *= 2;
+        lam = 0;
+      }
+    }
     t_ = carry * p->rate;
   }
+  if (const int c = load_current(); c != CLOTHRT_OK) code = c;
   if (db->workers.empty()) db->service_one();
   return code;
 }

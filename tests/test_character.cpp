@@ -530,7 +530,9 @@ TEST(Motion, BadFilesFailWithNamedErrors) {
 
   // No skeleton / no animation.
   const fs::path obj = testmodel("OBJ/box.obj");
-  expect_motion_error([&] { load_motion(obj); }, {obj.string(), "no skeleton and no animation"});
+  expect_motion_error([&] { load_motion(obj); },
+                      {obj.string(), "no skeleton and no animation as read by assimp ",
+                       "this assimp cannot read it from this format"});
   const fs::path spider = testmodel("FBX/spider.fbx");
   expect_motion_error([&] { load_motion(spider); }, {spider.string(), "no animation"});
   const fs::path morph =
@@ -743,4 +745,30 @@ TEST(Body, AutomaticSelectionByDistanceToTheGarment) {
     EXPECT_NE(b.joint, thigh);
   EXPECT_EQ(make_body_near(m.skeleton, m.clip, garment, 10.0, {}, frame).capsules.size(),
             all.capsules.size());
+}
+
+// A manifest without the CMU scale makes a skeleton 18 times too tall; one with the wrong up axis
+// lays it down. Both load (it may be a creature) with a warning naming the manifest field.
+TEST(Character, ImplausibleSkeletonIsWarnedNamingTheManifestField) {
+  const fs::path dir = fs::path(testing::TempDir());
+  const fs::path manifest = dir / "no_scale.json";
+  auto write_manifest = [&](const std::string& extra) {
+    write_text(manifest, R"({"clips": [{"name": "walk", "file": ")" +
+                             testmodel("BVH/01_01.bvh").string() +
+                             R"(", "first_frame": 1, "last_frame": 40)" + extra + "}]}");
+    testing::internal::CaptureStderr();
+    load_clip(load_manifest(manifest), 0);
+    return testing::internal::GetCapturedStderr();
+  };
+  const std::string tall = write_manifest("");
+  EXPECT_NE(
+      tall.find("m tall (a person is 0.5 to 3 m): set " + manifest.string() + ": clips[0].scale"),
+      std::string::npos)
+      << tall;
+  const std::string lying = write_manifest(R"(, "scale": 0.0564444, "up_axis": "z")");
+  EXPECT_NE(lying.find("as if lying down: set " + manifest.string() + ": clips[0].up_axis"),
+            std::string::npos)
+      << lying;
+  const std::string fine = write_manifest(R"(, "scale": 0.0564444, "up_axis": "y")");
+  EXPECT_EQ(fine.find("warning"), std::string::npos) << fine;
 }

@@ -17,9 +17,12 @@
 #include <thread>
 #include <vector>
 
+#include "clothrt.h"
 #include "database/check.hpp"
 #include "database/codec.hpp"
 #include "database/schema.hpp"
+#include "database/writer_lock.hpp"
+#include "runtime/tools/synthetic_db.hpp"
 
 namespace clothdb::db {
 namespace {
@@ -83,8 +86,8 @@ double max_diff(const float* a, const float* b, size_t n) {
   return m;
 }
 
-// A small complete database: two primary clips, a transition, one state per clip start, one
-// cloth clip per primary clip and the edges between them.
+// A small complete database: two primary clips in a loop (two transitions), one state per clip
+// start, one cloth clip per primary clip and the edges between them.
 struct Fixture {
   int64_t walk = 0, run_clip = 0, state0 = 0, state1 = 0, clip0 = 0, clip1 = 0, edge = 0;
   std::vector<float> frames0, frames1;
@@ -98,6 +101,8 @@ Fixture populate(Writer& w) {
   f.walk = w.add_primary_clip({0, "walk", motion, 0, 40, 30.0});
   f.run_clip = w.add_primary_clip({0, "run", motion, 40, 30, 30.0});
   w.add_primary_transition({0, f.walk, 39, f.run_clip, 0, 4, 0.25});
+  // And back: clip1's edge leads to state0 at walk's start, which must be run's end node.
+  w.add_primary_transition({0, f.run_clip, 29, f.walk, 0, 4, 0.25});
   const int64_t run = w.begin_run(R"({"solver": "xpbd"})", "test-host");
   Writer::Transaction t(w);
   f.frames0 = sheet_frames(40, 0.0);
@@ -171,7 +176,7 @@ TEST(Database, WriterReaderRoundTrip) {
   EXPECT_EQ(clips[1].first_frame, 40);
   std::vector<PrimaryTransition> transitions;
   ASSERT_EQ(r.primary_transitions(&transitions, &err), Status::Ok);
-  ASSERT_EQ(transitions.size(), 1u);
+  ASSERT_EQ(transitions.size(), 2u);
   EXPECT_EQ(transitions[0].blend_frames, 4);
 
   std::vector<StoredState> states;
@@ -613,6 +618,225 @@ TEST(Database, QualityMetricsRoundTripWithUnknownAsNull) {
   const CheckReport check = check_database(path);
   EXPECT_TRUE(mentions(check, "cloth clip " + std::to_string(f.clip1) + ": negative quality"));
   EXPECT_TRUE(mentions(check, "cloth edge " + std::to_string(f.edge) + ": negative pop"));
+}
+
+// ---- db check verifies what the runtime relies on (issue 18) ---------------------------------
+
+std::string file_bytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+// The fixture database damaged by `sql`: check must fail naming `words`, the runtime must refuse
+// to open it (`runtime_words` in its message; empty: the runtime plays it, e.g. by falling back),
+// and neither may change the file.
+void expect_refused(const std::string& sql, const std::string& words,
+                    const std::string& runtime_words) {
+  TempDir dir;
+  const std::string path = dir.file("x.clothdb");
+  {
+    Writer w = Writer::create(path);
+    populate(w);
+  }
+  ASSERT_TRUE(check_database(path).ok()) << check_database(path).problems[0];
+  exec_raw(path, "PRAGMA foreign_keys = OFF; " + sql);
+  const std::string before = file_bytes(path);
+  const CheckReport report = check_database(path);
+  EXPECT_FALSE(report.ok()) << sql;
+  EXPECT_TRUE(mentions(report, words))
+      << sql << ": " << (report.problems.empty() ? "" : report.problems[0]);
+  clothrt_db* db = nullptr;
+  const int rc = clothrt_db_open(path.c_str(), nullptr, &db);
+  if (!runtime_words.empty()) {
+    EXPECT_NE(rc, CLOTHRT_OK) << sql;
+    EXPECT_NE(std::string(clothrt_last_open_errmsg()).find(runtime_words), std::string::npos)
+        << clothrt_last_open_errmsg();
+  } else {
+    EXPECT_EQ(rc, CLOTHRT_OK) << clothrt_last_open_errmsg();
+  }
+  clothrt_db_close(db);
+  EXPECT_EQ(file_bytes(path), before) << "check or the runtime changed the file";
+}
+
+TEST(DatabaseCheck, DeletedGarmentRow) {
+  expect_refused("DELETE FROM garment;", "no garment row", "no garment");
+}
+
+TEST(DatabaseCheck, TruncatedTriangleArray) {
+  expect_refused("UPDATE garment SET triangles = substr(triangles, 1, 100);",
+                 "triangle array holds 100 bytes", "garment arrays do not match");
+}
+
+TEST(DatabaseCheck, TriangleIndexOutOfRange) {
+  expect_refused("UPDATE garment SET triangles = x'ffffff7f' || substr(triangles, 5);",
+                 "triangle 0: vertex index 2147483647 is out of range", "vertex index 2147483647");
+}
+
+TEST(DatabaseCheck, DeletedPrimaryTransition) {
+  // walk -> run -> walk: without run -> walk, clip1's edge no longer lands at run's end node.
+  expect_refused("DELETE FROM primary_transition WHERE from_frame = 29;",
+                 "which is not at the end node of clip", "not at its clip's end node");
+}
+
+TEST(DatabaseCheck, TransitionNotAtTheClipsEnds) {
+  expect_refused("UPDATE primary_transition SET from_frame = 5 WHERE from_frame = 39;",
+                 "joins frame 5 of clip", "joins frame 5 of clip");
+}
+
+TEST(DatabaseCheck, EdgeNotLandingAtItsClipsEndNode) {
+  // clip0 (along walk) ends where run starts; state0 is at walk's start.
+  expect_refused(
+      "UPDATE cloth_edge SET to_state = (SELECT start_state FROM cloth_clip WHERE id = "
+      "cloth_edge.from_clip) WHERE blend_error = 0.004;",
+      "which is not at the end node of clip", "not at its clip's end node");
+}
+
+TEST(DatabaseCheck, ClipWithoutAnEdgeOut) {
+  expect_refused("DELETE FROM cloth_edge WHERE blend_error = 0.004;", "has no cloth edge out", "");
+}
+
+TEST(DatabaseCheck, UnknownMetaVersions) {
+  for (const char* v : {"4", "abc", "-1", ""})
+    expect_refused("UPDATE meta SET value = '" + std::string(v) + "' WHERE key = 'format_version';",
+                   "meta format_version is", "meta format_version is");
+  expect_refused("UPDATE meta SET value = '2' WHERE key = 'codec.format_version';",
+                 "meta codec.format_version is 2, newer than this build reads",
+                 "codec.format_version");
+}
+
+TEST(DatabaseCheck, StartClipNamingNothing) {
+  expect_refused("INSERT INTO meta VALUES('start_clip', '4242');", "start_clip '4242'", "");
+}
+
+TEST(DatabaseCheck, MissingTransitionAtANodeAndUnexploredStates) {
+  TempDir dir;
+  const std::string path = dir.file("demo.clothdb");
+  const synthetic::Built built = synthetic::build(path, synthetic::demo_spec(6));
+  // The demo leaves one (state, way out) pair unexplored: a warning, not a problem.
+  CheckReport report = check_database(path);
+  EXPECT_TRUE(report.ok()) << report.problems[0];
+  ASSERT_EQ(report.warnings.size(), 1u);
+  EXPECT_NE(report.warnings[0].find("unexplored: state " + std::to_string(built.states[4]) +
+                                    " has no clip along primary clip " +
+                                    std::to_string(built.primary[2])),
+            std::string::npos)
+      << report.warnings[0];
+  // Node 1 has two clips in (e0, e2) and two out (e1, e2): e0 -> e1 lost leaves the node joined
+  // through the others, and check names the missing pair.
+  exec_raw(path,
+           "DELETE FROM primary_transition WHERE from_clip = " + std::to_string(built.primary[0]) +
+               " AND to_clip = " + std::to_string(built.primary[1]) + ";");
+  report = check_database(path);
+  clothrt_db* db = nullptr;
+  EXPECT_EQ(clothrt_db_open(path.c_str(), nullptr, &db), CLOTHRT_ERR_CORRUPT);
+  EXPECT_NE(std::string(clothrt_last_open_errmsg()).find("a primary transition is missing"),
+            std::string::npos)
+      << clothrt_last_open_errmsg();
+  clothrt_db_close(db);
+  EXPECT_TRUE(mentions(report, "primary transition: missing from clip " +
+                                   std::to_string(built.primary[0]) + " to clip " +
+                                   std::to_string(built.primary[1])))
+      << (report.problems.empty() ? "" : report.problems[0]);
+}
+
+// ---- one writer per database (issue 18) -------------------------------------------------------
+
+TEST(WriterLock, SecondProcessIsRefusedNamingTheHolder) {
+  TempDir dir;
+  const std::string path = dir.file("locked.clothdb");
+  {
+    Writer w = Writer::create(path);
+    populate(w);
+  }
+  EXPECT_FALSE(fs::exists(WriterLock::lock_path(path))) << "removed when the writer closes";
+  int ready[2], done[2];
+  ASSERT_EQ(pipe(ready), 0);
+  ASSERT_EQ(pipe(done), 0);
+  const pid_t child = fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    // Another process writing: holds a Writer until told to stop.
+    try {
+      Writer w = Writer::open(path);
+      char c = 1;
+      if (write(ready[1], &c, 1) != 1) _exit(3);
+      if (read(done[0], &c, 1) != 1) _exit(4);
+    } catch (...) {
+      _exit(5);
+    }
+    _exit(0);
+  }
+  char c = 0;
+  ASSERT_EQ(read(ready[0], &c, 1), 1);
+  const std::string before = file_bytes(path);
+  try {
+    Writer w = Writer::open(path);
+    ADD_FAILURE() << "a second writer was let in";
+  } catch (const ClothdbError& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find(path + " is being written by another clothdb process (pid " +
+                       std::to_string(child) + " on host "),
+              std::string::npos)
+        << msg;
+    EXPECT_NE(msg.find(" since 20"), std::string::npos) << msg;
+  }
+  EXPECT_THROW(Writer::create(path), ClothdbError);
+  EXPECT_EQ(file_bytes(path), before) << "the refused writer changed the file";
+  // Readers are not writers: they still read.
+  Reader r;
+  Error err;
+  EXPECT_EQ(r.open(path, &err), Status::Ok) << err.message;
+  ASSERT_EQ(write(done[1], &c, 1), 1);
+  int status = 0;
+  waitpid(child, &status, 0);
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+  // Released with its holder: the next writer gets in.
+  Writer w = Writer::open(path);
+  EXPECT_TRUE(w.path() == path);
+}
+
+TEST(WriterLock, StaleLockOfAKilledRunIsTakenOver) {
+  TempDir dir;
+  const std::string path = dir.file("stale.clothdb");
+  {
+    Writer w = Writer::create(path);
+    populate(w);
+  }
+  // A run killed with SIGKILL while writing: its lock file stays, its lock does not.
+  const pid_t child = fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    try {
+      Writer w = Writer::open(path);
+      raise(SIGKILL);
+    } catch (...) {
+    }
+    _exit(5);
+  }
+  int status = 0;
+  waitpid(child, &status, 0);
+  ASSERT_TRUE(WIFSIGNALED(status));
+  ASSERT_TRUE(fs::exists(WriterLock::lock_path(path)));
+  EXPECT_NE(WriterLock::holder(path).find("pid " + std::to_string(child)), std::string::npos);
+  {
+    Writer w = Writer::open(path);  // not refused
+    EXPECT_NE(WriterLock::holder(path).find("pid " + std::to_string(getpid())), std::string::npos);
+  }
+  EXPECT_FALSE(fs::exists(WriterLock::lock_path(path)));
+  EXPECT_TRUE(check_database(path).ok());
+}
+
+TEST(WriterLock, WritersInOneProcessShareTheLock) {
+  TempDir dir;
+  const std::string path = dir.file("shared.clothdb");
+  Writer a = Writer::create(path);
+  populate(a);
+  {
+    Writer b = Writer::open(path);
+    b.set_meta("note", "second writer of the same process");
+  }
+  EXPECT_TRUE(fs::exists(WriterLock::lock_path(path))) << "still held by the first writer";
+  a.set_meta("note", "first writer again");
 }
 
 }  // namespace

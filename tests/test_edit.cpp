@@ -317,6 +317,46 @@ TEST(Edit, ImportWithTheWrongVertexOrFrameCountIsRefusedAndChangesNothing) {
   EXPECT_EQ(rows(path), before);
 }
 
+// Blender's PC2 export with "Convert to Y-up" writes the clip rotated by 90 degrees about X; that
+// and a change far beyond any edit are refused even with --on-break ramp, naming the setting.
+TEST(Edit, ImportOfARotatedOrForeignCacheIsRefusedWhateverOnBreakSays) {
+  const std::string path = copy_db("foreign");
+  const int64_t clip = long_clip(path);
+  const std::vector<std::string> before = rows(path);
+  const std::vector<float> frames = clip_frames(path, clip);
+  db::Reader r;
+  db::Error err;
+  ASSERT_EQ(r.open(path, &err), db::Status::Ok);
+  db::Garment g;
+  ASSERT_EQ(r.garment(&g, &err), db::Status::Ok);
+  const int v = int(g.vertex_count()), n = int(frames.size()) / (3 * v);
+  PointCache rotated;
+  rotated.vertex_count = v;
+  rotated.frame_count = n;
+  for (size_t i = 0; i < frames.size(); i += 3)
+    rotated.positions.insert(rotated.positions.end(), {frames[i], frames[i + 2], -frames[i + 1]});
+  write_pc2(work("rotated.pc2"), rotated);
+  PointCache moved = rotated;
+  moved.positions = frames;
+  for (size_t i = 0; i < moved.positions.size(); i += 3) moved.positions[i] += 25.0f;
+  write_pc2(work("moved.pc2"), moved);
+  std::string out;
+  EXPECT_NE(run_cli("clip import " + path + " " + std::to_string(clip) + " " + work("rotated.pc2") +
+                        " --on-break ramp",
+                    &out),
+            0);
+  EXPECT_NE(out.find("the frames are the clip rotated by 90 degrees about "), std::string::npos)
+      << out;
+  EXPECT_NE(out.find("turn off \"Convert to Y-up\""), std::string::npos) << out;
+  EXPECT_NE(run_cli("clip import " + path + " " + std::to_string(clip) + " " + work("moved.pc2") +
+                        " --on-break ramp",
+                    &out),
+            0);
+  EXPECT_NE(out.find("vertices are farther than the garment's size"), std::string::npos) << out;
+  EXPECT_NE(out.find("refused whatever --on-break says"), std::string::npos) << out;
+  EXPECT_EQ(rows(path), before);
+}
+
 TEST(Edit, UndoRestoresEveryRowAfterEachKindOfEdit) {
   const std::string path = copy_db("undo");
   const int64_t clip = long_clip(path);

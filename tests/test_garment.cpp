@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <utility>
 
 #include "bench/character_bench.hpp"
 #include "character_scene/character_scene.hpp"
@@ -203,6 +204,80 @@ TEST(Garment, ImportedMeshIsWeldedAndPinned) {
   } catch (const GarmentError& e) {
     EXPECT_NE(std::string(e.what()).find("manifold"), std::string::npos) << e.what();
   }
+}
+
+namespace {
+
+// Imports an OBJ text as a mesh garment pinned by a height band around y = 1; returns the error
+// message ("" when it loads) and what it printed on stderr.
+std::pair<std::string, std::string> import_obj(const std::string& name, const std::string& obj,
+                                               double weld = 1e-5) {
+  const std::string path = write_temp(name, obj);
+  const SceneFile file = load_scene_file(temp_scene(
+      name + ".json", "\"clips\": [\"01_01\"], \"garment\": {\"type\": \"mesh\", \"file\": \"" +
+                          path + "\", \"bone\": \"Hips\", \"weld_tolerance\": " +
+                          std::to_string(weld) + ", \"pins\": {\"height_band\": [0.95, 1.05]}}"));
+  static const LoadedMotion motion = load_clip(file.manifest, 0);
+  testing::internal::CaptureStderr();
+  std::string error;
+  try {
+    import_garment(motion.skeleton, file.mesh);
+  } catch (const GarmentError& e) {
+    error = e.what();
+  }
+  return {error, testing::internal::GetCapturedStderr()};
+}
+
+// A 0.4 x 0.4 m sheet from two quads, the right one's left edge `gap` metres from the left one's.
+std::string two_quads(double gap) {
+  const std::string x = std::to_string(gap);
+  return "o left\nv -0.2 1.0 0.2\nv 0 1.0 0.2\nv 0 0.6 0.2\nv -0.2 0.6 0.2\nf 1 4 3 2\n"
+         "o right\nv " +
+         x + " 1.0 0.2\nv 0.2 1.0 0.2\nv 0.2 0.6 0.2\nv " + x + " 0.6 0.2\nf 5 8 7 6\n";
+}
+
+}  // namespace
+
+TEST(Garment, ImportRefusesDamagedAndImplausibleGeometry) {
+  auto [far, far_log] = import_obj("far.obj",
+                                   "v 0 1 0\nv 0.2 1 0\nv 0 0.8 0\nv 1e30 0.8 0\n"
+                                   "f 1 3 2\nf 2 3 4\n");
+  EXPECT_NE(far.find("far.obj: the garment is 1e+30 m across"), std::string::npos) << far;
+  EXPECT_NE(far.find("a vertex is at (1e+30, 0.8, 0)"), std::string::npos) << far;
+  EXPECT_NE(far.find("garment.scale"), std::string::npos) << far;
+  // NaN in the file: blamed on the file, not later on the solver.
+  auto [nan, nan_log] = import_obj("nan.obj", "v 0 1 0\nv 0.2 1 0\nv nan 0.8 0\nf 1 3 2\n");
+  EXPECT_NE(nan.find("nan.obj: a vertex has a non-finite coordinate (nan, 0.8, 0)"),
+            std::string::npos)
+      << nan;
+  // A 20 um needle: refused with its id before it shows up as 18,000 % strain.
+  auto [needle, needle_log] = import_obj("needle.obj",
+                                         "v 0 1 0\nv 0.2 1 0\nv 0.1 1.00002 0\nv 0.1 0.8 0\n"
+                                         "f 1 3 2\nf 1 2 4\n");
+  EXPECT_NE(needle.find("needle triangles 0 "), std::string::npos) << needle;
+  EXPECT_NE(needle.find("garment.weld_tolerance"), std::string::npos) << needle;
+  // Collinear points: a zero-area triangle.
+  auto [flat, flat_log] = import_obj("flat.obj",
+                                     "v 0 1 0\nv 0.1 1 0\nv 0.2 1 0\nv 0.1 0.8 0\n"
+                                     "f 1 2 3\nf 1 4 2\n");
+  EXPECT_NE(flat.find("degenerate (zero-area) triangles 0"), std::string::npos) << flat;
+  // A weld tolerance that merges most of the garment.
+  auto [weld, weld_log] = import_obj("weld.obj", two_quads(0.0), 0.3);
+  EXPECT_NE(weld.find("garment.weld_tolerance 0.3 m merges over"), std::string::npos) << weld;
+  EXPECT_NE(weld.find("lower it"), std::string::npos) << weld;
+}
+
+TEST(Garment, ImportWarnsOfAnOpenSeamJustAboveTheWeldTolerance) {
+  // Welded: no warning.
+  auto [ok, ok_log] = import_obj("closed.obj", two_quads(0.0));
+  EXPECT_EQ(ok, "");
+  EXPECT_EQ(ok_log.find("open seam"), std::string::npos) << ok_log;
+  // A 30 um gap with a 10 um tolerance: loads, with a warning naming the gap and the seam length.
+  auto [open, open_log] = import_obj("open.obj", two_quads(3e-5));
+  EXPECT_EQ(open, "");
+  EXPECT_NE(open_log.find("an open seam: 4 boundary vertices"), std::string::npos) << open_log;
+  EXPECT_NE(open_log.find("closest gap 0.03 mm, seam length 0.4 m"), std::string::npos) << open_log;
+  EXPECT_NE(open_log.find("raise garment.weld_tolerance"), std::string::npos) << open_log;
 }
 
 namespace {

@@ -199,3 +199,54 @@ TEST(PrecomputeCli, RefusesADifferentGraphThanTheDatabaseHolds) {
   EXPECT_NE(read_file(log).find(db + ": holds a different motion graph"), std::string::npos)
       << read_file(log);
 }
+
+// One writer per database (issue 18): a second precompute on a database being written is refused
+// at once naming the first (its pid), and the database ends up equal to a single run's.
+TEST(PrecomputeCli, SecondWriterIsRefusedAndTheDatabaseEqualsOneRun) {
+  const std::filesystem::path dir = work_dir();
+  const std::string scene = small_scene("two_writers_scene");
+  const std::string one = (dir / "one_writer.db").string(), two = (dir / "two_writers.db").string();
+  const std::string log = (dir / "two_writers_log.txt").string(),
+                    second_log = (dir / "second_writer_log.txt").string();
+  for (const std::string& f : {log, second_log}) std::filesystem::remove(f);
+  remove_db(one);
+  remove_db(two);
+  for (const std::string& db : {one, two})
+    run({"graph", "build", kSource + "/motions/cmu_walk.json", "--clips", "01_03_level_walk",
+         "--db", db},
+        log);
+  auto precompute = [&](const std::string& db) {
+    return std::vector<std::string>{"precompute", scene, "--db",      db,  "--epsilon", "2",
+                                    "--batch",    "2",   "--threads", "1", "--quiet"};
+  };
+  run(precompute(one), log);
+
+  const pid_t first = start(precompute(two), log);
+  // The first run holds the lock from its start (database/writer_lock.hpp).
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  while (!std::filesystem::exists(two + ".lock") && std::chrono::steady_clock::now() < deadline)
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  ASSERT_TRUE(std::filesystem::exists(two + ".lock")) << read_file(log);
+  const pid_t second = start(precompute(two), second_log);
+  int status = 0;
+  waitpid(second, &status, 0);
+  int first_status = 0;
+  // The first must still be running for the refusal to mean anything.
+  const bool first_running = waitpid(first, &first_status, WNOHANG) == 0;
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 1) << read_file(second_log);
+  const std::string msg = read_file(second_log);
+  EXPECT_NE(
+      msg.find(two + " is being written by another clothdb process (pid " + std::to_string(first)),
+      std::string::npos)
+      << msg;
+  EXPECT_NE(msg.find(" on host "), std::string::npos) << msg;
+  EXPECT_NE(msg.find(" since "), std::string::npos) << msg;
+  EXPECT_TRUE(first_running) << "the first run ended before the second was refused";
+  if (first_running) waitpid(first, &first_status, 0);
+  ASSERT_TRUE(WIFEXITED(first_status) && WEXITSTATUS(first_status) == 0) << read_file(log);
+  EXPECT_FALSE(std::filesystem::exists(two + ".lock")) << "the lock file is removed at the end";
+  const std::vector<std::string> a = content(one), b = content(two);
+  ASSERT_EQ(a.size(), b.size());
+  for (size_t i = 0; i < a.size(); ++i)
+    EXPECT_TRUE(a[i] == b[i]) << "row " << i << " differs: " << a[i].substr(0, 120);
+}

@@ -375,6 +375,132 @@ TEST(Runtime, InterpolatesAtArbitraryTimeSteps) {
   EXPECT_GT(compared, 150);
 }
 
+// Advance in steps no longer than `step` (shorter than any clip: nothing is passed whole).
+void advance_in_steps(clothrt_player* p, double total, double step) {
+  while (total > 0) {
+    const double dt = std::min(step, total);
+    ASSERT_EQ(clothrt_player_advance(p, dt), CLOTHRT_OK) << clothrt_player_errmsg(p);
+    total -= dt;
+  }
+}
+
+// A long step lands where small steps land: the deterministic walk (nothing random, nothing
+// named) by skipping whole turns of its cycle, in bounded work whatever dt is.
+TEST(Runtime, LongStepLandsWhereSmallStepsLand) {
+  Fixture fx;
+  Handles ha, hb;
+  open(fx, ha, 0);
+  open(fx, hb, 0);
+  // A step of a few hundred clips, checked against stepping frame by frame.
+  const double dt = 500.3;
+  ASSERT_EQ(clothrt_player_start(ha.player, fx.built.primary[0]), CLOTHRT_OK);
+  ASSERT_EQ(clothrt_player_start(hb.player, fx.built.primary[0]), CLOTHRT_OK);
+  ASSERT_EQ(clothrt_player_advance(ha.player, dt), CLOTHRT_OK) << clothrt_player_errmsg(ha.player);
+  advance_in_steps(hb.player, dt, 1.0 / kRate);
+  clothrt_frame_info a, b;
+  clothrt_player_info(ha.player, &a);
+  clothrt_player_info(hb.player, &b);
+  EXPECT_EQ(a.primary_clip, b.primary_clip);
+  EXPECT_EQ(a.cloth_clip, b.cloth_clip);
+  EXPECT_NEAR(a.primary_frame, b.primary_frame, 1e-6 * dt * kRate);
+  EXPECT_EQ(a.transitions, b.transitions);
+  EXPECT_GT(a.transitions, 100u);
+  std::vector<float> xa(fx.n), xb(fx.n);
+  ASSERT_EQ(clothrt_player_get_positions(ha.player, xa.data(), 12, nullptr), CLOTHRT_OK);
+  ASSERT_EQ(clothrt_player_get_positions(hb.player, xb.data(), 12, nullptr), CLOTHRT_OK);
+  EXPECT_LE(max_abs_diff(xa.data(), xb.data(), fx.n), 1e-3);
+}
+
+TEST(Runtime, StepOfABillionSecondsReturnsAtOnceWithTheRightClipAndFrame) {
+  Fixture fx;
+  Handles h, ref;
+  open(fx, h, 0);
+  open(fx, ref, 0);
+  // The deterministic walk's period, measured by stepping: the time until the player is back at
+  // the start of the same primary and cloth clip.
+  ASSERT_EQ(clothrt_player_start(ref.player, fx.built.primary[0]), CLOTHRT_OK);
+  clothrt_frame_info start, info;
+  clothrt_player_info(ref.player, &start);
+  double period = 0;
+  uint64_t per_turn = 0;
+  for (int k = 0; k < 100; ++k) {
+    clothrt_player_info(ref.player, &info);
+    double length = 0;
+    for (size_t i = 0; i < clothrt_db_clip_count(ref.db); ++i) {
+      clothrt_clip_info ci;
+      if (clothrt_db_clip_info(ref.db, i, &ci) == CLOTHRT_OK && ci.id == info.primary_clip)
+        length = (ci.frame_count - 1) / ci.frame_rate;
+    }
+    ASSERT_GT(length, 0);
+    period += length;
+    // Half a frame into the next clip, so rounding cannot leave the player short of the node.
+    advance_in_steps(ref.player, length + 0.5 / kRate - info.primary_frame / kRate, 1.0 / kRate);
+    clothrt_player_info(ref.player, &info);
+    if (info.primary_clip == start.primary_clip && info.cloth_clip == start.cloth_clip) {
+      per_turn = info.transitions;
+      break;
+    }
+  }
+  ASSERT_GT(per_turn, 0u) << "no cycle found";
+  // Where 1e9 s lands: the same place as 1e9 mod period, stepped frame by frame.
+  const double big = 1e9;
+  const double rest = std::fmod(big, period);
+  clothrt_player_destroy(ref.player);
+  ASSERT_EQ(clothrt_player_create(ref.db, &ref.player), CLOTHRT_OK);
+  ASSERT_EQ(clothrt_player_start(ref.player, fx.built.primary[0]), CLOTHRT_OK);
+  advance_in_steps(ref.player, rest, 1.0 / kRate);
+  clothrt_frame_info want;
+  clothrt_player_info(ref.player, &want);
+
+  ASSERT_EQ(clothrt_player_start(h.player, fx.built.primary[0]), CLOTHRT_OK);
+  ASSERT_EQ(clothrt_player_advance(h.player, big), CLOTHRT_OK) << clothrt_player_errmsg(h.player);
+  clothrt_player_info(h.player, &info);
+  EXPECT_EQ(info.primary_clip, want.primary_clip);
+  EXPECT_EQ(info.cloth_clip, want.cloth_clip);
+  EXPECT_NEAR(info.primary_frame, want.primary_frame, 1e-3);
+  EXPECT_EQ(info.transitions, uint64_t(std::floor(big / period)) * per_turn + want.transitions);
+  // Steps up to the largest double return too, and leave a playable pose.
+  for (double huge : {1e300, 1.7e308}) {
+    ASSERT_EQ(clothrt_player_advance(h.player, huge), CLOTHRT_OK);
+    clothrt_player_info(h.player, &info);
+    EXPECT_GE(info.primary_frame, 0.0);
+    EXPECT_LE(info.primary_frame, 40.0);
+    std::vector<float> x(fx.n);
+    ASSERT_EQ(clothrt_player_get_positions(h.player, x.data(), 12, nullptr), CLOTHRT_OK);
+    for (float v : x) ASSERT_TRUE(std::isfinite(v));
+  }
+}
+
+// Random mode: a long step makes the same random choices as small steps (same path), and a step
+// far past the walk cap still returns with a clip and a frame inside it.
+TEST(Runtime, LongRandomStepMakesTheSameChoicesAsSmallSteps) {
+  Fixture fx;
+  Handles ha, hb;
+  open(fx, ha, 0);
+  open(fx, hb, 0);
+  for (Handles* h : {&ha, &hb}) {
+    ASSERT_EQ(clothrt_player_set_random(h->player, 1, 12345), CLOTHRT_OK);
+    ASSERT_EQ(clothrt_player_start(h->player, fx.built.primary[0]), CLOTHRT_OK);
+  }
+  const double dt = 300.7;
+  ASSERT_EQ(clothrt_player_advance(ha.player, dt), CLOTHRT_OK) << clothrt_player_errmsg(ha.player);
+  advance_in_steps(hb.player, dt, 1.0 / kRate);
+  clothrt_frame_info a, b;
+  clothrt_player_info(ha.player, &a);
+  clothrt_player_info(hb.player, &b);
+  EXPECT_EQ(a.primary_clip, b.primary_clip);
+  EXPECT_EQ(a.cloth_clip, b.cloth_clip);
+  EXPECT_EQ(a.transitions, b.transitions);
+  EXPECT_EQ(a.fallbacks, b.fallbacks);
+  EXPECT_NEAR(a.primary_frame, b.primary_frame, 1e-4);
+  ASSERT_EQ(clothrt_player_advance(ha.player, 1e9), CLOTHRT_OK);
+  clothrt_player_info(ha.player, &a);
+  EXPECT_GT(a.transitions, b.transitions + 4000);  // the walk cap: 4,096 nodes
+  EXPECT_GE(a.primary_frame, 0.0);
+  EXPECT_LE(a.primary_frame, 40.0);
+  EXPECT_NE(a.cloth_clip, 0);
+}
+
 TEST(Runtime, NoPopAtTransitions) {
   Fixture fx;
   Handles h;
@@ -551,7 +677,11 @@ void expect_error_and_last_good_pose(Fixture& fx, int threads, int expected_code
   EXPECT_TRUE(failed.info.holding);
   EXPECT_EQ(failed.info.cloth_clip, 0);
   EXPECT_EQ(failed.info.primary_clip, fx.built.primary[2]);
-  EXPECT_NE(std::string(clothrt_player_errmsg(h.player)), "");
+  // The message names the file and the damaged clip (issue 18: `play` showed neither).
+  const std::string msg = clothrt_player_errmsg(h.player);
+  EXPECT_NE(msg.find(fx.path + ": cloth clip " + std::to_string(fx.built.clip.at({3, 2}))),
+            std::string::npos)
+      << msg;
   const float* last_good = fx.frame(first, fx.frame_count(first) - 1);
   EXPECT_LE(max_abs_diff(failed.x.data(), last_good, fx.n), 2e-6);
   // Holding while e2 plays on.

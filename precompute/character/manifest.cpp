@@ -1,6 +1,7 @@
 #include "character/manifest.hpp"
 
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -80,6 +81,8 @@ int MotionManifest::require(const std::string& name) const {
 MotionManifest load_manifest(const std::filesystem::path& file) {
   const std::string where = file.string();
   std::error_code ec;
+  if (std::filesystem::is_directory(file, ec))
+    throw MotionError(where + ": is a directory, not a manifest file (JSON)");
   if (!std::filesystem::is_regular_file(file, ec)) throw MotionError(where + ": file not found");
   std::ifstream in(file);
   if (!in) throw MotionError(where + ": cannot open it");
@@ -193,12 +196,46 @@ MotionManifest load_manifest(const std::filesystem::path& file) {
   return manifest;
 }
 
+namespace {
+
+// A human skeleton, after the manifest's scale and up axis, stands 0.5 to 3 m tall along +y at its
+// first frame. Outside that the clip still loads (it may be a creature), but the usual cause is a
+// missing scale (a skeleton in centimetres is 100x too tall) or up axis (lying on its back), so
+// say which field to set.
+void warn_implausible_skeleton(const LoadedMotion& m, const std::string& field) {
+  if (m.clip.frame_count < 1 || m.clip.joint_count < 2) return;
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e300), hi = -lo;
+  for (int j = 0; j < m.clip.joint_count; ++j) {
+    const Eigen::Vector3d p = m.clip.positions[size_t(j)];
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  }
+  const Eigen::Vector3d size = hi - lo;
+  const double height = size.y(), across = std::max(size.x(), size.z());
+  if (!std::isfinite(height)) return;
+  if (height > 3.0 || std::max(height, across) < 0.5)
+    std::fprintf(stderr,
+                 "%s: warning: the skeleton is %.3g m tall (a person is 0.5 to 3 m): set %s.scale "
+                 "to the file's units in metres (now %g)\n",
+                 m.clip.source.c_str(), height, field.c_str(), m.clip.scale);
+  else if (across > 1.5 * height && across > 0.5)
+    std::fprintf(stderr,
+                 "%s: warning: the skeleton is %.3g m across but only %.3g m tall at its first "
+                 "frame, as if lying down: set %s.up_axis (\"x\", \"y\" or \"z\") to the "
+                 "file's up axis\n",
+                 m.clip.source.c_str(), across, height, field.c_str());
+}
+
+}  // namespace
+
 LoadedMotion load_clip(const MotionManifest& manifest, int clip) {
   if (clip < 0 || clip >= static_cast<int>(manifest.clips.size()))
     throw MotionError(manifest.path.string() + ": no clip " + std::to_string(clip));
   const MotionClipSpec& spec = manifest.clips[clip];
   try {
-    return load_motion(spec.file, spec.options);
+    LoadedMotion m = load_motion(spec.file, spec.options);
+    warn_implausible_skeleton(m, manifest.path.string() + ": clips[" + std::to_string(clip) + "]");
+    return m;
   } catch (const MotionError& e) {
     // Say which manifest entry led to the file as well: the file message alone may not tell the
     // user which manifest to fix (a frame range, a scale).

@@ -2,6 +2,7 @@
 
 #include <assimp/config.h>
 #include <assimp/scene.h>
+#include <assimp/version.h>
 
 #include <algorithm>
 #include <assimp/Importer.hpp>
@@ -237,7 +238,10 @@ LoadedMotion load_motion(const std::filesystem::path& file, const MotionLoadOpti
     unsigned bones = 0;
     for (unsigned m = 0; m < scene->mNumMeshes; ++m) bones += scene->mMeshes[m]->mNumBones;
     if (bones == 0)
-      throw fail("no skeleton and no animation: the file holds neither bones nor animation clips");
+      throw fail("no skeleton and no animation as read by assimp " +
+                 std::to_string(aiGetVersionMajor()) + "." + std::to_string(aiGetVersionMinor()) +
+                 ": if the file does hold a skeleton, this assimp cannot read it from this "
+                 "format; convert it to BVH, glTF or FBX (e.g. in Blender)");
     throw fail("no animation: the file has a skinned mesh but no animation clips");
   }
   const aiAnimation* anim = nullptr;

@@ -11,6 +11,11 @@ namespace {
 
 using nlohmann::json;
 
+// Bounds of the scene's integers: far beyond any real scene, small enough that nothing sized by
+// them can exhaust memory (settle_frames sizes a pose array; vertices a generated mesh).
+constexpr int kMaxSettleFrames = 100000;
+constexpr int kMaxGeneratedVertices = 1000000;
+
 // Field access with errors that name the file and the field path.
 struct Fields {
   std::string file;
@@ -27,13 +32,21 @@ struct Fields {
     if (non_negative && !(d >= 0)) fail(path + key, "expected a number >= 0, got " + v.dump());
     return d;
   }
+  // An integer in [minimum, maximum]; compared before narrowing, so 2^40 is "too large", not a
+  // wrapped value.
   int integer(const json& obj, const std::string& key, const std::string& path, int fallback,
-              int minimum) const {
+              int minimum, int maximum) const {
     if (!obj.contains(key)) return fallback;
     const json& v = obj.at(key);
-    if (!v.is_number_integer() || v.get<long>() < minimum)
-      fail(path + key, "expected an integer >= " + std::to_string(minimum) + ", got " + v.dump());
-    return v.get<int>();
+    const bool in_range =
+        v.is_number_unsigned() ? v.get<uint64_t>() <= uint64_t(std::max(maximum, 0)) &&
+                                     int64_t(v.get<uint64_t>()) >= minimum
+        : v.is_number_integer() ? v.get<int64_t>() >= minimum && v.get<int64_t>() <= maximum
+                                : false;
+    if (!in_range)
+      fail(path + key, "expected an integer in [" + std::to_string(minimum) + ", " +
+                           std::to_string(maximum) + "], got " + v.dump());
+    return int(v.get<int64_t>());
   }
   std::string string(const json& obj, const std::string& key, const std::string& path,
                      const std::string& fallback) const {
@@ -62,6 +75,9 @@ struct Fields {
 SceneFile load_scene_file(const std::filesystem::path& file) {
   SceneFile s;
   s.path = file;
+  std::error_code ec;
+  if (std::filesystem::is_directory(file, ec))
+    throw SceneError(file.string() + ": is a directory, not a scene file (JSON)");
   std::ifstream in(file);
   if (!in) throw SceneError(file.string() + ": cannot open the scene file");
   std::stringstream buf;
@@ -115,7 +131,8 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
     s.skirt.flare = f.number(g, "flare", "garment.", s.skirt.flare, true);
     s.skirt.length = f.number(g, "length", "garment.", s.skirt.length, true);
     s.skirt.raise = f.number(g, "raise", "garment.", s.skirt.raise);
-    s.skirt.vertices = f.integer(g, "vertices", "garment.", s.skirt.vertices, 16);
+    s.skirt.vertices =
+        f.integer(g, "vertices", "garment.", s.skirt.vertices, 16, kMaxGeneratedVertices);
   } else if (type == "cape") {
     f.only(g, {"type", "bone", "width", "length", "back_offset", "vertices"}, "garment.");
     s.garment_kind = GarmentKind::Cape;
@@ -123,7 +140,8 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
     s.cape.width = f.number(g, "width", "garment.", 0.0, false, true);
     s.cape.length = f.number(g, "length", "garment.", s.cape.length, true);
     s.cape.back_offset = f.number(g, "back_offset", "garment.", 0.0, false, true);
-    s.cape.vertices = f.integer(g, "vertices", "garment.", s.cape.vertices, 16);
+    s.cape.vertices =
+        f.integer(g, "vertices", "garment.", s.cape.vertices, 16, kMaxGeneratedVertices);
   } else if (type == "mesh") {
     f.only(g, {"type", "file", "scale", "weld_tolerance", "pins", "bone"}, "garment.");
     s.garment_kind = GarmentKind::Mesh;
@@ -217,7 +235,7 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
     f.fail("colliders.motion", e.what());
   }
   s.air_drag = f.number(j, "air_drag", "", s.air_drag, false, true);
-  s.settle_frames = f.integer(j, "settle_frames", "", s.settle_frames, 0);
+  s.settle_frames = f.integer(j, "settle_frames", "", s.settle_frames, 0, kMaxSettleFrames);
   return s;
 }
 

@@ -1,5 +1,6 @@
 #include "edit/clip_edit.hpp"
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -279,6 +280,89 @@ std::vector<float> read_edited_frames(const std::string& path, uint32_t vertex_c
   return cache.positions;
 }
 
+// Frames that are not an edit of the clip at all, refused whatever --on-break says (issue 18).
+// A rigid axis rotation of the whole clip about the origin is what a DCC's axis conversion writes
+// (Blender's PC2 export "Convert to Y-up": (x, y, z) -> (x, z, -y) in its frame); a change that
+// moves most vertices farther than the garment is big is no edit either.
+void refuse_foreign_frames(const std::vector<float>& frames, const std::vector<float>& original,
+                           size_t per_frame) {
+  const size_t vertices = per_frame / 3, count = original.size() / 3;
+  if (vertices == 0 || count == 0) return;
+  // Garment size: the diagonal of the original first frame's bounding box.
+  Vec3 lo = Vec3::Constant(1e300), hi = -lo;
+  for (size_t v = 0; v < vertices; ++v) {
+    const Vec3 p(original[3 * v], original[3 * v + 1], original[3 * v + 2]);
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  }
+  const double size = (hi - lo).norm();
+  // RMS distance of the import from R * original, over every vertex of every frame.
+  auto rms = [&](const Eigen::Matrix3d& r) {
+    double sum = 0;
+    for (size_t i = 0; i < count; ++i) {
+      const Vec3 a(original[3 * i], original[3 * i + 1], original[3 * i + 2]);
+      const Vec3 b(frames[3 * i], frames[3 * i + 1], frames[3 * i + 2]);
+      sum += (r * a - b).squaredNorm();
+    }
+    return std::sqrt(sum / double(count));
+  };
+  const double as_is = rms(Eigen::Matrix3d::Identity());
+  if (as_is < 0.1 * size) return;  // an edit, large or small: the continuity checks judge it
+  // The 23 other rotations that map axes onto axes (signed permutations with determinant +1).
+  const int perms[6][3] = {{0, 1, 2}, {0, 2, 1}, {1, 0, 2}, {1, 2, 0}, {2, 0, 1}, {2, 1, 0}};
+  double best = as_is;
+  Eigen::Matrix3d best_r = Eigen::Matrix3d::Identity();
+  for (const auto& p : perms)
+    for (int signs = 0; signs < 8; ++signs) {
+      Eigen::Matrix3d r = Eigen::Matrix3d::Zero();
+      for (int k = 0; k < 3; ++k) r(k, p[k]) = (signs >> k & 1) ? -1.0 : 1.0;
+      if (r.determinant() < 0 || r.isIdentity()) continue;
+      const double d = rms(r);
+      if (d < best) {
+        best = d;
+        best_r = r;
+      }
+    }
+  char b[400];
+  if (best < 0.02 * size) {
+    const Eigen::AngleAxisd aa(best_r);
+    const Vec3 axis = aa.axis();
+    int k = 0;
+    axis.cwiseAbs().maxCoeff(&k);
+    const bool y_up =
+        best_r.isApprox((Eigen::Matrix3d() << 1, 0, 0, 0, 0, 1, 0, -1, 0).finished()) ||
+        best_r.isApprox((Eigen::Matrix3d() << 1, 0, 0, 0, 0, -1, 0, 1, 0).finished());
+    std::snprintf(b, sizeof b,
+                  "clip import: the frames are the clip rotated by %.0f degrees about %s%c (RMS "
+                  "%.3g mm from that rotation, %.3g m from the clip): an axis conversion in the "
+                  "exporter, not an edit. %s",
+                  aa.angle() * 180.0 / 3.14159265358979323846, axis[k] < 0 ? "-" : "", "XYZ"[k],
+                  1e3 * best, as_is,
+                  y_up ? "In Blender's PC2 export (io_export_pc2) turn off \"Convert to Y-up\" "
+                         "and export again (README, \"Blender\")"
+                       : "Export again with the exporter's axis conversion off");
+    fail(b);
+  }
+  // Gross change: most vertices, in some frame, farther from the clip than the garment's size.
+  for (size_t f = 0; f < count / vertices; ++f) {
+    size_t far = 0;
+    for (size_t v = 0; v < vertices; ++v) {
+      const size_t i = 3 * (f * vertices + v);
+      const Vec3 d(frames[i] - original[i], frames[i + 1] - original[i + 1],
+                   frames[i + 2] - original[i + 2]);
+      far += d.norm() > size;
+    }
+    if (2 * far > vertices) {
+      std::snprintf(b, sizeof b,
+                    "clip import: in frame %zu, %zu of %zu vertices are farther than the garment's "
+                    "size (%.3g m) from the clip: not an edit of this clip (another clip, or "
+                    "another coordinate frame?); refused whatever --on-break says",
+                    f, far, vertices, size);
+      fail(b);
+    }
+  }
+}
+
 OnBreak parse_on_break(const std::string& name) {
   if (name == "refuse") return OnBreak::Refuse;
   if (name == "reblend") return OnBreak::Reblend;
@@ -296,6 +380,7 @@ ImportReport import_clip(EditContext& ctx, int64_t clip, std::vector<float> fram
   if (frames.size() != original.size())
     fail("clip import: " + std::to_string(frames.size() / per_frame) + " frames given, clip " +
          std::to_string(clip) + " has " + std::to_string(n));
+  refuse_foreign_frames(frames, original, per_frame);
   const double rate = ctx.scene.graph.rate;
   std::vector<db::ClothEdge> all_edges;
   db::Error err;

@@ -8,6 +8,7 @@
 #include <sstream>
 #include <thread>
 
+#include "database/writer_lock.hpp"
 #include "explore/auto_solver.hpp"
 #include "explore/primary_graph.hpp"
 #include "report/output.hpp"
@@ -149,6 +150,9 @@ PrecomputeOutcome run_precompute(const PrecomputeRequest& request, std::FILE* lo
 #ifdef CLOTHDB_MPI
   worker = mpi::size() > 1 && mpi::rank() != 0;
 #endif
+  // One writer per database (database/writer_lock.hpp): a second run is refused here, naming the
+  // holder, before the graph set-up.
+  const auto lock = worker ? nullptr : db::WriterLock::acquire(request.db);
   const bool exists = !worker && std::filesystem::exists(request.db);
   if (exists && std::filesystem::is_directory(request.db))
     throw std::runtime_error(request.db + ": is a directory, not a database file");

@@ -1,13 +1,16 @@
 #include "garment/garment.hpp"
 
-#include <assimp/Importer.hpp>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
 
 #include <algorithm>
+#include <assimp/Importer.hpp>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <limits>
+#include <map>
+#include <set>
 
 #include "character/body.hpp"
 
@@ -72,6 +75,167 @@ Garment pin_rows_to(Garment g, const std::vector<int>& pins, int joint) {
   g.anchor_joint = joint;
   for (int v : pins) g.bindings.push_back({v, {{joint, 1.0}}});
   return g;
+}
+
+// Garment geometry checks at load (issue 18): damage and unit mistakes are reported against the
+// file, not found later as a blank preview or a solver blow-up.
+constexpr double kMaxGarmentExtent = 20.0;    // m: bounding-box diagonal of any plausible garment
+constexpr double kNeedleQuality = 0.01;       // 2 area / longest edge^2 (equilateral: 0.87)
+constexpr double kSeamFactor = 5.0;           // open seams: gaps up to this many weld tolerances
+constexpr double kWeldRefuseFraction = 0.25;  // of distinct positions merged by the weld
+constexpr double kWeldWarnFraction = 0.02;
+
+std::string vec_text(const Vec3& p) {
+  char b[96];
+  std::snprintf(b, sizeof b, "(%g, %g, %g)", p.x(), p.y(), p.z());
+  return b;
+}
+
+std::string id_list(const std::vector<size_t>& ids) {
+  std::string out;
+  for (size_t i = 0; i < ids.size() && i < 10; ++i) out += (i ? ", " : "") + std::to_string(ids[i]);
+  if (ids.size() > 10) out += ", ... (" + std::to_string(ids.size()) + " in all)";
+  return out;
+}
+
+// Before welding: every coordinate finite and the whole inside a plausible garment size.
+void check_points(const Eigen::Matrix3Xd& points, const MeshGarmentSpec& spec) {
+  for (Eigen::Index v = 0; v < points.cols(); ++v)
+    if (!points.col(v).allFinite())
+      throw GarmentError(spec.file + ": a vertex has a non-finite coordinate " +
+                         vec_text(points.col(v)) + ": the file is damaged");
+  if (points.cols() == 0) return;
+  const Vec3 lo = points.rowwise().minCoeff(), hi = points.rowwise().maxCoeff();
+  const double extent = (hi - lo).norm();
+  if (extent > kMaxGarmentExtent) {
+    // The vertex farthest from the median point: the stray one, not one of the main body.
+    Vec3 median;
+    for (int k = 0; k < 3; ++k) {
+      std::vector<double> c;
+      for (Eigen::Index v = 0; v < points.cols(); ++v) c.push_back(points(k, v));
+      std::nth_element(c.begin(), c.begin() + long(c.size() / 2), c.end());
+      median[k] = c[c.size() / 2];
+    }
+    Eigen::Index far = 0;
+    (points.colwise() - median).colwise().norm().maxCoeff(&far);
+    char b[160];
+    std::snprintf(b, sizeof b, "%g m across (at most %g m is plausible; garment.scale is %g)",
+                  extent, kMaxGarmentExtent, spec.scale);
+    // Positions, not indices: the importer's vertex order need not be the file's.
+    throw GarmentError(spec.file + ": the garment is " + b + "; a vertex is at " +
+                       vec_text(points.col(far)) +
+                       " m: fix the file or set garment.scale to its units");
+  }
+}
+
+// Before welding: the weld should merge duplicates (seams, per-face vertices), not distinct points
+// of the garment. Counts distinct positions that have another within the tolerance (a sweep along
+// x), stopping once the refusal threshold is passed.
+void check_weld(const Eigen::Matrix3Xd& points, const MeshGarmentSpec& spec) {
+  std::vector<std::array<double, 3>> distinct;
+  distinct.reserve(size_t(points.cols()));
+  for (Eigen::Index v = 0; v < points.cols(); ++v)
+    distinct.push_back({points(0, v), points(1, v), points(2, v)});
+  std::sort(distinct.begin(), distinct.end());
+  distinct.erase(std::unique(distinct.begin(), distinct.end()), distinct.end());
+  const double tol = spec.weld_tolerance;
+  const size_t refuse = size_t(kWeldRefuseFraction * double(distinct.size()));
+  std::vector<char> merged(distinct.size(), 0);
+  size_t count = 0;
+  for (size_t i = 0; i < distinct.size() && count <= refuse; ++i)
+    for (size_t j = i + 1; j < distinct.size() && distinct[j][0] - distinct[i][0] <= tol; ++j) {
+      const double dx = distinct[j][0] - distinct[i][0], dy = distinct[j][1] - distinct[i][1],
+                   dz = distinct[j][2] - distinct[i][2];
+      if (dx * dx + dy * dy + dz * dz > tol * tol) continue;
+      count += !merged[i] + !merged[j];
+      merged[i] = merged[j] = 1;
+    }
+  const double fraction = double(count) / double(std::max<size_t>(distinct.size(), 1));
+  if (fraction <= kWeldWarnFraction) return;
+  char b[200];
+  std::snprintf(b, sizeof b,
+                "garment.weld_tolerance %g m merges %s%.1f%% of the %zu distinct vertex positions",
+                tol, count > refuse ? "over " : "", 100 * fraction, distinct.size());
+  if (count > refuse)
+    throw GarmentError(spec.file + ": " + b + " (at most " +
+                       std::to_string(int(100 * kWeldRefuseFraction)) +
+                       "%): it would change the garment's shape; lower it");
+  std::fprintf(stderr, "%s: warning: %s\n", spec.file.c_str(), b);
+}
+
+// After welding: no degenerate or needle triangles, and a warning for seams left open by a gap
+// just above the weld tolerance.
+void check_welded(const ClothMesh& mesh, const MeshGarmentSpec& spec) {
+  std::vector<size_t> degenerate, needles;
+  for (size_t t = 0; t < mesh.triangles.size(); ++t) {
+    const auto& tri = mesh.triangles[t];
+    const Vec3 a = mesh.rest.col(tri[0]), b = mesh.rest.col(tri[1]), c = mesh.rest.col(tri[2]);
+    const double area2 = (b - a).cross(c - a).norm();
+    const double longest = std::max({(b - a).norm(), (c - b).norm(), (a - c).norm()});
+    if (!(area2 > 0) || !(longest > 0))
+      degenerate.push_back(t);
+    else if (area2 / (longest * longest) < kNeedleQuality)
+      needles.push_back(t);
+  }
+  if (!degenerate.empty() || !needles.empty()) {
+    char b[64];
+    std::snprintf(b, sizeof b, "%g", kNeedleQuality);
+    std::string msg = spec.file + ":";
+    if (!degenerate.empty())
+      msg += " degenerate (zero-area) triangles " + id_list(degenerate) + ";";
+    if (!needles.empty())
+      msg += " needle triangles " + id_list(needles) + " (2 area / longest edge^2 < " + b +
+             "): they stretch without bound in simulation;";
+    throw GarmentError(msg +
+                       " fix them in the file, or collapse their short edges with a "
+                       "larger garment.weld_tolerance (triangle ids after welding)");
+  }
+  // Open seams: boundary vertices within a few weld tolerances of another boundary vertex.
+  std::map<std::pair<int, int>, int> uses;
+  for (const auto& t : mesh.triangles)
+    for (int k = 0; k < 3; ++k) {
+      const int a = t[size_t(k)], b = t[size_t((k + 1) % 3)];
+      ++uses[{std::min(a, b), std::max(a, b)}];
+    }
+  std::vector<std::array<int, 2>> boundary;
+  std::vector<int> on_boundary;
+  for (const auto& [e, n] : uses)
+    if (n == 1) {
+      boundary.push_back({e.first, e.second});
+      on_boundary.push_back(e.first);
+      on_boundary.push_back(e.second);
+    }
+  std::sort(on_boundary.begin(), on_boundary.end());
+  on_boundary.erase(std::unique(on_boundary.begin(), on_boundary.end()), on_boundary.end());
+  if (on_boundary.size() > 20000) return;  // the pairwise search below is for garment sizes
+  const double reach = kSeamFactor * std::max(spec.weld_tolerance, 1e-9);
+  std::set<int> near_partner;
+  double closest = std::numeric_limits<double>::infinity();
+  std::vector<int> order = on_boundary;
+  std::sort(order.begin(), order.end(),
+            [&](int a, int b) { return mesh.rest(0, a) < mesh.rest(0, b); });
+  for (size_t i = 0; i < order.size(); ++i)
+    for (size_t j = i + 1;
+         j < order.size() && mesh.rest(0, order[j]) - mesh.rest(0, order[i]) <= reach; ++j) {
+      const double d = (mesh.rest.col(order[i]) - mesh.rest.col(order[j])).norm();
+      if (d <= reach && !uses.count({std::min(order[i], order[j]), std::max(order[i], order[j])})) {
+        near_partner.insert(order[i]);
+        near_partner.insert(order[j]);
+        closest = std::min(closest, d);
+      }
+    }
+  if (near_partner.empty()) return;
+  double length = 0;  // of the seam: half the open boundary on its two sides
+  for (const auto& e : boundary)
+    if (near_partner.count(e[0]) && near_partner.count(e[1]))
+      length += 0.5 * (mesh.rest.col(e[0]) - mesh.rest.col(e[1])).norm();
+  std::fprintf(stderr,
+               "%s: warning: an open seam: %zu boundary vertices lie within %g x "
+               "garment.weld_tolerance (%g m) of another boundary vertex (closest gap %.3g mm, "
+               "seam length %.3g m); if they belong together raise garment.weld_tolerance above "
+               "the gap\n",
+               spec.file.c_str(), near_partner.size(), kSeamFactor, spec.weld_tolerance,
+               1e3 * closest, length);
 }
 
 }  // namespace
@@ -204,6 +368,9 @@ Garment make_cape(const Skeleton& skeleton, const CapeSpec& spec) {
 }
 
 Garment import_garment(const Skeleton& skeleton, const MeshGarmentSpec& spec) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(spec.file, ec))
+    throw GarmentError(spec.file + ": is a directory, not a garment mesh file");
   if (!std::filesystem::exists(spec.file)) throw GarmentError(spec.file + ": garment file not found");
   Assimp::Importer importer;
   const aiScene* scene = importer.ReadFile(spec.file, aiProcess_Triangulate | aiProcess_PreTransformVertices);
@@ -235,6 +402,8 @@ Garment import_garment(const Skeleton& skeleton, const MeshGarmentSpec& spec) {
     }
   }
   if (triangles.empty()) throw GarmentError(spec.file + ": the garment has no triangles");
+  check_points(points, spec);
+  check_weld(points, spec);
   Garment g;
   g.name = std::filesystem::path(spec.file).stem().string();
   std::vector<int> old_to_new;
@@ -243,6 +412,7 @@ Garment import_garment(const Skeleton& skeleton, const MeshGarmentSpec& spec) {
   } catch (const MeshError& e) {
     throw GarmentError(spec.file + ": not a manifold triangle mesh: " + e.what());
   }
+  check_welded(g.mesh, spec);
   const std::vector<JointPose> bind = rest_pose(skeleton);
   const int bone = spec.bone.empty() ? -1 : skeleton.require(spec.bone);
   const int rule_bone = spec.pins.kind == PinRuleKind::BoneDistance ? skeleton.require(spec.pins.bone) : -1;

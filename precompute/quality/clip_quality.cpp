@@ -78,13 +78,16 @@ ClipQuality measure_clip(const ClothModel& model, const float* frames, int frame
   return out;
 }
 
-std::vector<std::vector<CapsuleCollider>> character_space_capsules(
-    const CharacterScene& scene, const std::vector<std::vector<JointPose>>& poses) {
+namespace {
+
+std::vector<std::vector<CapsuleCollider>> capsules_in_character_space(
+    const CharacterScene& scene, const Body& body,
+    const std::vector<std::vector<JointPose>>& poses) {
   std::vector<std::vector<CapsuleCollider>> out;
   out.reserve(poses.size());
   for (const auto& pose : poses) {
     const Eigen::Isometry3d inv = character_frame(scene, pose).inverse();
-    std::vector<CapsuleCollider> caps = body_capsules(scene.body, scene.skeleton, pose, pose);
+    std::vector<CapsuleCollider> caps = body_capsules(body, scene.skeleton, pose, pose);
     for (auto& c : caps) {
       c.a = c.a_start = inv * c.a;
       c.b = c.b_start = inv * c.b;
@@ -92,6 +95,21 @@ std::vector<std::vector<CapsuleCollider>> character_space_capsules(
     out.push_back(std::move(caps));
   }
   return out;
+}
+
+}  // namespace
+
+std::vector<std::vector<CapsuleCollider>> character_space_capsules(
+    const CharacterScene& scene, const std::vector<std::vector<JointPose>>& poses) {
+  return capsules_in_character_space(scene, scene.body, poses);
+}
+
+std::vector<std::vector<CapsuleCollider>> character_space_skeleton(
+    const CharacterScene& scene, const std::vector<std::vector<JointPose>>& poses) {
+  Body whole;
+  whole.capsules = all_bone_capsules(scene.skeleton);
+  for (BoneCapsule& c : whole.capsules) c.radius *= 0.6;
+  return capsules_in_character_space(scene, whole, poses);
 }
 
 ClipQuality measure_clip(const CharacterScene& scene,

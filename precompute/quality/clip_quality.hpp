@@ -88,6 +88,11 @@ ClipQuality measure_clip(const ClothModel& model, const float* frames, int frame
 std::vector<std::vector<CapsuleCollider>> character_space_capsules(
     const CharacterScene& scene, const std::vector<std::vector<JointPose>>& poses);
 
+// The whole skeleton (every bone, at 60 % of its default collider radius) at every pose, in
+// character space like character_space_capsules: what previews draw under the colliders.
+std::vector<std::vector<CapsuleCollider>> character_space_skeleton(
+    const CharacterScene& scene, const std::vector<std::vector<JointPose>>& poses);
+
 // A clip simulated (or edited) along `poses`: frames.size() must be poses.size() * V * 3.
 ClipQuality measure_clip(const CharacterScene& scene,
                          const std::vector<std::vector<JointPose>>& poses,

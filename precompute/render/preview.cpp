@@ -123,7 +123,9 @@ std::vector<std::uint8_t> render_preview(const PreviewScene& scene, const Previe
   }
 
   std::unique_ptr<GLUquadric, void (*)(GLUquadric*)> quad(gluNewQuadric(), gluDeleteQuadric);
-  glColor3f(0.55f, 0.62f, 0.72f);
+  glColor3f(0.82f, 0.80f, 0.74f);  // skeleton: light warm grey
+  for (const auto& c : scene.skeleton) draw_capsule(quad.get(), c.a, c.b, c.radius);
+  glColor3f(0.30f, 0.48f, 0.78f);  // colliders: blue
   for (const auto& c : scene.capsules) draw_capsule(quad.get(), c.a, c.b, c.radius);
   for (const auto& s : scene.spheres) draw_capsule(quad.get(), s.center, s.center, s.radius);
 

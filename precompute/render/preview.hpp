@@ -22,9 +22,12 @@ struct PreviewCamera {
 struct PreviewScene {
   const Eigen::Matrix3Xd* cloth = nullptr;  // positions (3 x n)
   const std::vector<std::array<int, 3>>* triangles = nullptr;
-  std::vector<CapsuleCollider> capsules;  // drawn at their end pose (a, b)
+  std::vector<CapsuleCollider> capsules;  // colliders, drawn at their end pose (a, b)
+  // The whole skeleton as thinner capsules in a lighter shade than the colliders, so a preview
+  // shows a person and which of their bones the cloth meets (issue 18).
+  std::vector<CapsuleCollider> skeleton;
   std::vector<SphereCollider> spheres;
-  bool floor = true;          // a grid floor at y = floor_height
+  bool floor = true;  // a grid floor at y = floor_height
   double floor_height = 0.0;
   // Per-vertex highlight (e.g. strain or penetration in [0, 1] -> colour ramp); empty: plain cloth.
   std::vector<float> vertex_heat;

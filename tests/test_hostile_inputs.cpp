@@ -1,0 +1,218 @@
+// Hostile inputs to the `clothdb` command (issue 18): every case exits non-zero with a message
+// naming the argument, field or file and what is allowed, and creates or changes no file.
+#include <fcntl.h>
+#include <gtest/gtest.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "runtime/tools/synthetic_db.hpp"
+
+extern char** environ;
+
+namespace {
+
+namespace fs = std::filesystem;
+const std::string kSource = CLOTHDB_SOURCE_DIR;
+const std::string kExe = CLOTHDB_EXE;
+
+struct Result {
+  int code = -1;  // exit code; -1: killed by a signal
+  std::string output;
+};
+
+fs::path work_dir() {
+  const fs::path dir =
+      fs::path(testing::TempDir()) / ("clothdb_hostile_" + std::to_string(getpid()));
+  fs::create_directories(dir);
+  return dir;
+}
+
+std::string read_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
+Result clothdb(const std::vector<std::string>& args) {
+  const std::string log = (work_dir() / "log.txt").string();
+  fs::remove(log);
+  std::vector<std::string> all = {kExe};
+  all.insert(all.end(), args.begin(), args.end());
+  std::vector<char*> argv;
+  for (auto& a : all) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  posix_spawn_file_actions_t actions;
+  posix_spawn_file_actions_init(&actions);
+  posix_spawn_file_actions_addopen(&actions, 1, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+  posix_spawn_file_actions_adddup2(&actions, 1, 2);
+  pid_t pid = 0;
+  EXPECT_EQ(posix_spawn(&pid, kExe.c_str(), &actions, nullptr, argv.data(), environ), 0);
+  posix_spawn_file_actions_destroy(&actions);
+  int status = 0;
+  waitpid(pid, &status, 0);
+  Result r;
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  r.output = read_file(log);
+  return r;
+}
+
+// Every file under `dir` with its bytes: what a refused command must leave as it was.
+std::vector<std::pair<std::string, std::string>> snapshot(const fs::path& dir) {
+  std::vector<std::pair<std::string, std::string>> out;
+  for (const auto& e : fs::recursive_directory_iterator(dir)) {
+    // SQLite's WAL index and log next to a database a reader opened (a read-only connection
+    // cannot remove them on close); the database file itself is compared.
+    const std::string name = e.path().string();
+    if (name.size() > 4 && (name.ends_with("-shm") || name.ends_with("-wal"))) continue;
+    if (e.path().filename() == "log.txt") continue;  // the commands' output, below
+    out.push_back({e.path().string(), e.is_regular_file() ? read_file(e.path().string()) : "dir"});
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+// Runs `args`, expects a non-zero exit with every one of `words` in the output, and no change
+// under the work directory.
+void expect_refused(const std::vector<std::string>& args, const std::vector<std::string>& words) {
+  const auto before = snapshot(work_dir());
+  const Result r = clothdb(args);
+  std::string cmd;
+  for (const auto& a : args) cmd += a + " ";
+  EXPECT_GT(r.code, 0) << cmd << "\n" << r.output;
+  for (const std::string& w : words)
+    EXPECT_NE(r.output.find(w), std::string::npos) << cmd << ": no '" << w << "' in\n" << r.output;
+  EXPECT_EQ(r.output.find("179769313486231570"), std::string::npos) << "DBL_MAX in full";
+  fs::remove(work_dir() / "log.txt");
+  const auto after = snapshot(work_dir());
+  std::string changed;
+  for (const auto& f : after)
+    if (std::find(before.begin(), before.end(), f) == before.end()) changed += f.first + " ";
+  for (const auto& f : before)
+    if (std::find(after.begin(), after.end(), f) == after.end()) changed += f.first + " ";
+  EXPECT_TRUE(changed.empty()) << cmd << ": files were created or changed: " << changed;
+}
+
+std::string demo_db() {
+  const std::string path = (work_dir() / "demo.clothdb").string();
+  if (!fs::exists(path)) clothdb::synthetic::build(path, clothdb::synthetic::demo_spec(40));
+  return path;
+}
+
+std::string scene_with(const std::string& name, const std::string& extra) {
+  const std::string path = (work_dir() / (name + ".json")).string();
+  std::ofstream(path) << R"({"manifest": ")" << kSource << R"(/motions/cmu_walk.json",
+    "clips": ["01_03_level_walk"],
+    "garment": {"type": "skirt", "bone": "Hips", "vertices": 200})"
+                      << extra << "}";
+  return path;
+}
+
+TEST(HostileInputs, PlayRefusesNumbersOutsideItsLimits) {
+  const std::string db = demo_db();
+  const std::string out = (work_dir() / "play_out").string();
+  expect_refused({"play", db, "--out", out, "--seconds", "inf"}, {"--seconds inf", "[0, 3600]"});
+  expect_refused({"play", db, "--out", out, "--seconds", "nan"}, {"--seconds nan"});
+  expect_refused({"play", db, "--out", out, "--seconds", "1e7"}, {"--seconds 1e+07", "[0, 3600]"});
+  expect_refused({"play", db, "--out", out, "--seconds", "-1"}, {"--seconds -1"});
+  expect_refused({"play", db, "--out", out, "--fps", "1e6"}, {"--fps 1e+06", "(0, 1000]"});
+  expect_refused({"play", db, "--out", out, "--width", "0"}, {"--width 0", "[16, 8192]"});
+  expect_refused({"play", db, "--out", out, "--height", "100000"}, {"[16, 8192]"});
+  expect_refused({"play", db, "--out", out, "--blend-frames", "nan"}, {"--blend-frames"});
+  expect_refused({"play", db, "--out", out, "--path", "random", "--seconds", "0"},
+                 {"--path random needs --seconds > 0"});
+  // The frame cap follows the garment size: a long clip at a high rate is refused before any
+  // frame is played.
+  expect_refused({"play", db, "--out", out, "--seconds", "3600", "--fps", "1000"},
+                 {"frames of 1600 vertices; at most 111848 frames", "lower --seconds or --fps"});
+  EXPECT_FALSE(fs::exists(out));
+}
+
+TEST(HostileInputs, PlayWritesEverythingOrNothing) {
+  const std::string db = demo_db();
+  const fs::path out = work_dir() / "play_ok";
+  const Result r =
+      clothdb({"play", db, "--out", out.string(), "--seconds", "2", "--preview-every", "0"});
+  ASSERT_EQ(r.code, 0) << r.output;
+  for (const char* f : {"garment.obj", "cloth.pc2", "path.csv"})
+    EXPECT_TRUE(fs::exists(out / f)) << f;
+  for (const auto& e : fs::directory_iterator(out))
+    EXPECT_EQ(e.path().filename().string().find(".play-partial"), std::string::npos)
+        << "staging directory left behind";
+  // A rerun into the same directory that fails (a clip that is not there) changes nothing.
+  expect_refused({"play", db, "--out", out.string(), "--path", "no_such_clip"},
+                 {"no primary clip named or numbered 'no_such_clip'"});
+  fs::remove_all(out);
+}
+
+TEST(HostileInputs, ThreadCountsAreCapped) {
+  const std::string scene = scene_with("threads_ok", "");
+  const std::string out = (work_dir() / "sim_out").string();
+  expect_refused({"simulate", scene, "--out", out, "--threads", "100000"}, {"--threads", "100000"});
+  expect_refused(
+      {"simulate", scene_with("threads_scene", R"(, "solver": {"threads": 100000})"), "--out", out},
+      {"solver.threads: expected an integer in [1, ", "got 100000"});
+  fs::remove(work_dir() / "threads_ok.json");
+  fs::remove(work_dir() / "threads_scene.json");
+}
+
+TEST(HostileInputs, SceneIntegersDoNotWrap) {
+  const std::string out = (work_dir() / "sim_out").string();
+  expect_refused({"simulate", scene_with("substeps", R"(, "solver": {"substeps": 1099511627776})"),
+                  "--out", out},
+                 {"substeps.json: solver.substeps: expected an integer in [1, 1000000], got "
+                  "1099511627776"});
+  expect_refused(
+      {"simulate", scene_with("settle", R"(, "settle_frames": 10000000000)"), "--out", out},
+      {"settle_frames: expected an integer in [0, 100000], got 10000000000"});
+  expect_refused(
+      {"simulate", scene_with("settle_float", R"(, "settle_frames": 1e10)"), "--out", out},
+      {"settle_frames: expected an integer in [0, 100000]"});
+  expect_refused({"simulate", scene_with("negative", R"(, "solver": {"iterations": -4294967295})"),
+                  "--out", out},
+                 {"solver.iterations: expected an integer in [1, 10000]"});
+  for (const char* f : {"substeps", "settle", "settle_float", "negative"})
+    fs::remove(work_dir() / (std::string(f) + ".json"));
+}
+
+TEST(HostileInputs, RangeErrorsAreShortAndRefuseNan) {
+  const std::string out = (work_dir() / "graph.json").string();
+  expect_refused(
+      {"graph", "build", kSource + "/motions/cmu_walk.json", "--out", out, "--window", "-1"},
+      {"--window", "-1 is not a number in (0, 1e+12]"});
+  expect_refused(
+      {"graph", "build", kSource + "/motions/cmu_walk.json", "--out", out, "--max-distance", "nan"},
+      {"nan is not a number in [0, 1e+12]"});
+}
+
+TEST(HostileInputs, DirectoriesAreReportedAsDirectories) {
+  const fs::path dir = work_dir() / "a_directory";
+  fs::create_directories(dir);
+  expect_refused({"db", "check", dir.string()}, {dir.string(), "is a directory"});
+  expect_refused({"play", dir.string(), "--out", (work_dir() / "x").string(), "--seconds", "1"},
+                 {"is a directory"});
+  expect_refused({"simulate", dir.string(), "--out", (work_dir() / "x").string()},
+                 {dir.string() + ": is a directory, not a scene file"});
+  const std::string scene = (work_dir() / "dir_manifest.json").string();
+  std::ofstream(scene) << R"({"manifest": ")" << dir.string()
+                       << R"(", "garment": {"type": "skirt"}})";
+  expect_refused({"simulate", scene, "--out", (work_dir() / "x").string()},
+                 {dir.string() + ": is a directory, not a manifest file"});
+  fs::remove(scene);
+  fs::remove(dir);
+}
+
+// The work directory goes when the tests are done.
+struct RemoveWorkDir : testing::Environment {
+  void TearDown() override {
+    std::error_code ec;
+    fs::remove_all(work_dir(), ec);
+  }
+};
+const auto* const kRemoveWorkDir = testing::AddGlobalTestEnvironment(new RemoveWorkDir);
+
+}  // namespace
