@@ -72,6 +72,12 @@ void register_bench_character(CLI::App& bench) {
   cmd->add_option("--iterations", args->options.iterations,
                   "Constraint iterations (PBD, XPBD); 0: the scene's")
       ->capture_default_str();
+  cmd->add_option("--stretch-iterations", args->options.stretch_iterations,
+                  "XPBD stretch sweeps per sub-step; 0: as --iterations; default: the scene's");
+  cmd->add_option("--strain-limit", args->options.strain_limit,
+                  "XPBD strain limit, e.g. 0.03 for 3 %; 0: off; default: the scene's");
+  cmd->add_option("--strain-limit-iterations", args->options.strain_limit_iterations,
+                  "XPBD strain-limit passes per sub-step; default: the scene's");
   cmd->add_option("--threads", args->threads, "Comma-separated OpenMP thread counts, e.g. 1,2")
       ->capture_default_str();
   cmd->add_option(

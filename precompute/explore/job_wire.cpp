@@ -13,10 +13,10 @@ static_assert(std::endian::native == std::endian::little, "the wire format is li
 // A new field in one of these structs must go into its encoder and decoder below (and bump
 // kWireVersion); the sizes catch a field added without that on the platform we build on.
 #if defined(__x86_64__) && defined(__GLIBCXX__)
-static_assert(sizeof(SolverSettings) == 80, "SolverSettings changed: update encode_job/decode_job");
+static_assert(sizeof(SolverSettings) == 112, "SolverSettings changed: update encode_job/decode_job");
 static_assert(sizeof(db::CodecSettings) == 24,
               "CodecSettings changed: update encode_job/decode_job");
-static_assert(sizeof(JobInput) == 168, "JobInput changed: update encode_job/decode_job");
+static_assert(sizeof(JobInput) == 200, "JobInput changed: update encode_job/decode_job");
 static_assert(sizeof(ClipQuality) == 40, "ClipQuality changed: update encode_result/decode_result");
 static_assert(sizeof(JobResult) == 200, "JobResult changed: update encode_result/decode_result");
 static_assert(sizeof(WorkerHello) == 64, "WorkerHello changed: update encode_hello/decode_hello");
@@ -190,6 +190,12 @@ std::vector<uint8_t> encode_job(uint64_t seq, const JobInput& job) {
   o.u32(static_cast<uint32_t>(s.newton_guess));
   o.f64(s.newton_reuse_contraction);
   o.u32(s.newton_exact_hessian ? 1 : 0);
+  o.i32(s.stretch_iterations);
+  o.f64(s.strain_limit);
+  o.i32(s.strain_limit_iterations);
+  o.f64(s.newton_velocity_tolerance);
+  o.u32(s.newton_accept_decrease ? 1 : 0);
+  o.u32(s.newton_projected_first ? 1 : 0);
   o.f64(job.codec.position_bound);
   o.f64(job.codec.velocity_bound);
   o.u32(job.codec.key_interval);
@@ -232,6 +238,12 @@ JobInput decode_job(const uint8_t* data, size_t size, uint64_t* seq) {
   s.newton_guess = static_cast<SolverSettings::Guess>(guess);
   s.newton_reuse_contraction = in.f64("newton_reuse_contraction");
   s.newton_exact_hessian = in.u32("newton_exact_hessian") != 0;
+  s.stretch_iterations = in.i32("stretch_iterations");
+  s.strain_limit = in.f64("strain_limit");
+  s.strain_limit_iterations = in.i32("strain_limit_iterations");
+  s.newton_velocity_tolerance = in.f64("newton_velocity_tolerance");
+  s.newton_accept_decrease = in.u32("newton_accept_decrease") != 0;
+  s.newton_projected_first = in.u32("newton_projected_first") != 0;
   job.codec.position_bound = in.f64("position_bound");
   job.codec.velocity_bound = in.f64("velocity_bound");
   job.codec.key_interval = in.u32("key_interval");

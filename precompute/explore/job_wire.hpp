@@ -18,7 +18,9 @@
 
 namespace clothdb {
 
-constexpr uint32_t kWireVersion = 3;  // 2: clip quality metrics and the last frame; 3: Newton options
+// 2: clip quality metrics and the last frame; 3: Newton options; 4: XPBD stretch sweeps and strain
+// limit, Newton's stop on the update and descent acceptance.
+constexpr uint32_t kWireVersion = 4;
 
 class WireError : public std::runtime_error {
  public:
