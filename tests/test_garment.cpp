@@ -303,11 +303,11 @@ TEST(Garment, CommandLineRefusesBadScenesAndFilesAndWritesNothing) {
 TEST(Garment, FastLimbsOnBoxingDoNotTunnel) {
   // The cape on the first 10 s of Boxing_Toes.bvh. Its fastest capsule moves several radii per
   // frame; with one projection per frame some vertices end on the far side of a limb (their path
-  // crosses it), while swept capsules, or the scene's 10 sub-steps with interpolated capsules,
+  // crosses it), while swept capsules, or the scene's 15 sub-steps with interpolated capsules,
   // keep every vertex on its side and out of every capsule at every frame.
   const SceneFile file = load_scene_file(kMotions + "cape_boxing.json");
   ASSERT_EQ(file.collider_motion, ColliderMotion::Interpolated);
-  ASSERT_EQ(file.settings.substeps, 10);
+  ASSERT_EQ(file.settings.substeps, 15);
   const CharacterScene scene = build_character_scene(file);
   const MotionClip& clip = scene.clips[static_cast<size_t>(scene.clip_index("boxing"))];
   const CapsuleSpeed fast = fastest_capsule(scene, clip, 300);
@@ -324,7 +324,7 @@ TEST(Garment, FastLimbsOnBoxingDoNotTunnel) {
       << "one projection per frame: expected vertices through a limb";
   EXPECT_GT(one_step[0].deepest_path, 0.5);
   EXPECT_EQ(one_step[1].tunnelled, 0) << "swept";
-  options.substeps = {0};  // the scene's 10
+  options.substeps = {0};  // the scene's 15
   options.collider_motions = {ColliderMotion::Interpolated};
   const auto chosen = run_character_bench(file, options);
   ASSERT_EQ(chosen.size(), 1u);
