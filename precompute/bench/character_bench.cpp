@@ -5,6 +5,7 @@
 #include <cmath>
 #include <ctime>
 #include <sstream>
+#include <stdexcept>
 
 namespace clothdb {
 
@@ -156,6 +157,29 @@ std::vector<CharacterBenchRow> run_character_bench(
         }
       }
     }
+  }
+  return rows;
+}
+
+std::vector<SettleRow> run_settle_bench(const SceneFile& file, const std::string& clip_name,
+                                        int every,
+                                        const std::function<void(const std::string&)>& progress) {
+  if (every < 1) throw std::invalid_argument("settle bench: every must be at least 1");
+  const CharacterScene scene = build_character_scene(file);
+  const MotionClip& clip =
+      scene.clips[clip_name.empty() ? 0 : static_cast<size_t>(scene.clip_index(clip_name))];
+  std::vector<SettleRow> rows;
+  for (int f = 0; f < clip.frame_count; f += every) {
+    auto solver = make_solver(file.solver, scene.model, file.settings);
+    const auto pose = clip_pose(clip, f);
+    const ClothState state = settle_garment(scene, *solver, pose);
+    Environment env = scene.env;
+    env.capsules = body_capsules(scene.body, scene.skeleton, pose, pose);
+    rows.push_back({f, max_edge_strain(scene.model, state.x),
+                    max_penetration(state.x, scene.model.inv_mass, env)});
+    if (progress)
+      progress("  settled from frame " + std::to_string(f) + ": max strain " +
+               fixed(100 * rows.back().max_strain, 2) + " %");
   }
   return rows;
 }

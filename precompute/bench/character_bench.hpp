@@ -66,4 +66,16 @@ std::vector<CharacterBenchRow> run_character_bench(
 
 std::string character_rows_markdown(const std::vector<CharacterBenchRow>& rows);
 
+// The garment settled (settle_garment, with the scene's solver and settings) from every `every`-th
+// frame of a clip: per start frame, the largest edge strain and the deepest penetration of the
+// settled state (issue 15: every 50th start frame of 01_01 within 6 %).
+struct SettleRow {
+  int frame = 0;
+  double max_strain = 0;
+  double max_penetration = 0;  // m
+};
+std::vector<SettleRow> run_settle_bench(
+    const SceneFile& file, const std::string& clip, int every,
+    const std::function<void(const std::string&)>& progress = {});
+
 }  // namespace clothdb
