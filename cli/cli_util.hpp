@@ -96,6 +96,22 @@ struct SolverOptions {
                    "Constraint iterations per sub-step (PBD, XPBD)")
         ->capture_default_str()
         ->check(number_in(1, kMaxIterations));
+    cmd.add_option("--stretch-iterations", settings.stretch_iterations,
+                   "XPBD stretch sweeps per sub-step (0: as --iterations)")
+        ->capture_default_str()
+        ->check(number_in(0, 1e6));
+    cmd.add_option("--strain-limit", settings.strain_limit,
+                   "XPBD Provot strain limit, e.g. 0.03 for 3 % (0: off)")
+        ->capture_default_str()
+        ->check(number_in(0, 1e6));
+    cmd.add_option("--strain-limit-iterations", settings.strain_limit_iterations,
+                   "XPBD strain-limit passes per sub-step")
+        ->capture_default_str()
+        ->check(number_in(1, kMaxIterations));
+    cmd.add_option("--velocity-tolerance", settings.newton_velocity_tolerance,
+                   "Newton: stop once no velocity changes by more than this, m/s (0: off)")
+        ->capture_default_str()
+        ->check(number_in(0, 1e6));
     cmd.add_option("--tolerance", settings.newton_tolerance,
                    "Newton force tolerance (relative to max m g)")
         ->capture_default_str();

@@ -41,6 +41,8 @@ void visit_solver_fields(SolverSettings& s, V& v) {
   v.number("pbd_bend_stiffness", s.pbd_bend_stiffness, -1.0, 1.0);
   v.number("provot_critical_rate", s.provot_critical_rate, 1e-6, 10.0);
   v.number("tolerance", s.newton_tolerance, 1e-16, 1.0);
+  v.number("newton_velocity_tolerance", s.newton_velocity_tolerance, 0.0, 100.0);
+  v.boolean("newton_accept_decrease", s.newton_accept_decrease);
   v.integer("newton_max_iterations", s.newton_max_iterations, 1, kMaxIterations);
   v.integer("newton_max_halvings", s.newton_max_halvings, 0, kMaxHalvings);
   v.choice("newton_guess", s.newton_guess,
@@ -49,6 +51,7 @@ void visit_solver_fields(SolverSettings& s, V& v) {
             {"extrapolate", SolverSettings::Guess::Extrapolate}});
   v.number("newton_reuse_contraction", s.newton_reuse_contraction, 0.0, 0.999);
   v.boolean("newton_exact_hessian", s.newton_exact_hessian);
+  v.boolean("newton_projected_first", s.newton_projected_first);
   v.choice("linear_solver", s.linear_solver,
            {{"ldlt", LinearSolverKind::SimplicialLDLT},
             {"cholmod", LinearSolverKind::Cholmod},
@@ -56,6 +59,9 @@ void visit_solver_fields(SolverSettings& s, V& v) {
             {"pcg-ic", LinearSolverKind::ConjugateGradientIC}});
   v.integer("threads", s.threads, 1, kMaxThreads);
   v.boolean("tethers", s.tethers);
+  v.integer("stretch_iterations", s.stretch_iterations, 0, kMaxIterations);
+  v.number("strain_limit", s.strain_limit, 0.0, 10.0);
+  v.integer("strain_limit_iterations", s.strain_limit_iterations, 1, kMaxIterations);
 }
 
 template <class V>

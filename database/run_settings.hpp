@@ -44,6 +44,15 @@ struct SolverSettings {
   // Newton: stop when the free-DOF force residual's infinity norm is below
   // newton_tolerance * (max vertex weight m g), or after newton_max_iterations (then halve dt).
   double newton_tolerance = 1e-6;
+  // Newton: also stop once an iteration's update changes no free vertex's velocity by more than
+  // this (m/s), i.e. max |dx_i| / h below it (issue 15: the force tolerance above sits within a
+  // few times its own rounding floor on stiff cloth, so the loop stalled to the cap). 0: off.
+  double newton_velocity_tolerance = 1e-3;
+  // Newton: at the iteration cap, or when the line search can make no more progress, keep the
+  // iterate if it lowered the incremental potential Phi below its value at the sub-step's start
+  // (a descent iterate of backward Euler's minimisation), instead of halving the step. Counted in
+  // StepReport::unconverged. false: halve, as before.
+  bool newton_accept_decrease = true;
   int newton_max_iterations = 25;
   int newton_max_halvings = 6;
   // Newton's first iterate (seed 004 Algorithm 1 line 22 starts from x_n): Start is x_n;
@@ -66,12 +75,27 @@ struct SolverSettings {
   // projected element Hessians when it is indefinite; false: the projected ones only (no wasted
   // factorisation of an indefinite matrix when the cloth is compressed or buckling).
   bool newton_exact_hessian = true;
+  // With newton_exact_hessian: start every solve with the projected Hessians and try the exact
+  // one only once the residual contracts (the last iteration at most halved it), near the minimum
+  // where it is positive definite; far from it (compressed or buckling cloth) the exact matrix is
+  // usually indefinite and its factorisation wasted. false: exact first on every iteration.
+  bool newton_projected_first = true;
   LinearSolverKind linear_solver = LinearSolverKind::SimplicialLDLT;
   int threads = 1;  // OpenMP threads; results are identical whatever this is
   // XPBD: long-range attachments (Kim, Chentanez & Mueller 2012): each free vertex may be no
   // farther from its geodesically nearest pin than its rest path along the mesh. Cheap, and what
   // keeps a hanging garment from stretching when few iterations leave the constraints soft.
   bool tethers = true;
+  // XPBD: Gauss-Seidel sweeps of the stretch (edge) constraints per sub-step; 0: `iterations`.
+  // Bending gets `iterations`. Stretch is the stiff part that does not converge in one sweep
+  // (issue 15); bending is soft and cheap to leave at one.
+  int stretch_iterations = 0;
+  // XPBD: Provot-style strain limit: after the constraint sweeps and before collisions, every
+  // edge longer than (1 + strain_limit) l0 is shortened to that, at most strain_limit_iterations
+  // Gauss-Seidel passes over the edge colouring (it stops after a pass that corrects nothing).
+  // 0: off.
+  double strain_limit = 0.0;
+  int strain_limit_iterations = 1;
 };
 
 // Thrown for an invalid setting; what() is "<where>: <field>: <problem>".

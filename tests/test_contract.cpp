@@ -48,6 +48,12 @@ db::RunSettings unusual_settings() {
   s.linear_solver = LinearSolverKind::ConjugateGradientIC;
   s.threads = 3;
   s.tethers = false;
+  s.newton_velocity_tolerance = 2e-3;
+  s.newton_accept_decrease = false;
+  s.newton_projected_first = false;
+  s.stretch_iterations = 4;
+  s.strain_limit = 0.05;
+  s.strain_limit_iterations = 6;
   r.codec.position_bound = 0.00025;
   r.codec.velocity_bound = 0.002;
   r.codec.key_interval = 6;
@@ -78,6 +84,12 @@ void expect_same_solver(SolverKind ka, const SolverSettings& a, SolverKind kb,
   EXPECT_EQ(a.linear_solver, b.linear_solver);
   if (threads) EXPECT_EQ(a.threads, b.threads);
   EXPECT_EQ(a.tethers, b.tethers);
+  EXPECT_EQ(a.newton_velocity_tolerance, b.newton_velocity_tolerance);
+  EXPECT_EQ(a.newton_accept_decrease, b.newton_accept_decrease);
+  EXPECT_EQ(a.newton_projected_first, b.newton_projected_first);
+  EXPECT_EQ(a.stretch_iterations, b.stretch_iterations);
+  EXPECT_EQ(a.strain_limit, b.strain_limit);
+  EXPECT_EQ(a.strain_limit_iterations, b.strain_limit_iterations);
 }
 
 void expect_same_codec(const db::CodecSettings& a, const db::CodecSettings& b) {

@@ -277,9 +277,14 @@ TEST(ShellEnergy, CylinderBendingEnergyMatchesThePlate) {
 
 namespace {
 
+// The force-residual loop most tests here check (every step ends below the tolerance, or fails
+// and halves): without the stop on the update and without keeping a non-converged descent
+// iterate, which StopOnTheUpdateReachesTheTightEndState tests.
 SolverSettings newton_settings(LinearSolverKind linear = LinearSolverKind::SimplicialLDLT) {
   SolverSettings s;
   s.linear_solver = linear;
+  s.newton_velocity_tolerance = 0.0;
+  s.newton_accept_decrease = false;
   return s;
 }
 
@@ -554,6 +559,11 @@ TEST(NewtonSolver, SphereContactKeepsTheMargin) {
   ClothScene scene = make_hard_case("sphere-drape", 11);
   SolverSettings s = newton_settings();
   s.substeps = 4;
+  // The sheet centred on the sphere is a symmetric, unstable balance: with the projected Hessian
+  // first (the default) the iterates break the symmetry differently and the sheet slips off the
+  // sphere within the second (measured: its centre 0.79 m from the sphere's after 30 frames),
+  // so the drape is checked on the exact-Hessian path it was written for.
+  s.newton_projected_first = false;
   auto solver = make_newton_solver(scene.model, s);
   const RunResult run = run_scene(scene, *solver, 30, true);
   ASSERT_TRUE(run.stable) << run.message;
@@ -678,6 +688,64 @@ TEST(NewtonSolver, ChordIterationsReachTheSameSolutionWithFewerFactorisations) {
   EXPECT_LT(chord_count, plain_count);
   // The sheet really moved (the comparison is not between sheets at rest).
   EXPECT_GT((plain.x - rest_state(model).x).cwiseAbs().maxCoeff(), 0.004);
+}
+
+// Issue 15's stopping rule (the defaults): stop once an update changes no velocity by more than
+// 1e-3 m/s, keep a non-converged iterate that lowered Phi, projected Hessian first. It must end
+// where a tight force tolerance ends (within 0.01 mm), with fewer Newton iterations, no halvings.
+TEST(NewtonSolver, StopOnTheUpdateReachesTheTightEndState) {
+  // The soft sheet of the chord test, hanging from its top edge: one minimum per step.
+  const int n = 9;
+  ClothMesh mesh = make_quad_grid(n, n, 1.0, 1.0);
+  std::vector<int> pins;
+  for (int c = 0; c < n; ++c) pins.push_back(grid_index(mesh, c, n - 1));
+  Material m;
+  m.youngs_modulus = 2.0e5;
+  const ClothModel model = make_model(mesh, m, pins);
+  Environment env;
+  env.air_drag = 2.0 * m.density;
+  StepInputs in;
+  in.env = &env;
+  auto run = [&](const SolverSettings& s, int& iterations) {
+    auto solver = make_newton_solver(model, s);
+    ClothState state = rest_state(model);
+    iterations = 0;
+    for (int f = 1; f <= 15; ++f) {
+      const StepReport r = solver->step(state, 1.0 / 30.0, in);
+      EXPECT_TRUE(r.stable) << r.message;
+      EXPECT_EQ(r.step_halvings, 0) << r.message;
+      iterations += r.iterations;
+    }
+    return state;
+  };
+  SolverSettings tight = newton_settings();
+  tight.newton_tolerance = 1e-10;
+  SolverSettings update;  // the defaults
+  ASSERT_GT(update.newton_velocity_tolerance, 0.0);
+  ASSERT_TRUE(update.newton_accept_decrease);
+  int tight_iterations = 0, update_iterations = 0;
+  const ClothState a = run(tight, tight_iterations);
+  const ClothState b = run(update, update_iterations);
+  EXPECT_LT((a.x - b.x).colwise().norm().maxCoeff(), 1e-5);
+  EXPECT_LT(update_iterations, tight_iterations);
+  EXPECT_GT((a.x - rest_state(model).x).cwiseAbs().maxCoeff(), 0.004);  // it moved
+
+  // At the iteration cap with no halvings allowed, a step that lowered Phi is kept (and counted)
+  // instead of failing: the stretched start relaxes in one iteration per step.
+  ClothScene scene = make_hard_case("stretched-start", 11);
+  SolverSettings capped;
+  capped.newton_max_iterations = 1;
+  capped.newton_max_halvings = 0;
+  auto solver = make_newton_solver(scene.model, capped);
+  ClothState state = scene.initial;
+  StepInputs sin;
+  sin.env = &scene.env;
+  const double strain0 = max_edge_strain(scene.model, state.x);
+  const StepReport r = solver->step(state, scene.frame_dt, sin);
+  EXPECT_TRUE(r.stable) << r.message;
+  EXPECT_EQ(r.step_halvings, 0);
+  EXPECT_GE(r.unconverged, 1);
+  EXPECT_LT(max_edge_strain(scene.model, state.x), strain0);
 }
 
 // The hinge weighting k_b = D |e|^2 / (A1 + A2) on a quad grid split into right triangles: a sheet

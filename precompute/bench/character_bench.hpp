@@ -20,7 +20,10 @@ struct CharacterBenchOptions {
   // and for mass-spring the count its stability limit asks for (mass_spring_critical_dt).
   // Mass-spring is never run below that count (it would blow up; the row says so).
   std::vector<int> substeps{0};
-  int iterations = 0;  // constraint iterations (PBD, XPBD); 0: the scene's
+  int iterations = 0;               // constraint iterations (PBD, XPBD); 0: the scene's
+  int stretch_iterations = -1;      // XPBD stretch sweeps; -1: the scene's (0: as iterations)
+  double strain_limit = -1.0;       // XPBD strain limit; negative: the scene's (0: off)
+  int strain_limit_iterations = 0;  // XPBD strain-limit passes; 0: the scene's
   std::vector<int> threads{1};
   std::vector<ColliderMotion> collider_motions;  // empty: the scene's
 };
@@ -33,6 +36,9 @@ struct CharacterBenchRow {
   double ms_per_frame = 0;      // wall time of the solver steps per frame
   double cpu_ms_per_frame = 0;  // process CPU time (all threads) per frame
   double max_strain = 0;        // largest edge strain over all frames
+  // 99th percentile of (l - l0) / l0 over every edge at every frame's end (issue 15's p99).
+  double p99_strain = 0;
+  int step_halvings = 0;        // Newton: sub-step halvings over the run
   double max_penetration = 0;   // deepest vertex below a capsule surface at a frame's end, m
   double mean_penetration = 0;  // largest per-frame mean over penetrating vertices, m
   // Vertex-frames whose straight path over the frame, relative to a capsule moving with the body,
@@ -59,5 +65,17 @@ std::vector<CharacterBenchRow> run_character_bench(
     const std::function<void(const std::string&)>& progress = {});
 
 std::string character_rows_markdown(const std::vector<CharacterBenchRow>& rows);
+
+// The garment settled (settle_garment, with the scene's solver and settings) from every `every`-th
+// frame of a clip: per start frame, the largest edge strain and the deepest penetration of the
+// settled state (issue 15: every 50th start frame of 01_01 within 6 %).
+struct SettleRow {
+  int frame = 0;
+  double max_strain = 0;
+  double max_penetration = 0;  // m
+};
+std::vector<SettleRow> run_settle_bench(
+    const SceneFile& file, const std::string& clip, int every,
+    const std::function<void(const std::string&)>& progress = {});
 
 }  // namespace clothdb

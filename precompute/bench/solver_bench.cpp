@@ -159,6 +159,10 @@ std::vector<BenchConfig> newton_study_configs() {
     c.settings.newton_guess = guess;
     c.settings.newton_reuse_contraction = contraction;
     c.settings.newton_exact_hessian = exact;
+    // The loop as it was before issue 15: force tolerance only, halve at the cap, exact first.
+    c.settings.newton_velocity_tolerance = 0.0;
+    c.settings.newton_accept_decrease = false;
+    c.settings.newton_projected_first = false;
     const char* guess_name = guess == G::Start ? "x_n" : guess == G::Inertial ? "x+hv" : "x+hv+h2a";
     char buf[160];
     std::snprintf(buf, sizeof buf, "%s tol=%.0e start=%s chord=%s hessian=%s%s",
@@ -168,7 +172,24 @@ std::vector<BenchConfig> newton_study_configs() {
     c.label = buf;
     return c;
   };
+  // Issue 15's loop: stop on the update (no velocity change above `vtol`), keep a non-converged
+  // iterate that lowered Phi, projected Hessian first, Eisenstat-Walker PCG tolerance.
+  auto update_stop = [](L linear, double vtol, bool exact) {
+    BenchConfig c = candidate(SolverKind::Newton, 1, 0, 1e-6, linear);
+    c.settings.newton_velocity_tolerance = vtol;
+    c.settings.newton_exact_hessian = exact;
+    char buf[160];
+    std::snprintf(buf, sizeof buf, "%s tol=1e-06 vtol=%.0e keep-descent hessian=%s",
+                  linear_solver_name(linear), vtol, exact ? "projected-then-exact" : "projected");
+    c.label = buf;
+    return c;
+  };
   return {
+      update_stop(L::SimplicialLDLT, 1e-3, true),
+      update_stop(L::SimplicialLDLT, 1e-3, false),
+      update_stop(L::SimplicialLDLT, 1e-4, true),
+      update_stop(L::ConjugateGradient, 1e-3, true),
+      update_stop(L::ConjugateGradientIC, 1e-3, true),
       variant(L::SimplicialLDLT, 1e-6, G::Start, 0),  // the loop before this study
       variant(L::SimplicialLDLT, 1e-6, G::Inertial, 0),
       variant(L::SimplicialLDLT, 1e-6, G::Extrapolate, 0),

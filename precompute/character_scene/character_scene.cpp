@@ -1,5 +1,6 @@
 #include "character_scene/character_scene.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -311,17 +312,56 @@ std::vector<JointPose> clip_pose(const MotionClip& clip, int frame) {
   return pose;
 }
 
+namespace {
+
+// `pose` blended toward `target` by weight w in [0, 1]: joint positions linearly, orientations by
+// slerp (both world transforms).
+std::vector<JointPose> blend_pose(const std::vector<JointPose>& pose,
+                                  const std::vector<JointPose>& target, double w) {
+  std::vector<JointPose> out(pose.size());
+  for (size_t j = 0; j < pose.size(); ++j) {
+    out[j].position = (1.0 - w) * pose[j].position + w * target[j].position;
+    out[j].rotation = pose[j].rotation.slerp(w, target[j].rotation).normalized();
+  }
+  return out;
+}
+
+}  // namespace
+
 ClothState settle_garment(const CharacterScene& scene, Solver& solver,
                           const std::vector<JointPose>& pose) {
+  // Settle in the bind pose, where the garment was made and fits the body (no leg through the
+  // skirt, whatever the target pose), moved rigidly onto the target's anchor bone so the garment
+  // is already where and how it will hang; then blend the limbs into the target pose and hold it
+  // (issue 15: a skirt put straight into a pose with the legs apart and projected out of the
+  // capsules was caught around a leg, over 600 % strain). A third of the settle frames each.
+  const int frames = scene.file.settle_frames;
+  std::vector<JointPose> start = pose;
+  if (frames > 0) {
+    const int anchor = scene.garment.anchor_joint;
+    const Eigen::Quaterniond turn = pose[anchor].rotation * scene.bind[anchor].rotation.inverse();
+    for (size_t j = 0; j < start.size(); ++j) {
+      start[j].rotation = (turn * scene.bind[j].rotation).normalized();
+      start[j].position =
+          pose[anchor].position + turn * (scene.bind[j].position - scene.bind[anchor].position);
+    }
+  }
   ClothState state;
-  state.x = carry_garment(scene.garment, scene.bind, pose);
+  state.x = carry_garment(scene.garment, scene.bind, start);
   state.v = Eigen::Matrix3Xd::Zero(3, state.x.cols());
-  // Push anything that starts inside the body out first, then let it hang with the pose held.
+  // Push anything that starts inside the body out first, then let it hang.
   Environment env = scene.env;
-  env.capsules = body_capsules(scene.body, scene.skeleton, pose, pose);
+  env.capsules = body_capsules(scene.body, scene.skeleton, start, start);
   resolve_collisions(state.x, state.x, scene.model.inv_mass, env, 1.0);
-  std::vector<std::vector<JointPose>> poses(scene.file.settle_frames + 1, pose);
-  if (scene.file.settle_frames > 0) {
+  if (frames > 0) {
+    const int hold = frames / 3, blend = std::max(1, frames / 3);
+    std::vector<std::vector<JointPose>> poses;
+    poses.reserve(static_cast<size_t>(frames) + 1);
+    for (int f = 0; f <= frames; ++f) {
+      // Smoothstep weight: the limbs start and stop moving gently.
+      const double t = std::clamp(static_cast<double>(f - hold) / blend, 0.0, 1.0);
+      poses.push_back(blend_pose(start, pose, t * t * (3.0 - 2.0 * t)));
+    }
     const PoseRun run = simulate_poses(scene, solver, poses, 30.0, state);
     if (!run.stable)
       throw SceneError(scene.file.path.string() + ": the garment does not settle: " + run.message);

@@ -16,7 +16,9 @@
 //     "material": {"density": 0.15, "youngs_modulus": 1e8, "poisson": 0.3, "thickness": 5e-4,
 //                  "bending_stiffness": 1e-5, "damping": 1e-3},
 //     "solver": {"name": "xpbd", "substeps": 10, "iterations": 1, "tolerance": 1e-6,
-//                "linear_solver": "ldlt", "threads": 1, "tethers": true},
+//                "linear_solver": "ldlt", "threads": 1, "tethers": true,
+//                "stretch_iterations": 2, "strain_limit": 0.025,
+//                "strain_limit_iterations": 64},
 //        // any field of SolverSettings, read and checked by its one serialiser
 //        // (database/run_settings.hpp: solver_settings_json); defaults as above
 //     "colliders": {"bones": ["Hips", "LeftUpLeg"], "auto_distance": 0.2,
@@ -95,8 +97,10 @@ CharacterScene build_character_scene(const SceneFile& file);
 // Joint poses of one clip frame.
 std::vector<JointPose> clip_pose(const MotionClip& clip, int frame);
 
-// The garment carried onto `pose` and left to settle there for scene.file.settle_frames frames
-// (pose held still): the rest state every exploration starts from.
+// The garment settled for scene.file.settle_frames frames and brought into `pose`: a third in the
+// bind pose moved rigidly onto the pose's anchor bone, a third blending the limbs into `pose`, a
+// third holding it (with 0 settle frames: carried straight into `pose`). The rest state every
+// exploration starts from.
 ClothState settle_garment(const CharacterScene& scene, Solver& solver,
                           const std::vector<JointPose>& pose);
 

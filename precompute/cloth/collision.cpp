@@ -8,7 +8,9 @@ namespace clothdb {
 
 namespace {
 
-Vec3 lerp(const Vec3& a, const Vec3& b, double s) { return a + s * (b - a); }
+Vec3 lerp(const Vec3& a, const Vec3& b, double s) {
+  return a + s * (b - a);
+}
 
 // Signed distance from p to a collider surface, the outward normal there, and the point of the
 // collider that carries the contact (for the surface's own motion). One function per shape.
@@ -132,41 +134,43 @@ Environment environment_at(const Environment& env, double s) {
   return out;
 }
 
-int resolve_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
-                       const Eigen::VectorXd& inv_mass, const Environment& env, double s,
-                       double s_start) {
+bool resolve_vertex_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
+                               const Eigen::VectorXd& inv_mass, Eigen::Index i,
+                               const Environment& env, double s, double s_start) {
+  if (inv_mass[i] <= 0.0) return false;
   if (s_start < 0.0) s_start = s;
   s = pose_fraction(env, s);
   s_start = pose_fraction(env, s_start);
   const bool swept = env.collider_motion == ColliderMotion::Swept;
-  int contacts = 0;
-  const Eigen::Index n = x.cols();
-  for (Eigen::Index i = 0; i < n; ++i) {
-    if (inv_mass[i] <= 0.0) continue;
-    Vec3 p = x.col(i);
-    const Vec3 p0 = x_start.col(i);
-    bool hit = false;
-    for (const auto& c : env.planes) hit |= respond(p, p0, plane_point(c, p), Vec3::Zero(), env);
-    for (const auto& c : env.spheres) {
-      const Vec3 center = lerp(c.center_start, c.center, s);
-      const Vec3 center0 = lerp(c.center_start, c.center, s_start);
-      if (swept) p = swept_entry(p0, p, center0, center0, center, center, c.radius);
-      hit |= respond(p, p0, sphere_point(center, c.radius, p), center - center0, env);
-    }
-    for (const auto& c : env.capsules) {
-      const Vec3 a = lerp(c.a_start, c.a, s), b = lerp(c.b_start, c.b, s);
-      const Vec3 a0 = lerp(c.a_start, c.a, s_start), b0 = lerp(c.b_start, c.b, s_start);
-      if (swept) p = swept_entry(p0, p, a0, b0, a, b, c.radius);
-      const SurfacePoint sp = capsule_point(a, b, c.radius, p);
-      const Vec3 axis_now = a + sp.segment_t * (b - a);
-      const Vec3 axis_before = a0 + sp.segment_t * (b0 - a0);
-      hit |= respond(p, p0, sp, axis_now - axis_before, env);
-    }
-    if (hit) {
-      x.col(i) = p;
-      ++contacts;
-    }
+  Vec3 p = x.col(i);
+  const Vec3 p0 = x_start.col(i);
+  bool hit = false;
+  for (const auto& c : env.planes) hit |= respond(p, p0, plane_point(c, p), Vec3::Zero(), env);
+  for (const auto& c : env.spheres) {
+    const Vec3 center = lerp(c.center_start, c.center, s);
+    const Vec3 center0 = lerp(c.center_start, c.center, s_start);
+    if (swept) p = swept_entry(p0, p, center0, center0, center, center, c.radius);
+    hit |= respond(p, p0, sphere_point(center, c.radius, p), center - center0, env);
   }
+  for (const auto& c : env.capsules) {
+    const Vec3 a = lerp(c.a_start, c.a, s), b = lerp(c.b_start, c.b, s);
+    const Vec3 a0 = lerp(c.a_start, c.a, s_start), b0 = lerp(c.b_start, c.b, s_start);
+    if (swept) p = swept_entry(p0, p, a0, b0, a, b, c.radius);
+    const SurfacePoint sp = capsule_point(a, b, c.radius, p);
+    const Vec3 axis_now = a + sp.segment_t * (b - a);
+    const Vec3 axis_before = a0 + sp.segment_t * (b0 - a0);
+    hit |= respond(p, p0, sp, axis_now - axis_before, env);
+  }
+  if (hit) x.col(i) = p;
+  return hit;
+}
+
+int resolve_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
+                       const Eigen::VectorXd& inv_mass, const Environment& env, double s,
+                       double s_start) {
+  int contacts = 0;
+  for (Eigen::Index i = 0; i < x.cols(); ++i)
+    contacts += resolve_vertex_collisions(x, x_start, inv_mass, i, env, s, s_start) ? 1 : 0;
   return contacts;
 }
 

@@ -81,6 +81,13 @@ int resolve_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
                        const Eigen::VectorXd& inv_mass, const Environment& env, double s,
                        double s_start = -1.0);
 
+// resolve_collisions for vertex i alone (it reads and writes only column i of x), for callers that
+// share the vertices out among threads; the result is the same whatever the sharing. Returns true
+// on contact.
+bool resolve_vertex_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
+                               const Eigen::VectorXd& inv_mass, Eigen::Index i,
+                               const Environment& env, double s, double s_start = -1.0);
+
 // Depth of p below the deepest collider surface at pose fraction `s`: metres inside, 0 if outside
 // every collider. The margin is not counted. The one measure of penetration every report uses
 // (max_penetration, mean_penetration, precompute/quality/clip_quality.hpp).

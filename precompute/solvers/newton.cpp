@@ -16,10 +16,15 @@
 // assembled on the free DOFs only (seed 004 "free_index": kinematic vertices are not unknowns)
 // into a lower-triangular sparse pattern built once, with a precomputed slot for every element
 // Hessian entry; the direct solvers analyse that pattern once and refactorise each iteration.
-// Each iteration tries the exact Hessian and falls back to the projected element Hessians
-// (compressed edges clamped, bending Gauss-Newton) when the system is indefinite. Steps that
-// fail (NaN, indefinite even when projected, line search failure, no convergence) are halved
-// recursively (seed 004's remedy for degeneracies) up to newton_max_halvings.
+// Iterations start with the projected element Hessians (compressed edges clamped, bending
+// Gauss-Newton), which always give a descent direction, and try the exact Hessian once the residual
+// contracts (newton_projected_first), falling back to the projected one when it is indefinite.
+// The loop stops when the force residual is below the tolerance or when an update changes no
+// velocity by more than newton_velocity_tolerance; PCG's linear tolerance follows Eisenstat &
+// Walker (1996, choice 2). A sub-step that reaches the iteration cap, or whose line search stalls,
+// is kept if it lowered Phi (newton_accept_decrease); otherwise, and on NaN or a system that is
+// indefinite even when projected, it is halved recursively (seed 004's remedy for degeneracies)
+// up to newton_max_halvings.
 #include <Eigen/IterativeLinearSolvers>
 #include <Eigen/Sparse>
 #include <Eigen/SparseCholesky>
@@ -252,6 +257,9 @@ class NewtonSolver final : public Solver {
   std::string describe() const override {
     return std::string("newton ") + linear_solver_name(settings_.linear_solver) +
            " tol=" + compact_number(settings_.newton_tolerance) +
+           (settings_.newton_velocity_tolerance > 0.0
+                ? " vtol=" + compact_number(settings_.newton_velocity_tolerance)
+                : std::string()) +
            " substeps=" + std::to_string(settings_.substeps);
   }
 
@@ -628,6 +636,7 @@ class NewtonSolver final : public Solver {
     if (have_damping) start_damping(ctx, x, exact, projected);
     residual(ctx, x, grad, r);
     double phi = elastic + extra_potential(ctx, x);
+    const double phi_start = phi;  // Phi at x_n (kinematic vertices moved): what must decrease
     double rnorm = r.lpNorm<Eigen::Infinity>();
     // Scale-free tolerance: newton_tolerance times the largest vertex weight. Forces computed from
     // absolute coordinates carry a rounding error of about eps * stiffness * |x| (an edge length
@@ -674,7 +683,18 @@ class NewtonSolver final : public Solver {
       }
     }
 
-    int skip_exact = 0;         // iterations left that go straight to the projected Hessian
+    int skip_exact = 0;  // iterations left that go straight to the projected Hessian
+    double ratio = 1.0;  // last iteration's residual over the one before
+    double eta = 0.1;    // Eisenstat-Walker forcing term (PCG's relative tolerance)
+    // A non-converged iterate is kept when it lowered Phi by more than rounding
+    // (newton_accept_decrease); the caller then does not halve the step.
+    auto keep_descent = [&]() {
+      if (!settings_.newton_accept_decrease) return false;
+      if (!(phi < phi_start - 1e-12 * (std::abs(phi_start) + std::abs(elastic)))) return false;
+      ++report.unconverged;
+      last_residual_ = rnorm;
+      return true;
+    };
     bool factor_valid = false;  // linear_ holds a factorisation a chord iteration may reuse
     bool contracted = false;    // the last iteration cut the residual by the contraction factor
     std::string solve_why;
@@ -697,6 +717,7 @@ class NewtonSolver final : public Solver {
         return true;
       }
       if (it >= settings_.newton_max_iterations) {
+        if (keep_descent()) return true;
         char buf[160];
         std::snprintf(buf, sizeof buf,
                       "no convergence in %d Newton iterations (residual %.3g N > %.3g N)",
@@ -705,8 +726,17 @@ class NewtonSolver final : public Solver {
         return false;
       }
       b = -r;
-      // PCG: inexact Newton, asking for a linear residual a tenth of the nonlinear tolerance.
-      const double rel_tol = std::clamp(0.1 * tolerance / std::max(b.norm(), 1e-300), 1e-14, 1e-2);
+      // PCG: inexact Newton with the Eisenstat-Walker (1996) forcing term, choice 2 (gamma 0.9,
+      // exponent 2) with its safeguard: a loose linear solve far from the solution, a tight one as
+      // the residual contracts, never tighter than a tenth of the nonlinear tolerance needs.
+      if (it > 0) {
+        const double safeguard = 0.9 * eta * eta;
+        eta = 0.9 * ratio * ratio;
+        if (safeguard > 0.1) eta = std::max(eta, safeguard);
+        eta = std::min(eta, 0.25);
+      }
+      const double rel_tol =
+          std::clamp(std::max(eta, 0.1 * tolerance / std::max(b.norm(), 1e-300)), 1e-14, 0.25);
       const Eigen::VectorXd& cg_guess = it == 0 ? cg_guess_ : empty_;
       // A chord iteration: the last factorisation again, no Hessian evaluation.
       const bool chord = chords && factor_valid && contracted;
@@ -733,6 +763,8 @@ class NewtonSolver final : public Solver {
         // iterations go straight to the projected Hessian.
         if (!settings_.newton_exact_hessian) {
           // projected only
+        } else if (settings_.newton_projected_first && !(ratio <= 0.5)) {
+          // projected until the residual contracts
         } else if (skip_exact > 0) {
           --skip_exact;
         } else {
@@ -778,6 +810,7 @@ class NewtonSolver final : public Solver {
           contracted = false;
           continue;
         }
+        if (keep_descent()) return true;
         char buf[160];
         std::snprintf(buf, sizeof buf, "line search failed (residual %.3g N)", rnorm);
         why = buf;
@@ -786,7 +819,20 @@ class NewtonSolver final : public Solver {
       const double previous = rnorm;
       residual(ctx, x, grad, r);
       rnorm = r.lpNorm<Eigen::Infinity>();
+      ratio = previous > 0.0 ? rnorm / previous : 0.0;
       contracted = rnorm <= settings_.newton_reuse_contraction * previous;
+      // Converged on the update: this iteration changed no free vertex's velocity (dx / h) by
+      // more than newton_velocity_tolerance (1e-3 m/s is 0.03 mm of position per 1/30 s step);
+      // the iterates converge at least linearly, so the ones left would move the cloth less.
+      if (settings_.newton_velocity_tolerance > 0.0 && std::isfinite(rnorm)) {
+        double max_step = 0.0;
+        for (int f = 0; f < free_count_; ++f)
+          max_step = std::max(max_step, alpha * d.segment<3>(3 * f).norm());
+        if (max_step < settings_.newton_velocity_tolerance * ctx.h) {
+          last_residual_ = rnorm;
+          return true;
+        }
+      }
     }
   }
 

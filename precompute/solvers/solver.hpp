@@ -33,6 +33,7 @@ struct StepReport {
   int step_halvings = 0;   // Newton: how many times the step was halved to recover
   int iterations = 0;      // Newton iterations or constraint iterations actually run
   int factorizations = 0;  // Newton: matrix factorisations (or preconditioner builds for PCG)
+  int unconverged = 0;     // Newton: sub-steps kept unconverged (SolverSettings::newton_accept_decrease)
   double residual = 0.0;   // Newton: final force residual (N); others: 0
   std::string message;     // why it was unstable or halved, for the user
 };

@@ -87,7 +87,11 @@ std::vector<SolverCandidate> solver_candidates(SolverKind kind, bool quick) {
 }
 
 SolverCandidate reference_candidate() {
-  return candidate(SolverKind::Newton, 8, 0, 1e-9, LinearSolverKind::SimplicialLDLT);
+  SolverCandidate c = candidate(SolverKind::Newton, 8, 0, 1e-9, LinearSolverKind::SimplicialLDLT);
+  // Tight: converged on the force residual only, never kept unconverged.
+  c.settings.newton_velocity_tolerance = 0.0;
+  c.settings.newton_accept_decrease = false;
+  return c;
 }
 
 }  // namespace clothdb
