@@ -116,6 +116,8 @@ void register_db_commands(CLI::App& app) {
   recode->add_option("--batch", rargs->options.batch, "Rows per transaction")
       ->capture_default_str()
       ->check(CLI::Range(1u, 100000u));
+  recode->add_flag("--always", rargs->options.always,
+                   "Replace every blob even where the new encoding is larger (for measuring)");
   recode->add_flag("!--no-vacuum", rargs->options.vacuum,
                    "Keep the freed pages in the file (skip VACUUM at the end)");
   recode->callback([rargs] {

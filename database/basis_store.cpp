@@ -55,6 +55,17 @@ int64_t store_basis(Writer& writer, const codec::Basis& basis, const std::string
   return id;
 }
 
+void remove_basis(Writer& writer, int64_t id) {
+  sqlite3* db = writer.handle();
+  sqlite3_stmt* s = nullptr;
+  if (sqlite3_prepare_v2(db, "DELETE FROM codec_basis WHERE id = ?", -1, &s, nullptr) != SQLITE_OK)
+    throw_sql(db, writer.path(), "removing a basis");
+  sqlite3_bind_int64(s, 1, id);
+  const int rc = sqlite3_step(s);
+  sqlite3_finalize(s);
+  if (rc != SQLITE_DONE) throw_sql(db, writer.path(), "removing a basis");
+}
+
 Status load_basis(sqlite3* db, const std::string& path, int64_t id, codec::Basis* out, Error* err) {
   if (!has_basis_table(db))
     return fail(err, Status::NotFound, "%s: no basis %lld (the file has no codec_basis table)",

@@ -16,6 +16,9 @@ namespace clothdb::db {
 // Joins the writer's transaction if one is open. Throws ClothdbError.
 int64_t store_basis(Writer& writer, const codec::Basis& basis, const std::string& source);
 
+// Removes a basis no blob names (the caller's promise). Throws ClothdbError.
+void remove_basis(Writer& writer, int64_t id);
+
 // Loads basis `id` (NotFound if the file has no such basis or no basis table).
 Status load_basis(sqlite3* db, const std::string& path, int64_t id, codec::Basis* out, Error* err);
 

@@ -423,8 +423,9 @@ void DecodeScratch::reserve(uint32_t vertex_count, uint32_t key_interval, uint32
   for (auto& q : q_)
     if (q.size() < n) q.resize(n);
   if (modes > 0) {
-    if (subspace_.size() < n) subspace_.resize(n);
-    if (coefficients_.size() < 3 * size_t(modes)) coefficients_.resize(3 * size_t(modes));
+    if (subspace_.size() < n * key_interval) subspace_.resize(n * key_interval);
+    if (coefficients_.size() < size_t(modes) * key_interval)
+      coefficients_.resize(size_t(modes) * key_interval);
   }
 }
 

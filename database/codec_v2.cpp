@@ -49,8 +49,9 @@ constexpr uint32_t kMaxQ = (1u << 28) - 1;
 constexpr int32_t kMaxCoefficient = (1 << 28) - 1;
 constexpr double kMaxCoordinate = 1e30;
 constexpr double kMaxBound = 1e9;
-constexpr uint8_t kCarry = 1;
-constexpr uint8_t kLinear = 2;
+constexpr uint8_t kCarry = 1;    // the previous frame's correction predicts this one's
+constexpr uint8_t kLinear = 2;   // coefficients extrapolated linearly (else delta)
+constexpr uint8_t kSpatial = 4;  // what is left is predicted again from the previous vertex
 constexpr uint8_t kFlagMean = 1;
 
 constexpr uint8_t kBasisMagic[4] = {'C', 'L', 'B', 'S'};
@@ -64,20 +65,32 @@ uint64_t header_checksum(const uint8_t* blob, uint32_t chunk_count) {
   throw ClothdbError(Status::InvalidArgument, "encode_v2: " + what);
 }
 
-// Step 2 above, shared by the encoder and the decoder: the subspace prediction of one frame in
-// float32, mode by mode (each element sees the same sequence of roundings whether or not the
-// compiler vectorises across elements).
-void predict(const Basis& basis, uint32_t modes, bool use_mean, const int32_t* c,
+// Step 2 above, shared by the encoder and the decoder: the subspace predictions of frames
+// [0, frames) of a chunk (coefficients c, frame-major; predictions s, frame-major) in float32.
+// Each element sees the same sequence of roundings (the mean, then mode 0, 1, ...) however the
+// loops are blocked or vectorised; blocks of coordinates keep the frames' predictions in cache
+// while each mode block is read once for all of them.
+void predict(const Basis& basis, uint32_t modes, bool use_mean, const int32_t* c, uint32_t frames,
              double coefficient_step, float* s, size_t n) {
-  if (use_mean)
-    std::memcpy(s, basis.mean.data(), n * sizeof(float));
-  else
-    std::fill(s, s + n, 0.0f);
-  for (uint32_t k = 0; k < modes; ++k) {
-    const float w = float(double(c[k]) * coefficient_step);
-    if (w == 0.0f) continue;  // adds +-0: skipping it leaves every value unchanged
-    const float* u = basis.modes.data() + size_t(k) * n;
-    for (size_t i = 0; i < n; ++i) s[i] += w * u[i];
+  constexpr size_t kBlock = 1024;
+  for (size_t b0 = 0; b0 < n; b0 += kBlock) {
+    const size_t b1 = std::min(n, b0 + kBlock);
+    for (uint32_t j = 0; j < frames; ++j) {
+      float* sj = s + size_t(j) * n;
+      if (use_mean)
+        std::memcpy(sj + b0, basis.mean.data() + b0, (b1 - b0) * sizeof(float));
+      else
+        std::fill(sj + b0, sj + b1, 0.0f);
+    }
+    for (uint32_t k = 0; k < modes; ++k) {
+      const float* u = basis.modes.data() + size_t(k) * n;
+      for (uint32_t j = 0; j < frames; ++j) {
+        const float w = float(double(c[size_t(j) * modes + k]) * coefficient_step);
+        if (w == 0.0f) continue;  // adds +-0: skipping it changes no value's grid point
+        float* sj = s + size_t(j) * n;
+        for (size_t i = b0; i < b1; ++i) sj[i] += w * u[i];
+      }
+    }
   }
 }
 
@@ -169,8 +182,8 @@ Status parse_impl(const uint8_t* blob, size_t size, BlobInfo* info, Error* err) 
     const uint8_t* e = blob + kHeaderSize + size_t(c) * kEntrySize;
     const uint32_t csize = get_u32(e);
     const bool coefficient_planes_ok = in.modes == 0 ? e[6] == 0 : (e[6] >= 1 && e[6] <= 4);
-    if (csize == 0 || e[4] < 1 || e[4] > 4 || e[5] > (kCarry | kLinear) || !coefficient_planes_ok ||
-        e[7] != 0)
+    if (csize == 0 || e[4] < 1 || e[4] > 4 || e[5] > (kCarry | kLinear | kSpatial) ||
+        !coefficient_planes_ok || e[7] != 0)
       return fail(err, Status::Corrupt, "frame blob chunk %u: invalid table entry", c);
     total += csize;
   }
@@ -200,37 +213,54 @@ uint32_t load_any(const uint8_t* p, size_t plane, size_t i, int nb) {
   return u;
 }
 
-// q = base + residual, base = p (+ the previous correction with carry); then the range check and
-// the new correction q - p. corr is updated in place (each element reads its own old value first).
-template <int NB, bool kCarryOn>
+// The residual layer of one frame: the correction d = q - p of each coordinate is predicted by
+// the previous frame's (carry) plus, with spatial, the previous vertex's change e = d - (carry
+// part) on the same axis; q = p + d, range-checked. corr holds d of the previous frame on entry
+// and of this one on return (each element reads its own old value first).
+template <int NB, bool kCarryOn, bool kSpatialOn>
 bool add_residuals(const uint8_t* r, size_t plane, size_t n, const uint32_t qmax[3],
                    const uint32_t* p, uint32_t* corr, uint32_t* q) {
   uint32_t bad = 0;
+  uint32_t last[3] = {0, 0, 0};
   for (size_t i = 0; i < n; i += 3)
     for (int a = 0; a < 3; ++a) {
       const size_t k = i + a;
-      const uint32_t base = kCarryOn ? p[k] + corr[k] : p[k];
-      const uint32_t value = base + unzigzag(load<NB>(r, plane, k));
+      uint32_t e = unzigzag(load<NB>(r, plane, k));
+      if constexpr (kSpatialOn) {
+        e += last[a];
+        last[a] = e;
+      }
+      const uint32_t d = kCarryOn ? corr[k] + e : e;
+      const uint32_t value = p[k] + d;
       bad |= value > qmax[a];
       q[k] = value;
-      corr[k] = value - p[k];
+      corr[k] = d;
     }
   return bad == 0;
 }
 
-template <bool kCarryOn>
+template <bool kCarryOn, bool kSpatialOn>
 bool add_residuals_planes(int nb, const uint8_t* r, size_t plane, size_t n, const uint32_t qmax[3],
                           const uint32_t* p, uint32_t* corr, uint32_t* q) {
   switch (nb) {
     case 1:
-      return add_residuals<1, kCarryOn>(r, plane, n, qmax, p, corr, q);
+      return add_residuals<1, kCarryOn, kSpatialOn>(r, plane, n, qmax, p, corr, q);
     case 2:
-      return add_residuals<2, kCarryOn>(r, plane, n, qmax, p, corr, q);
+      return add_residuals<2, kCarryOn, kSpatialOn>(r, plane, n, qmax, p, corr, q);
     case 3:
-      return add_residuals<3, kCarryOn>(r, plane, n, qmax, p, corr, q);
+      return add_residuals<3, kCarryOn, kSpatialOn>(r, plane, n, qmax, p, corr, q);
     default:
-      return add_residuals<4, kCarryOn>(r, plane, n, qmax, p, corr, q);
+      return add_residuals<4, kCarryOn, kSpatialOn>(r, plane, n, qmax, p, corr, q);
   }
+}
+
+bool add_residuals_mode(uint8_t mode, int nb, const uint8_t* r, size_t plane, size_t n,
+                        const uint32_t qmax[3], const uint32_t* p, uint32_t* corr, uint32_t* q) {
+  const bool carry = (mode & kCarry) != 0, spatial = (mode & kSpatial) != 0;
+  if (carry && spatial) return add_residuals_planes<true, true>(nb, r, plane, n, qmax, p, corr, q);
+  if (carry) return add_residuals_planes<true, false>(nb, r, plane, n, qmax, p, corr, q);
+  if (spatial) return add_residuals_planes<false, true>(nb, r, plane, n, qmax, p, corr, q);
+  return add_residuals_planes<false, false>(nb, r, plane, n, qmax, p, corr, q);
 }
 
 }  // namespace
@@ -268,17 +298,16 @@ struct DecoderV2Access {
     const uint32_t K = info.key_interval;
     const uint32_t last = first + count - 1;
     size_t offset = kHeaderSize + size_t(info.chunk_count) * kEntrySize;
-    int32_t* c0 = s.coefficients_.data();  // current, previous, the one before
-    int32_t* c1 = c0 + M;
-    int32_t* c2 = c1 + M;
+    int32_t* coef = s.coefficients_.data();  // K x M, frame-major
     uint32_t* q = s.q_[0].data();
     uint32_t* corr = s.q_[1].data();
     uint32_t* p = s.q_[2].data();
-    float* sub = s.subspace_.data();
+    float* sub = s.subspace_.data();  // K x 3V
     for (uint32_t c = 0; c <= last / K; ++c) {
       const uint8_t* e = blob + kHeaderSize + size_t(c) * kEntrySize;
       const uint32_t csize = get_u32(e);
-      const int rplanes = e[4], mode = e[5], cplanes = e[6];
+      const int rplanes = e[4], cplanes = e[6];
+      const uint8_t mode = e[5];
       const uint64_t sum_stored = get_u64(e + 8);
       const uint8_t* src = blob + offset;
       offset += csize;
@@ -307,47 +336,41 @@ struct DecoderV2Access {
       const size_t cplane = size_t(nf) * M, rplane = size_t(nf) * n;
       const uint32_t chunk_last = std::min(last, f0 + nf - 1) - f0;
       const uint32_t write_from = first > f0 ? first - f0 : 0;
-      const bool carry = (mode & kCarry) != 0;
-      for (uint32_t j = 0; j <= chunk_last; ++j) {
-        // Coefficients: temporal prediction in wrapping unsigned arithmetic, then range-checked.
+      // Frames before the first requested one are needed only for their corrections (carry).
+      const uint32_t from = (mode & kCarry) ? 0 : write_from;
+      // Coefficients of frames 0..chunk_last: temporal prediction in wrapping unsigned
+      // arithmetic, then range-checked.
+      for (uint32_t j = 0; j <= chunk_last; ++j)
         for (uint32_t k = 0; k < M; ++k) {
-          const uint32_t r = unzigzag(load_any(cb, cplane, size_t(j) * M + k, cplanes));
+          const size_t i = size_t(j) * M + k;
+          const uint32_t r = unzigzag(load_any(cb, cplane, i, cplanes));
           const uint32_t pred = j == 0 ? 0u
                                 : (j >= 2 && (mode & kLinear) != 0)
-                                    ? 2 * uint32_t(c1[k]) - uint32_t(c2[k])
-                                    : uint32_t(c1[k]);
+                                    ? 2 * uint32_t(coef[i - M]) - uint32_t(coef[i - 2 * M])
+                                    : uint32_t(coef[i - M]);
           const int32_t v = int32_t(pred + r);
           if (v > kMaxCoefficient || v < -kMaxCoefficient)
             return fail(err, Status::Corrupt, "frame blob chunk %u: coefficient out of range", c);
-          c0[k] = v;
+          coef[i] = v;
         }
-        // Frames before the first requested one are needed only for their corrections (carry).
-        if (carry || j >= write_from) {
-          predict(*basis, M, info.uses_mean, c0, info.coefficient_step, sub, n);
-          to_grid(sub, n, info.origin, info.step, info.qmax, p);
-          if (j == 0) std::fill(corr, corr + n, 0u);
-          const uint8_t* r = rb + size_t(j) * n;
-          const bool ok =
-              carry ? add_residuals_planes<true>(rplanes, r, rplane, n, info.qmax, p, corr, q)
-                    : add_residuals_planes<false>(rplanes, r, rplane, n, info.qmax, p, corr, q);
-          if (!ok)
-            return fail(err, Status::Corrupt,
-                        "frame blob chunk %u: reconstructed values outside the blob's range", c);
-          ++s.frames_reconstructed_;
-          if (out && j >= write_from) {
-            float* o = out + (size_t(f0 + j) - first) * n;
-            for (size_t i = 0; i < n; i += 3) {
-              o[i] = dequantise(info.origin[0], info.step, q[i]);
-              o[i + 1] = dequantise(info.origin[1], info.step, q[i + 1]);
-              o[i + 2] = dequantise(info.origin[2], info.step, q[i + 2]);
-            }
+      predict(*basis, M, info.uses_mean, coef + size_t(from) * M, chunk_last + 1 - from,
+              info.coefficient_step, sub, n);
+      std::fill(corr, corr + n, 0u);
+      for (uint32_t j = from; j <= chunk_last; ++j) {
+        to_grid(sub + size_t(j - from) * n, n, info.origin, info.step, info.qmax, p);
+        if (!add_residuals_mode(mode, rplanes, rb + size_t(j) * n, rplane, n, info.qmax, p, corr,
+                                q))
+          return fail(err, Status::Corrupt,
+                      "frame blob chunk %u: reconstructed values outside the blob's range", c);
+        ++s.frames_reconstructed_;
+        if (out && j >= write_from) {
+          float* o = out + (size_t(f0 + j) - first) * n;
+          for (size_t i = 0; i < n; i += 3) {
+            o[i] = dequantise(info.origin[0], info.step, q[i]);
+            o[i + 1] = dequantise(info.origin[1], info.step, q[i + 1]);
+            o[i + 2] = dequantise(info.origin[2], info.step, q[i + 2]);
           }
         }
-        // Rotate the coefficient buffers: current becomes previous.
-        int32_t* t = c2;
-        c2 = c1;
-        c1 = c0;
-        c0 = t;
       }
     }
     return Status::Ok;
@@ -560,7 +583,7 @@ std::vector<uint8_t> encode_grid(const float* frames, uint32_t frame_count, uint
   std::vector<uint32_t> best(size_t(K) * n);  // of the winner
   std::vector<uint32_t> zc(size_t(K) * M), zc_best(size_t(K) * M);
   std::vector<int32_t> corr(n);
-  std::vector<float> sub(n);
+  std::vector<float> sub(size_t(K) * n);
   std::vector<uint8_t> raw, compressed;
   ZSTD_CCtx* cctx = ZSTD_createCCtx();
   if (!cctx) throw ClothdbError(Status::IoError, "encode_v2: cannot create a zstd context");
@@ -569,11 +592,9 @@ std::vector<uint8_t> encode_grid(const float* frames, uint32_t frame_count, uint
       const uint32_t f0 = c * K;
       const uint32_t nf = std::min(K, frame_count - f0);
       const int32_t* cc = coefficients.data() + size_t(f0) * M;
-      for (uint32_t j = 0; j < nf; ++j) {
-        predict(basis, M, subspace.use_mean, cc + size_t(j) * M, plan.coefficient_step, sub.data(),
-                n);
-        to_grid(sub.data(), n, lo, step, qmax, pq.data() + size_t(j) * n);
-      }
+      predict(basis, M, subspace.use_mean, cc, nf, plan.coefficient_step, sub.data(), n);
+      for (uint32_t j = 0; j < nf; ++j)
+        to_grid(sub.data() + size_t(j) * n, n, lo, step, qmax, pq.data() + size_t(j) * n);
       auto bits = [](const uint32_t* z, size_t count) {
         uint64_t b = 0;
         for (size_t i = 0; i < count; ++i) b += std::bit_width(z[i]);
@@ -599,26 +620,34 @@ std::vector<uint8_t> encode_grid(const float* frames, uint32_t frame_count, uint
           zc_best.swap(zc);
         }
       }
-      // Residuals: the grid value within the bound nearest the prediction, with and without carry.
+      // Residuals: the grid value within the bound nearest the prediction, for each predictor of
+      // the correction d = q - p (none, the previous frame's, and either plus the previous
+      // vertex's change), whichever leaves fewer bits.
       best_bits = UINT64_MAX;
       uint8_t carry_mode = 0;
-      for (bool carry : {false, true}) {
+      for (uint8_t candidate : {uint8_t(0), kCarry, kSpatial, uint8_t(kCarry | kSpatial)}) {
+        const bool carry = candidate & kCarry, spatial = candidate & kSpatial;
         std::fill(corr.begin(), corr.end(), 0);
         for (uint32_t j = 0; j < nf; ++j) {
           const size_t fi = size_t(f0 + j) * n;
           const uint32_t* p = pq.data() + size_t(j) * n;
           uint32_t* z = zr.data() + size_t(j) * n;
+          int64_t last[3] = {0, 0, 0};
           for (size_t i = 0; i < n; ++i) {
-            const int64_t base = int64_t(p[i]) + (carry ? corr[i] : 0);
+            const int a = int(i % 3);
+            const int64_t tp = carry ? corr[i] : 0;
+            const int64_t base = int64_t(p[i]) + tp + (spatial ? last[a] : 0);
             const int64_t v = std::clamp<int64_t>(base, qlo[fi + i], qhi[fi + i]);
             z[i] = zigzag(uint32_t(v - base));
-            corr[i] = int32_t(v - int64_t(p[i]));
+            const int64_t d = v - int64_t(p[i]);
+            last[a] = d - tp;
+            corr[i] = int32_t(d);
           }
         }
         const uint64_t b = bits(zr.data(), size_t(nf) * n);
         if (b < best_bits) {
           best_bits = b;
-          carry_mode = carry ? kCarry : 0;
+          carry_mode = candidate;
           best.swap(zr);
         }
       }

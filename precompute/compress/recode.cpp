@@ -133,7 +133,7 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
         const auto fresh = encode(frames, uint32_t(c.frame_count), false, &stats);
         report.blob_bytes_before += blob.size();
         report.raw_bytes += frames.size() * sizeof(float);
-        if (fresh.size() < blob.size()) {
+        if (o.always || fresh.size() < blob.size()) {
           db::recode_clip_blob(writer, c.id, fresh, c.error_bound + bound,
                                c.max_error + stats.max_error);
           report.max_error = std::max(report.max_error, stats.max_error);
@@ -151,8 +151,8 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
         auto fresh_v = encode(v, 1, true, nullptr);
         report.blob_bytes_before += pos_blob.size() + vel_blob.size();
         report.raw_bytes += (x.size() + v.size()) * sizeof(float);
-        const bool replace_x = fresh_x.size() < pos_blob.size();
-        const bool replace_v = fresh_v.size() < vel_blob.size();
+        const bool replace_x = o.always || fresh_x.size() < pos_blob.size();
+        const bool replace_v = o.always || fresh_v.size() < vel_blob.size();
         if (!replace_x) fresh_x = pos_blob;
         if (!replace_v) fresh_v = vel_blob;
         if (replace_x || replace_v) {
@@ -163,10 +163,20 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
       }
     }
     if (b0 + o.batch >= rows) {
-      // The last batch also records what the file now uses (meta keys are read by `db info`).
-      writer.set_meta("codec.format_version", std::to_string(o.codec));
-      if (o.codec == 2) writer.set_meta("codec.basis", std::to_string(basis.id));
-      writer.set_meta("codec.recoded_bound", text(bound));
+      // The last batch also records what the file now uses (meta keys are read by `db info`). A
+      // basis no blob took is removed again: it would only cost its bytes.
+      const bool basis_used = report.clips_replaced + report.states_replaced > 0;
+      if (o.codec == 1 || basis_used) {
+        writer.set_meta("codec.format_version", std::to_string(o.codec));
+        writer.set_meta("codec.recoded_bound", text(bound));
+      }
+      if (o.codec == 2 && basis_used) writer.set_meta("codec.basis", std::to_string(basis.id));
+      if (o.codec == 2 && !basis_used) {
+        db::remove_basis(writer, basis.id);
+        say("no blob got smaller with the subspace: basis " + std::to_string(basis.id) +
+            " removed, the file keeps its blobs");
+        report.basis_id = 0;
+      }
     }
     t.commit();
     ++batches;

@@ -18,6 +18,7 @@ struct RecodeOptions {
   uint32_t basis_frames = 3000;  // frames sampled evenly from all clips to build the basis
   double coefficient_step_factor = 2.0;
   uint32_t batch = 32;  // rows per transaction
+  bool always = false;  // replace every blob, even where the new encoding is larger
   bool vacuum = true;   // give the freed pages back to the file system at the end
   std::function<void(const std::string&)> progress;  // one line per step
   // Called after each batch commits (tests end the process here to stand in for a kill).
