@@ -150,7 +150,7 @@ struct SubspaceSettings {
   double coefficient_step_factor = 2.0;
   uint32_t modes = 0;      // modes of the basis to use (0: all)
   bool use_mean = true;    // false for velocities
-  int grid_divisions = 2;  // grid step just under 2 x bound / divisions (1 or 2, 0: try both)
+  int grid_divisions = 0;  // grid step just under 2 x bound / divisions (1 or 2, 0: try both)
 };
 
 // Encodes like encode() (same bound, key interval, zstd level, verification) as a version 2 blob

@@ -188,7 +188,7 @@ struct Db {
   int32_t search_impl(int clip, uint32_t k, Loader& loader);
   void lru_remove(int clip);  // mu held
   void lru_push_front(int clip);
-  void trim_to_cap();  // mu held: frees pooled buffers while over the cap
+  void trim_to_cap();                           // mu held: frees pooled buffers while over the cap
   // mu held: records how a load of `clip` ended (Ready and in the LRU, or Failed with its buffer
   // back in the pool). Callers notify loaded_cv.
   void finish_load(int clip, Status st);
