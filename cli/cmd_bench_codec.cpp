@@ -1,6 +1,8 @@
 // `clothdb bench codec`: compression ratio, measured error and single-core encode/decode
 // throughput of the cloth frame codec on simulated frames (issue 4), plus the random-access cost
 // of the key-frame interval.
+#include <zstd.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -14,9 +16,15 @@
 
 #include "cli_util.hpp"
 #include "commands.hpp"
+#include "compress/subspace.hpp"
 #include "database/codec.hpp"
+#include "database/schema.hpp"
 #include "exchange/point_cache.hpp"
 #include "hard_cases/hard_cases.hpp"
+
+#ifdef CLOTHDB_HAVE_MESHOPTIMIZER
+#include <meshoptimizer.h>
+#endif
 
 namespace clothdb::cli {
 
@@ -162,6 +170,253 @@ Row measure(const Frames& f, double bound_mm, uint32_t key_interval, int level, 
   return row;
 }
 
+// ---- v1, v2 and meshoptimizer side by side (issue 17) -------------------------------------
+
+struct Compared {
+  std::string codec;
+  double bound_mm = 0;
+  size_t bytes = 0;
+  double ratio = 0, bits_per_vertex_frame = 0, max_error_mm = 0, decode_gbs = 0;
+};
+
+Compared finish(const Frames& f, const std::string& name, double bound_mm, size_t bytes,
+                const std::vector<float>& out, double decode_seconds) {
+  Compared c;
+  c.codec = name;
+  c.bound_mm = bound_mm;
+  c.bytes = bytes;
+  const double raw = double(f.x.size()) * sizeof(float);
+  c.ratio = raw / double(bytes);
+  c.bits_per_vertex_frame = 8.0 * double(bytes) / (double(f.vertices) * f.frames);
+  double max_error = 0;
+  for (size_t i = 0; i < out.size(); ++i)
+    max_error = std::max(max_error, std::fabs(double(out[i]) - double(f.x[i])));
+  c.max_error_mm = max_error * 1e3;
+  if (max_error > bound_mm * 1e-3)
+    throw std::runtime_error(name + ": decoded error " + std::to_string(max_error) +
+                             " exceeds the bound");
+  c.decode_gbs = raw / decode_seconds / 1e9;
+  return c;
+}
+
+// Best CPU time of `repeat` runs of fn.
+template <typename Fn>
+double best_time(int repeat, Fn&& fn) {
+  double best = 1e300;
+  for (int r = 0; r < repeat; ++r) {
+    const double t = thread_cpu_seconds();
+    fn();
+    best = std::min(best, thread_cpu_seconds() - t);
+  }
+  return best;
+}
+
+Compared compare_v1(const Frames& f, double bound_mm, uint32_t key_interval, int level,
+                    int repeat) {
+  codec::EncodeSettings s;
+  s.bound = bound_mm * 1e-3;
+  s.key_interval = key_interval;
+  s.zstd_level = level;
+  const auto blob = codec::encode(f.x.data(), f.frames, f.vertices, s);
+  codec::DecodeScratch scratch;
+  std::vector<float> out(f.x.size());
+  Error err;
+  const double t = best_time(repeat, [&] {
+    if (codec::decode_frames(blob.data(), blob.size(), 0, f.frames, out.data(), out.size(), scratch,
+                             &err) != Status::Ok)
+      throw std::runtime_error(err.message);
+  });
+  return finish(f, "v1", bound_mm, blob.size(), out, t);
+}
+
+Compared compare_v2(const Frames& f, const codec::Basis& basis, double bound_mm,
+                    uint32_t key_interval, int level, int repeat) {
+  codec::EncodeSettings s;
+  s.bound = bound_mm * 1e-3;
+  s.key_interval = key_interval;
+  s.zstd_level = level;
+  const auto blob = codec::encode_v2(f.x.data(), f.frames, f.vertices, basis, s);
+  codec::DecodeScratch scratch;
+  std::vector<float> out(f.x.size());
+  Error err;
+  const double t = best_time(repeat, [&] {
+    if (codec::decode_frames(blob.data(), blob.size(), 0, f.frames, out.data(), out.size(), scratch,
+                             &err, &basis) != Status::Ok)
+      throw std::runtime_error(err.message);
+  });
+  return finish(f, "v2, " + std::to_string(basis.mode_count) + " modes", bound_mm, blob.size(), out,
+                t);
+}
+
+#ifdef CLOTHDB_HAVE_MESHOPTIMIZER
+// meshoptimizer's vertex codec on the same grid as codec v1's plain quantisation (step just under
+// 2 x bound from the minimum, so every value is within the bound), as 16-bit x, y, z plus 2 bytes
+// of padding (vertex size must be a multiple of 4), like glTF's KHR_mesh_quantization.
+// frame_major: one buffer per frame (meshopt's deltas run between neighbouring vertices, its
+// intended use); otherwise one buffer over the whole sequence laid out vertex by vertex, so its
+// deltas run in time. zstd (level) on top when level > 0. Decode time includes dequantising to
+// float (what the other codecs output).
+std::vector<Compared> compare_meshopt(const Frames& f, double bound_mm, int level, int repeat) {
+  const double bound = bound_mm * 1e-3;
+  const double step = 2 * bound * (1.0 - 1.0 / 1024);
+  double lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) lo[a] = hi[a] = f.x[size_t(a)];
+  for (size_t i = 0; i < f.x.size(); ++i) {
+    lo[i % 3] = std::min(lo[i % 3], double(f.x[i]));
+    hi[i % 3] = std::max(hi[i % 3], double(f.x[i]));
+  }
+  for (int a = 0; a < 3; ++a)
+    if ((hi[a] - lo[a]) / step > 65535) return {};  // does not fit 16 bits at this bound
+  const size_t V = f.vertices, F = f.frames;
+  auto dequantise = [&](uint16_t q, int a) { return float(lo[a] + double(q) * step); };
+  std::vector<uint16_t> grid(V * F * 4, 0);  // frame-major: frame, vertex, (x, y, z, pad)
+  for (size_t k = 0; k < F; ++k)
+    for (size_t v = 0; v < V; ++v)
+      for (int a = 0; a < 3; ++a) {
+        const double x = f.x[(k * V + v) * 3 + size_t(a)];
+        grid[(k * V + v) * 4 + size_t(a)] = uint16_t(std::lround((x - lo[a]) / step));
+      }
+  std::vector<Compared> rows;
+  for (bool frame_major : {true, false}) {
+    std::vector<uint16_t> layout = grid;
+    if (!frame_major)
+      for (size_t k = 0; k < F; ++k)
+        for (size_t v = 0; v < V; ++v)
+          for (int a = 0; a < 4; ++a)
+            layout[(v * F + k) * 4 + size_t(a)] = grid[(k * V + v) * 4 + size_t(a)];
+    const size_t buffers = frame_major ? F : 1, per = frame_major ? V : V * F;
+    std::vector<std::vector<uint8_t>> enc(buffers);
+    size_t mesh_bytes = 0;
+    for (size_t b = 0; b < buffers; ++b) {
+      enc[b].resize(meshopt_encodeVertexBufferBound(per, 8));
+      enc[b].resize(meshopt_encodeVertexBuffer(enc[b].data(), enc[b].size(),
+                                               layout.data() + b * per * 4, per, 8));
+      mesh_bytes += enc[b].size();
+    }
+    std::vector<std::vector<uint8_t>> z(buffers);
+    size_t z_bytes = 0;
+    for (size_t b = 0; b < buffers; ++b) {
+      z[b].resize(ZSTD_compressBound(enc[b].size()));
+      z[b].resize(ZSTD_compress(z[b].data(), z[b].size(), enc[b].data(), enc[b].size(), level));
+      z_bytes += z[b].size();
+    }
+    std::vector<uint16_t> decoded(V * F * 4);
+    std::vector<uint8_t> unz;
+    std::vector<float> out(f.x.size());
+    for (bool with_zstd : {false, true}) {
+      const double t = best_time(repeat, [&] {
+        for (size_t b = 0; b < buffers; ++b) {
+          const uint8_t* src = enc[b].data();
+          size_t size = enc[b].size();
+          if (with_zstd) {
+            unz.resize(enc[b].size());
+            size = ZSTD_decompress(unz.data(), unz.size(), z[b].data(), z[b].size());
+            src = unz.data();
+          }
+          if (meshopt_decodeVertexBuffer(decoded.data() + b * per * 4, per, 8, src, size) != 0)
+            throw std::runtime_error("meshoptimizer: decode failed");
+        }
+        for (size_t k = 0; k < F; ++k)
+          for (size_t v = 0; v < V; ++v) {
+            const uint16_t* q = decoded.data() + (frame_major ? k * V + v : v * F + k) * 4;
+            float* o = out.data() + (k * V + v) * 3;
+            o[0] = dequantise(q[0], 0);
+            o[1] = dequantise(q[1], 1);
+            o[2] = dequantise(q[2], 2);
+          }
+      });
+      const std::string name = std::string("meshopt ") + (frame_major ? "per frame" : "in time") +
+                               (with_zstd ? " + zstd " + std::to_string(level) : "");
+      rows.push_back(finish(f, name, bound_mm, with_zstd ? z_bytes : mesh_bytes, out, t));
+    }
+  }
+  return rows;
+}
+#endif
+
+// Frames of a database's clips (decoded), in id order, up to `limit` frames: what `db recode`
+// and the runtime see.
+Frames frames_from_db(const std::string& path, uint32_t limit) {
+  db::Reader reader;
+  Error err;
+  if (reader.open(path, &err) != Status::Ok) throw std::runtime_error(err.message);
+  std::vector<db::ClothClip> clips;
+  if (reader.cloth_clips(&clips, &err) != Status::Ok) throw std::runtime_error(err.message);
+  Frames f;
+  codec::DecodeScratch scratch;
+  std::vector<uint8_t> blob;
+  std::vector<float> x;
+  size_t used = 0;
+  for (const auto& c : clips) {
+    if (f.frames >= limit) break;
+    if (reader.clip_blob(c.id, &blob, &err) != Status::Ok ||
+        reader.decode_all(blob, &x, scratch, &err) != Status::Ok)
+      throw std::runtime_error(err.message);
+    const uint32_t take = std::min<uint32_t>(uint32_t(c.frame_count), limit - f.frames);
+    f.vertices = uint32_t(x.size() / 3 / uint32_t(c.frame_count));
+    f.x.insert(f.x.end(), x.begin(), x.begin() + ptrdiff_t(size_t(take) * f.vertices * 3));
+    f.frames += take;
+    ++used;
+  }
+  if (f.frames == 0) throw std::runtime_error(path + ": no cloth frames");
+  f.source = path + ": the first " + std::to_string(f.frames) + " frames of " +
+             std::to_string(used) + " clips, " + std::to_string(f.vertices) +
+             " vertices (as stored, decoded)";
+  return f;
+}
+
+// The comparison table: every codec asked for at every bound, on the same frames.
+void compare_codecs(const Frames& f, const std::vector<std::string>& codecs,
+                    const std::vector<std::string>& bounds, const std::vector<std::string>& modes,
+                    uint32_t key_interval, int level, int repeat, uint32_t basis_frames) {
+  auto wants = [&](const char* name) {
+    return std::find(codecs.begin(), codecs.end(), name) != codecs.end();
+  };
+  std::vector<codec::Basis> bases;
+  if (wants("v2")) {
+    const size_t n = size_t(f.vertices) * 3;
+    const size_t stride = std::max<size_t>(1, f.frames / std::max<uint32_t>(1, basis_frames));
+    std::vector<float> sample;
+    for (size_t k = 0; k < f.frames; k += stride)
+      sample.insert(sample.end(), f.x.begin() + ptrdiff_t(k * n),
+                    f.x.begin() + ptrdiff_t((k + 1) * n));
+    for (const auto& m : modes) {
+      const double t = thread_cpu_seconds();
+      const Subspace s = build_subspace(sample, uint32_t(n), uint32_t(std::stoul(m)));
+      bases.push_back(codec::make_basis(1, f.vertices, s.mean.data(), s.basis.data(), s.modes));
+      std::printf(
+          "v2 basis: %u modes from %zu frames in %.1f CPU s, %.2f MB stored as int16; "
+          "sample RMS %.2f mm, RMS left by the modes %.2f mm\n",
+          s.modes, sample.size() / n, thread_cpu_seconds() - t,
+          double(codec::serialize_basis(bases.back()).size()) / 1e6, s.sample_rms * 1e3,
+          s.residual_rms * 1e3);
+    }
+  }
+  std::printf(
+      "\n| codec | bound (mm) | ratio vs float32 | bits/vertex/frame | max error (mm) | decode "
+      "(GB/s) |\n|---|---:|---:|---:|---:|---:|\n");
+  auto print = [](const Compared& c) {
+    std::printf("| %s | %g | %.1f:1 | %.3f | %.3f | %.2f |\n", c.codec.c_str(), c.bound_mm, c.ratio,
+                c.bits_per_vertex_frame, c.max_error_mm, c.decode_gbs);
+    std::fflush(stdout);
+  };
+  for (const auto& b : bounds) {
+    const double bound_mm = std::stod(b);
+    if (wants("v1")) print(compare_v1(f, bound_mm, key_interval, level, repeat));
+    for (const auto& basis : bases)
+      print(compare_v2(f, basis, bound_mm, key_interval, level, repeat));
+#ifdef CLOTHDB_HAVE_MESHOPTIMIZER
+    if (wants("meshopt"))
+      for (const auto& c : compare_meshopt(f, bound_mm, level, repeat)) print(c);
+#else
+    if (wants("meshopt"))
+      std::printf("| meshopt | %g | not built (no libmeshoptimizer-dev) | | | |\n", bound_mm);
+#endif
+  }
+  std::printf(
+      "(Kim et al. 2013: 0.18 bits per vertex per frame, lossy PCA without a hard bound.)\n");
+}
+
 }  // namespace
 
 void register_bench_codec(CLI::App& bench) {
@@ -169,7 +424,10 @@ void register_bench_codec(CLI::App& bench) {
     int vertices = 10000, frames = 300, repeat = 3;
     std::string bounds = "0.5,2", key_intervals = "16",
                 levels = std::to_string(codec::kDefaultZstdLevel);
-    std::string scene = "swung-sheet", input, save;
+    std::string scene = "swung-sheet", input, save, db;
+    std::string codecs = "v1,v2,meshopt", modes = "64";
+    uint32_t basis_frames = 3000, db_frames = 3000;
+    bool skip_v1_table = false;
     SolverOptions solver;
   };
   auto args = std::make_shared<Args>();
@@ -205,10 +463,31 @@ void register_bench_codec(CLI::App& bench) {
       ->check(positive_number());
   cmd->add_option("--save-frames", args->save,
                   "Write the frames to this PC2 file, to rerun with --input");
+  cmd->add_option("--db", args->db,
+                  "Frames from this clothdb database's clips (decoded, in id order; skips the "
+                  "simulation)");
+  cmd->add_option("--db-frames", args->db_frames, "With --db: frames to take")
+      ->capture_default_str()
+      ->check(CLI::Range(2u, 10000000u));
+  cmd->add_option("--codecs", args->codecs,
+                  "Codecs for the comparison table: v1, v2 (subspace + residual), meshopt "
+                  "(meshoptimizer's vertex codec on the same quantised frames; if built with it)")
+      ->capture_default_str();
+  cmd->add_option("--modes", args->modes,
+                  "Comma-separated basis sizes for v2 (PCA of the frames themselves, as `db "
+                  "recode` builds it from a database's own frames)")
+      ->capture_default_str();
+  cmd->add_option("--basis-frames", args->basis_frames,
+                  "Frames sampled evenly to build the v2 basis")
+      ->capture_default_str();
+  cmd->add_flag("--comparison-only", args->skip_v1_table,
+                "Skip the v1 table (key intervals, random access); print only the comparison");
   args->solver.add_to(*cmd);
   cmd->callback([args] {
     Frames f;
-    if (!args->input.empty()) {
+    if (!args->db.empty()) {
+      f = frames_from_db(args->db, args->db_frames);
+    } else if (!args->input.empty()) {
       PointCache pc = read_pc2(args->input);
       f.source = args->input + ", " + std::to_string(pc.vertex_count) + " vertices, " +
                  std::to_string(pc.frame_count) + " frames";
@@ -231,11 +510,12 @@ void register_bench_codec(CLI::App& bench) {
     std::printf("frames: %s\n", f.source.c_str());
     std::printf("raw float32: %.1f MB; CPU: %s; one thread, CPU time\n",
                 double(f.x.size()) * 4 / 1e6, cpu_model().c_str());
-    std::printf(
-        "\n| bound (mm) | zstd | K | ratio | bits/coord | max error (mm) | encode (MB/s) | "
-        "decode (MB/s) | 1 frame: µs | frames decoded (mean/max) |\n"
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
-    for (const auto& b : split_list(args->bounds)) {
+    if (!args->skip_v1_table)
+      std::printf(
+          "\n| bound (mm) | zstd | K | ratio | bits/coord | max error (mm) | encode (MB/s) | "
+          "decode (MB/s) | 1 frame: µs | frames decoded (mean/max) |\n"
+          "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+    for (const auto& b : split_list(args->skip_v1_table ? std::string() : args->bounds)) {
       for (const auto& level : split_list(args->levels)) {
         for (const auto& k : split_list(args->key_intervals)) {
           const Row r =
@@ -249,6 +529,10 @@ void register_bench_codec(CLI::App& bench) {
         }
       }
     }
+    compare_codecs(f, split_list(args->codecs), split_list(args->bounds), split_list(args->modes),
+                   uint32_t(std::stoul(split_list(args->key_intervals).front())),
+                   std::stoi(split_list(args->levels).front()), std::max(3, args->repeat),
+                   args->basis_frames);
   });
 }
 

@@ -306,7 +306,7 @@ void show_clip(const ShowArgs& a) {
   codec::DecodeScratch scratch;
   db::Error err;
   if (reader.clip_blob(c.id, &blob, &err) != db::Status::Ok ||
-      codec::decode_all(blob.data(), blob.size(), frames, scratch, &err) != db::Status::Ok)
+      reader.decode_all(blob, &frames, scratch, &err) != db::Status::Ok)
     throw std::runtime_error(err.message);
   db::Garment garment;
   if (reader.garment(&garment, &err) != db::Status::Ok) throw std::runtime_error(err.message);

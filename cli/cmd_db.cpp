@@ -5,6 +5,7 @@
 
 #include "cli_util.hpp"
 #include "commands.hpp"
+#include "compress/recode.hpp"
 #include "database/check.hpp"
 
 namespace clothdb::cli {
@@ -35,6 +36,17 @@ void print_info(const db::DatabaseInfo& i) {
               (unsigned long long)i.cloth_frames, i.clip_blob_bytes / 1e6, i.clip_raw_bytes / 1e6);
   if (i.clip_blob_bytes) std::printf(" (%.1f:1)", double(i.clip_raw_bytes) / i.clip_blob_bytes);
   std::printf(", largest codec error %.3g m\n", i.max_clip_error);
+  std::printf(
+      "frame codec     %s: %llu clip blobs of version 1, %llu of version 2; states %llu of "
+      "version 1, %llu of version 2\n",
+      i.clips_v2 == 0 && i.states_v2 == 0   ? "v1"
+      : i.clips_v1 == 0 && i.states_v1 == 0 ? "v2"
+                                            : "v1 and v2",
+      (unsigned long long)i.clips_v1, (unsigned long long)i.clips_v2,
+      (unsigned long long)i.states_v1, (unsigned long long)i.states_v2);
+  for (const auto& b : i.bases)
+    std::printf("codec basis %-4lld %u modes x %u vertices, %.2f MB, %s: %s\n", (long long)b.id,
+                b.mode_count, b.vertex_count, b.bytes / 1e6, b.created.c_str(), b.source.c_str());
   std::printf("cloth states    %.2f MB encoded\n", i.state_blob_bytes / 1e6);
   if (i.cloth_edges)
     std::printf(
@@ -66,12 +78,86 @@ void register_db_commands(CLI::App& app) {
   info->add_option("FILE", *file, "clothdb database")->required();
   info->callback([file] { print_info(db::read_database_info(*file)); });
 
+  struct RecodeArgs {
+    std::string file, codec = "v2";
+    double bound_mm = 0, velocity_bound_mm_s = 0;
+    RecodeOptions options;
+  };
+  auto rargs = std::make_shared<RecodeArgs>();
+  CLI::App* recode = db->add_subcommand(
+      "recode",
+      "Re-encode every cloth clip and state in place (docs/DATABASE.md, codec version 2): v2 "
+      "builds "
+      "a garment subspace (PCA of the file's own frames) and codes each frame as subspace "
+      "coefficients plus a residual that keeps the per-coordinate bound; v1 re-encodes with the "
+      "version 1 codec. Rows are rewritten in batches, one transaction each, so a killed recode "
+      "leaves a valid file; a blob is replaced only if the new one is smaller. The bound applies "
+      "to the stored frames, so each clip's bound against the simulation becomes its old bound "
+      "plus this one (recorded per clip).");
+  recode->add_option("FILE", rargs->file, "clothdb database")->required();
+  recode->add_option("--codec", rargs->codec, "Frame format to write: v2 or v1")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"v1", "v2"}));
+  recode
+      ->add_option("--bound-mm", rargs->bound_mm,
+                   "Position bound in mm per coordinate, against the stored frames (default: "
+                   "the file's codec.position_bound)")
+      ->check(CLI::PositiveNumber);
+  recode
+      ->add_option("--velocity-bound-mm-s", rargs->velocity_bound_mm_s,
+                   "State velocity bound in mm/s (default: the file's codec.velocity_bound)")
+      ->check(CLI::PositiveNumber);
+  recode->add_option("--modes", rargs->options.modes, "Basis modes (v2)")
+      ->capture_default_str()
+      ->check(CLI::Range(1u, codec::kMaxBasisModes));
+  recode
+      ->add_option("--basis-frames", rargs->options.basis_frames,
+                   "Frames sampled evenly over all clips to build the basis (v2)")
+      ->capture_default_str()
+      ->check(CLI::Range(2u, 1000000u));
+  recode
+      ->add_option("--coefficient-step", rargs->options.coefficient_step_factor,
+                   "Coefficient quantisation step as a multiple of the bound (v2)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  recode->add_option("--batch", rargs->options.batch, "Rows per transaction")
+      ->capture_default_str()
+      ->check(CLI::Range(1u, 100000u));
+  recode->add_flag("--always", rargs->options.always,
+                   "Replace every blob even where the new encoding is larger (for measuring)");
+  recode->add_flag("!--no-vacuum", rargs->options.vacuum,
+                   "Keep the freed pages in the file (skip VACUUM at the end)");
+  recode->callback([rargs] {
+    RecodeOptions o = rargs->options;
+    o.codec = rargs->codec == "v1" ? 1 : 2;
+    o.bound = rargs->bound_mm * 1e-3;
+    o.velocity_bound = rargs->velocity_bound_mm_s * 1e-3;
+    o.progress = [](const std::string& line) { std::fprintf(stderr, "%s\n", line.c_str()); };
+    const RecodeReport r = recode_database(rargs->file, o);
+    std::printf("recoded %s to codec %s in %.1f s", rargs->file.c_str(), rargs->codec.c_str(),
+                r.seconds);
+    if (r.basis_id)
+      std::printf(" (basis %lld: %u modes in %.1f s, sample RMS %.2f mm, residual RMS %.2f mm)",
+                  (long long)r.basis_id, r.basis_modes, r.basis_seconds, r.sample_rms * 1e3,
+                  r.residual_rms * 1e3);
+    std::printf(
+        "\nclips %llu (%llu replaced), states %llu (%llu replaced); blobs %.2f MB -> %.2f MB "
+        "(%.1f:1 against float32 -> %.1f:1); largest new error %.3f mm; file %.2f MB -> %.2f MB\n",
+        (unsigned long long)r.clips, (unsigned long long)r.clips_replaced,
+        (unsigned long long)r.states, (unsigned long long)r.states_replaced,
+        r.blob_bytes_before / 1e6, r.blob_bytes_after / 1e6,
+        double(r.raw_bytes) / double(std::max<uint64_t>(1, r.blob_bytes_before)),
+        double(r.raw_bytes) / double(std::max<uint64_t>(1, r.blob_bytes_after)), r.max_error * 1e3,
+        r.file_bytes_before / 1e6, r.file_bytes_after / 1e6);
+  });
+
   CLI::App* check = db->add_subcommand(
       "check",
       "Integrity check: SQLite's own check and foreign keys, every blob's checksums "
-      "(by decoding it), blob sizes against their rows, every edge, clip and state "
-      "pointing at rows that exist, and everything the runtime relies on (garment arrays and "
-      "triangle indices, transitions complete at every node, cloth edges landing at their "
+      "(by decoding it, codec version 2 with its basis), blob sizes against their rows, each "
+      "clip's codec bound and measured error within its recorded bound, every edge, clip and "
+      "state pointing at rows that exist, and everything the runtime relies on (garment arrays "
+      "and triangle indices, transitions complete at every node, cloth edges landing at their "
       "clip's end node, meta versions). Exits 1 on any problem, listing each; states without a "
       "clip along some way out of their node are listed as warnings (the runtime falls back), "
       "an error with --strict.");

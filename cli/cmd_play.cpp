@@ -329,12 +329,13 @@ double zstd_fraction(const std::string& path, size_t max_clips) {
     if (r.clip_blob(clips[c].id, &blob, &err) != Status::Ok) continue;
     codec::BlobInfo info;
     if (codec::read_info(blob.data(), blob.size(), &info, &err) != Status::Ok) continue;
-    // Layout (database/codec.cpp): 88-byte header, then 16 bytes per chunk (u32 compressed
-    // size first), then the compressed chunks back to back.
-    size_t offset = 88 + 16 * size_t(info.chunk_count);
+    // Layout (docs/DATABASE.md): an 88-byte header (version 1) or 112 (version 2), then 16 bytes
+    // per chunk (u32 compressed size first), then the compressed chunks back to back.
+    const size_t header = info.version >= codec::kFormatVersionV2 ? 112 : 88;
+    size_t offset = header + 16 * size_t(info.chunk_count);
     auto t0 = Clock::now();
     for (uint32_t k = 0; k < info.chunk_count; ++k) {
-      const uint8_t* e = blob.data() + 88 + 16 * size_t(k);
+      const uint8_t* e = blob.data() + header + 16 * size_t(k);
       const size_t csize =
           size_t(e[0]) | size_t(e[1]) << 8 | size_t(e[2]) << 16 | size_t(e[3]) << 24;
       const unsigned long long raw_size = ZSTD_getFrameContentSize(blob.data() + offset, csize);
@@ -345,7 +346,7 @@ double zstd_fraction(const std::string& path, size_t max_clips) {
     }
     zstd_us += us_since(t0);
     t0 = Clock::now();
-    codec::decode_all(blob.data(), blob.size(), out, scratch, &err);
+    r.decode_all(blob, &out, scratch, &err);  // with its basis (codec version 2)
     decode_us += us_since(t0);
   }
   ZSTD_freeDCtx(dctx);

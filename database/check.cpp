@@ -45,16 +45,20 @@ void collect(sqlite3* db, const char* sql, CheckReport& report, const char* pref
 }
 
 // One check of a blob against its row. `frames`/`vertices`: what the row says (0: unknown).
-void check_blob(const void* data, size_t size, const std::string& what, int64_t frames,
-                int64_t vertices, codec::DecodeScratch& scratch, CheckReport& report) {
+// Returns the blob's header (version 0 if it could not be read).
+codec::BlobInfo check_blob(const void* data, size_t size, const std::string& what, int64_t frames,
+                           int64_t vertices, Reader& reader, codec::DecodeScratch& scratch,
+                           CheckReport& report) {
   ++report.blobs_checked;
   const uint8_t* p = static_cast<const uint8_t*>(data);
   Error err;
   codec::BlobInfo info;
+  const codec::Basis* basis = nullptr;  // codec version 2: the basis the blob names
   if (codec::read_info(p, size, &info, &err) != Status::Ok ||
-      codec::verify(p, size, scratch, &err) != Status::Ok) {
+      reader.basis_for(p, size, &basis, &err) != Status::Ok ||
+      codec::verify(p, size, scratch, &err, basis) != Status::Ok) {
     report.problems.push_back(what + ": " + err.message);
-    return;
+    return codec::BlobInfo{};
   }
   if (frames > 0 && info.frame_count != frames)
     report.problems.push_back(format("%s: blob holds %u frames, the row says %lld", what.c_str(),
@@ -62,6 +66,7 @@ void check_blob(const void* data, size_t size, const std::string& what, int64_t 
   if (vertices > 0 && info.vertex_count != vertices)
     report.problems.push_back(format("%s: blob holds %u vertices, expected %lld", what.c_str(),
                                      info.vertex_count, (long long)vertices));
+  return info;
 }
 
 uint64_t count(sqlite3* db, const char* sql) {
@@ -424,8 +429,10 @@ CheckReport check_database(const std::string& path) {
   const int64_t garment_vertices = int64_t(count(db, "SELECT vertex_count FROM garment"));
   codec::DecodeScratch scratch;
   sqlite3_stmt* s = nullptr;
-  if (sqlite3_prepare_v2(db, "SELECT id, frame_count, vertex_count, frames FROM cloth_clip", -1, &s,
-                         nullptr) == SQLITE_OK) {
+  if (sqlite3_prepare_v2(db,
+                         "SELECT id, frame_count, vertex_count, frames, error_bound, max_error "
+                         "FROM cloth_clip",
+                         -1, &s, nullptr) == SQLITE_OK) {
     while (sqlite3_step(s) == SQLITE_ROW) {
       const int64_t id = sqlite3_column_int64(s, 0);
       const int64_t vertices = sqlite3_column_int64(s, 2);
@@ -433,8 +440,23 @@ CheckReport check_database(const std::string& path) {
       if (garment_vertices > 0 && vertices != garment_vertices)
         report.problems.push_back(format("%s: %lld vertices, the garment has %lld", what.c_str(),
                                          (long long)vertices, (long long)garment_vertices));
-      check_blob(sqlite3_column_blob(s, 3), size_t(sqlite3_column_bytes(s, 3)), what,
-                 sqlite3_column_int64(s, 1), vertices, scratch, report);
+      const codec::BlobInfo info =
+          check_blob(sqlite3_column_blob(s, 3), size_t(sqlite3_column_bytes(s, 3)), what,
+                     sqlite3_column_int64(s, 1), vertices, reader, scratch, report);
+      // The bound: the blob's codec bound and the error measured when it was encoded must lie
+      // within the clip's recorded bound (after `db recode`, the old bound plus the new one).
+      // Without the simulation's own frames this is what can be checked; the decoder itself
+      // range-checks every value against the blob's grid.
+      const double bound = sqlite3_column_double(s, 4), max_error = sqlite3_column_double(s, 5);
+      const double slack = 1 + 1e-9;
+      if (info.version != 0 && sqlite3_column_type(s, 4) != SQLITE_NULL &&
+          info.bound > bound * slack)
+        report.problems.push_back(format("%s: blob bound %g m exceeds the recorded bound %g m",
+                                         what.c_str(), info.bound, bound));
+      if (sqlite3_column_type(s, 4) != SQLITE_NULL && sqlite3_column_type(s, 5) != SQLITE_NULL &&
+          !(max_error <= bound * slack))
+        report.problems.push_back(format("%s: measured error %g m exceeds the recorded bound %g m",
+                                         what.c_str(), max_error, bound));
     }
   }
   sqlite3_finalize(s);
@@ -451,7 +473,7 @@ CheckReport check_database(const std::string& path) {
         const std::string what =
             format("cloth state %lld %s", (long long)id, col == 2 ? "positions" : "velocities");
         check_blob(sqlite3_column_blob(s, col), size_t(sqlite3_column_bytes(s, col)), what, 1,
-                   vertices, scratch, report);
+                   vertices, reader, scratch, report);
       }
     }
   }
@@ -461,7 +483,7 @@ CheckReport check_database(const std::string& path) {
     while (sqlite3_step(s) == SQLITE_ROW) {
       check_blob(sqlite3_column_blob(s, 1), size_t(sqlite3_column_bytes(s, 1)),
                  format("edit %lld old frames", (long long)sqlite3_column_int64(s, 0)), 0,
-                 garment_vertices, scratch, report);
+                 garment_vertices, reader, scratch, report);
     }
   }
   sqlite3_finalize(s);
@@ -508,6 +530,13 @@ DatabaseInfo read_database_info(const std::string& path) {
   info.clip_raw_bytes = count(db, "SELECT total(frame_count * vertex_count * 12) FROM cloth_clip");
   info.state_blob_bytes =
       count(db, "SELECT total(length(positions) + length(velocities)) FROM cloth_state");
+  info.clips_v2 = count(db, "SELECT count(*) FROM cloth_clip WHERE substr(frames, 5, 1) = x'02'");
+  info.clips_v1 = info.cloth_clips - info.clips_v2;
+  info.states_v2 =
+      count(db, "SELECT count(*) FROM cloth_state WHERE substr(positions, 5, 1) = x'02'");
+  info.states_v1 = info.cloth_states - info.states_v2;
+  if (list_bases(db, path, &info.bases, &err) != Status::Ok)
+    throw ClothdbError(err.status, err.message);
   sqlite3_stmt* s = nullptr;
   if (sqlite3_prepare_v2(db,
                          "SELECT (SELECT max(max_error) FROM cloth_clip), "

@@ -6,6 +6,7 @@
 #include <utility>
 #include <vector>
 
+#include "database/basis_store.hpp"
 #include "database/schema.hpp"
 
 namespace clothdb::db {
@@ -51,6 +52,9 @@ struct DatabaseInfo {
   uint64_t clip_raw_bytes = 0;   // as float32 positions
   uint64_t state_blob_bytes = 0;
   double max_clip_error = 0;  // largest measured codec error, m
+  // Frame codec in use (issue 17): blobs per format version, and the stored bases.
+  uint64_t clips_v1 = 0, clips_v2 = 0, states_v1 = 0, states_v2 = 0;
+  std::vector<BasisRow> bases;
   double run_cpu_seconds = 0;
   uint64_t linked_edges = 0;   // clip ends that linked back to a state their clip did not make
   std::string last_run_notes;  // the newest run's summary (e.g. the explorer's unresolved errors)

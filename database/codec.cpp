@@ -9,6 +9,7 @@
 #include <string>
 
 #include "database/checksum.hpp"
+#include "database/codec_bytes.hpp"
 
 namespace clothdb::codec {
 namespace {
@@ -19,7 +20,6 @@ namespace {
 //  64 u32 qmax[3] | 76 u32 row stride (0: none) | 80 u64 checksum of bytes 0..80 and the chunk
 //  table 88 chunk table: per chunk u32 compressed size, u8 byte planes, u8 mode, u16 reserved (0),
 //     u64 checksum of the compressed bytes | then the compressed chunks back to back.
-constexpr uint8_t kMagic[4] = {'C', 'L', 'D', 'F'};
 constexpr size_t kHeaderSize = 88;
 constexpr size_t kChecksumOffset = 80;
 constexpr size_t kEntrySize = 16;
@@ -41,48 +41,7 @@ constexpr int kSpatialShift = 4;
 constexpr uint8_t kKeyMask = 0xc0;
 constexpr int kKeyShift = 6;
 
-void put_u16(uint8_t* p, uint16_t v) {
-  p[0] = uint8_t(v);
-  p[1] = uint8_t(v >> 8);
-}
-void put_u32(uint8_t* p, uint32_t v) {
-  for (int i = 0; i < 4; ++i) p[i] = uint8_t(v >> (8 * i));
-}
-void put_u64(uint8_t* p, uint64_t v) {
-  for (int i = 0; i < 8; ++i) p[i] = uint8_t(v >> (8 * i));
-}
-void put_f64(uint8_t* p, double v) {
-  put_u64(p, std::bit_cast<uint64_t>(v));
-}
-uint16_t get_u16(const uint8_t* p) {
-  return uint16_t(p[0] | p[1] << 8);
-}
-uint32_t get_u32(const uint8_t* p) {
-  return uint32_t(p[0]) | uint32_t(p[1]) << 8 | uint32_t(p[2]) << 16 | uint32_t(p[3]) << 24;
-}
-uint64_t get_u64(const uint8_t* p) {
-  uint64_t v = 0;
-  for (int i = 7; i >= 0; --i) v = (v << 8) | p[i];
-  return v;
-}
-double get_f64(const uint8_t* p) {
-  return std::bit_cast<double>(get_u64(p));
-}
-
-// The one dequantisation formula, shared by the encoder's bound check and the decoder. The
-// library is built with -ffp-contract=off so both call sites round identically.
-// q is below 2^28 (range-checked first), so going through int32 is exact and lets the compiler use
-// the plain signed conversion instead of the slower unsigned one.
-inline float dequantise(double origin, double step, uint32_t q) {
-  return float(origin + double(int32_t(q)) * step);
-}
-
-inline uint32_t zigzag(uint32_t r) {
-  return (r << 1) ^ (0u - (r >> 31));
-}
-inline uint32_t unzigzag(uint32_t u) {
-  return (u >> 1) ^ (0u - (u & 1u));
-}
+using namespace bytes;
 
 uint64_t header_checksum(const uint8_t* blob, uint32_t chunk_count) {
   return xxh64(blob + kHeaderSize, size_t(chunk_count) * kEntrySize, xxh64(blob, kChecksumOffset));
@@ -112,11 +71,12 @@ Status parse(const uint8_t* blob, size_t size, BlobInfo* info, Error* err) {
                 size);
   if (size < 6) return fail(err, Status::Truncated, "frame blob truncated at %zu bytes", size);
   const uint32_t version = get_u16(blob + 4);
-  if (version > kFormatVersion)
+  if (version > kFormatVersionV2)
     return fail(err, Status::NewerVersion,
                 "frame blob format version %u is newer than this build reads (up to %u)", version,
-                kFormatVersion);
+                kFormatVersionV2);
   if (version == 0) return fail(err, Status::Corrupt, "frame blob format version 0 is invalid");
+  if (version == kFormatVersionV2) return v2::parse(blob, size, info, err);
   if (size < kHeaderSize)
     return fail(err, Status::Truncated, "frame blob truncated: %zu bytes, header needs %zu", size,
                 kHeaderSize);
@@ -356,10 +316,12 @@ uint32_t choose_row_stride(const uint32_t* q, uint32_t vertex_count) {
 
 struct DecoderAccess {
   static Status decode(const uint8_t* blob, size_t size, uint32_t first, uint32_t count, float* out,
-                       size_t out_floats, DecodeScratch& s, Error* err) {
+                       size_t out_floats, DecodeScratch& s, Error* err, const Basis* basis) {
     s.frames_reconstructed_ = 0;
     BlobInfo info;
     if (Status st = parse(blob, size, &info, err); st != Status::Ok) return st;
+    if (info.version == kFormatVersionV2)
+      return v2::decode(blob, size, first, count, out, out_floats, s, err, basis);
     if (count == 0) return Status::Ok;
     if (first >= info.frame_count || count > info.frame_count - first)
       return fail(err, Status::InvalidArgument, "frames %u..%u requested from a %u-frame blob",
@@ -436,6 +398,8 @@ DecodeScratch::~DecodeScratch() {
 DecodeScratch::DecodeScratch(DecodeScratch&& other) noexcept
     : dctx_(other.dctx_),
       bytes_(std::move(other.bytes_)),
+      subspace_(std::move(other.subspace_)),
+      coefficients_(std::move(other.coefficients_)),
       frames_reconstructed_(other.frames_reconstructed_) {
   for (int i = 0; i < 4; ++i) q_[i] = std::move(other.q_[i]);
   other.dctx_ = ZSTD_createDCtx();
@@ -445,17 +409,24 @@ DecodeScratch& DecodeScratch::operator=(DecodeScratch&& other) noexcept {
     std::swap(dctx_, other.dctx_);
     std::swap(bytes_, other.bytes_);
     for (int i = 0; i < 4; ++i) std::swap(q_[i], other.q_[i]);
+    std::swap(subspace_, other.subspace_);
+    std::swap(coefficients_, other.coefficients_);
     frames_reconstructed_ = other.frames_reconstructed_;
   }
   return *this;
 }
 
-void DecodeScratch::reserve(uint32_t vertex_count, uint32_t key_interval) {
+void DecodeScratch::reserve(uint32_t vertex_count, uint32_t key_interval, uint32_t modes) {
   const size_t n = size_t(vertex_count) * 3;
-  const size_t bytes = 4 * n * key_interval;
+  const size_t bytes = 4 * (n + modes) * key_interval;
   if (bytes_.size() < bytes) bytes_.resize(bytes);
   for (auto& q : q_)
     if (q.size() < n) q.resize(n);
+  if (modes > 0) {
+    if (subspace_.size() < n * key_interval) subspace_.resize(n * key_interval);
+    if (coefficients_.size() < size_t(modes) * key_interval)
+      coefficients_.resize(size_t(modes) * key_interval);
+  }
 }
 
 Status read_info(const uint8_t* blob, size_t size, BlobInfo* info, Error* err) {
@@ -463,25 +434,26 @@ Status read_info(const uint8_t* blob, size_t size, BlobInfo* info, Error* err) {
 }
 
 Status decode_frames(const uint8_t* blob, size_t size, uint32_t first, uint32_t count, float* out,
-                     size_t out_floats, DecodeScratch& scratch, Error* err) {
+                     size_t out_floats, DecodeScratch& scratch, Error* err, const Basis* basis) {
   if (out == nullptr && count > 0)
     return fail(err, Status::InvalidArgument, "decode_frames: null output buffer");
-  return DecoderAccess::decode(blob, size, first, count, out, out_floats, scratch, err);
+  return DecoderAccess::decode(blob, size, first, count, out, out_floats, scratch, err, basis);
 }
 
 Status decode_all(const uint8_t* blob, size_t size, std::vector<float>& out, DecodeScratch& scratch,
-                  Error* err) {
+                  Error* err, const Basis* basis) {
   BlobInfo info;
   if (Status st = parse(blob, size, &info, err); st != Status::Ok) return st;
   out.resize(size_t(info.frame_count) * info.vertex_count * 3);
   return DecoderAccess::decode(blob, size, 0, info.frame_count, out.data(), out.size(), scratch,
-                               err);
+                               err, basis);
 }
 
-Status verify(const uint8_t* blob, size_t size, DecodeScratch& scratch, Error* err) {
+Status verify(const uint8_t* blob, size_t size, DecodeScratch& scratch, Error* err,
+              const Basis* basis) {
   BlobInfo info;
   if (Status st = parse(blob, size, &info, err); st != Status::Ok) return st;
-  return DecoderAccess::decode(blob, size, 0, info.frame_count, nullptr, 0, scratch, err);
+  return DecoderAccess::decode(blob, size, 0, info.frame_count, nullptr, 0, scratch, err, basis);
 }
 
 uint64_t decode_cost(const BlobInfo& info, uint32_t first, uint32_t count) {
@@ -805,6 +777,7 @@ std::vector<uint8_t> encode(const float* frames, uint32_t frame_count, uint32_t 
 namespace detail {
 void reseal(uint8_t* blob, size_t size) {
   if (size < kHeaderSize || std::memcmp(blob, kMagic, 4) != 0) return;
+  if (get_u16(blob + 4) == kFormatVersionV2) return v2::reseal(blob, size);
   const uint32_t chunk_count = get_u32(blob + 20);
   const uint64_t table_end = kHeaderSize + uint64_t(chunk_count) * kEntrySize;
   if (size < table_end) return;

@@ -17,6 +17,11 @@
 //     residual needs), compress each chunk with zstd.
 //  4. XXH64 checksum over the header and chunk table, and one per chunk.
 // Decoding frame f touches only its chunk: at most K frame reconstructions (random access cost).
+//
+// Format version 2 (encode_v2, issue 17) predicts every frame from a per-garment subspace (a
+// Basis: mean + modes, stored once per database) and codes only coefficients and a residual layer
+// on the same grid, so the bound is kept exactly as in version 1 (docs/DATABASE.md, "version 2").
+// Version 1 blobs decode exactly as before; decoding a version 2 blob needs its basis.
 #pragma once
 
 #include <cstddef>
@@ -27,7 +32,8 @@
 
 namespace clothdb::codec {
 
-constexpr uint32_t kFormatVersion = 1;
+constexpr uint32_t kFormatVersion = 1;    // what encode() writes
+constexpr uint32_t kFormatVersionV2 = 2;  // what encode_v2() writes; the newest this build reads
 constexpr double kDefaultPositionBound = 0.0005;  // m: 0.5 mm per coordinate
 // A key frame every 4 frames: random access costs at most 4 frame reconstructions, and on
 // simulated garments the ratio is within 1 % of K = 16 or 64 (docs/BENCHMARKS.md, Codec).
@@ -40,6 +46,9 @@ constexpr int kDefaultZstdLevel = 9;
 // gigabytes: 4 M vertices, and 1 GiB of float output per chunk.
 constexpr uint32_t kMaxVertices = 1u << 22;
 constexpr uint64_t kMaxChunkFloats = uint64_t(1) << 28;
+// Basis limits: at most 1024 modes and 2^28 mode values (512 MiB as int16) in one basis.
+constexpr uint32_t kMaxBasisModes = 1024;
+constexpr uint64_t kMaxBasisValues = uint64_t(1) << 28;
 
 enum class Predictor : uint8_t {
   Auto = 0,    // per chunk, the cheaper of Delta and Linear (encoder setting only)
@@ -99,7 +108,57 @@ struct BlobInfo {
   uint32_t qmax[3] = {0, 0, 0};
   uint32_t row_stride = 0;  // vertices per mesh row for the Lorenzo predictor (0: not used)
   size_t size = 0;          // bytes of the whole blob
+  // Version 2 only (0 for version 1): the basis the blob is predicted from, how many of its modes
+  // it uses, the coefficient quantisation step and whether the basis mean is added (positions) or
+  // not (velocities: the derivative of mean + modes * c is modes * dc/dt).
+  int64_t basis_id = 0;
+  uint32_t modes = 0;
+  double coefficient_step = 0;
+  bool uses_mean = false;
 };
+
+// A garment subspace (issue 17): x ~ mean + sum_k c_k modes[k], over 3V coordinates (x, y, z per
+// vertex). Built by precompute/compress/subspace.hpp (PCA of the database's own frames); stored
+// once per database (table codec_basis) as float32 mean and int16 modes with one float scale per
+// mode, so `modes` here holds exactly float(int16) * scale: the encoder and every decoder multiply
+// by the same floats.
+struct Basis {
+  int64_t id = 0;  // the codec_basis row id that version 2 blobs name
+  uint32_t vertex_count = 0;
+  uint32_t mode_count = 0;
+  std::vector<float> mean;   // 3V
+  std::vector<float> scale;  // one per mode
+  std::vector<float> modes;  // mode_count x 3V, mode-major
+  size_t memory_bytes() const {
+    return (mean.capacity() + scale.capacity() + modes.capacity()) * sizeof(float);
+  }
+};
+
+// Quantises float modes (mode_count x 3V, mode-major) to int16 with one scale per mode and returns
+// the basis as stored. Throws ClothdbError (InvalidArgument) on non-finite values or limits.
+Basis make_basis(int64_t id, uint32_t vertex_count, const float* mean, const float* modes,
+                 uint32_t mode_count);
+// The stored form: "CLBS", u16 version 1, u16 header size 24, u32 V, u32 M, u64 XXH64 of bytes
+// 0..15 and the payload; payload: mean (3V float32), scales (M float32), modes (M x 3V int16).
+std::vector<uint8_t> serialize_basis(const Basis& basis);
+// Parses a stored basis (limits checked before allocating, checksum verified); sets basis->id.
+Status parse_basis(const uint8_t* data, size_t size, int64_t id, Basis* basis, Error* err);
+
+struct SubspaceSettings {
+  // Coefficients are quantised with step = factor x bound: the error this adds to a coordinate is
+  // about step / sqrt(12) x sqrt(modes / 3V), far below the bound for a few hundred modes.
+  double coefficient_step_factor = 2.0;
+  uint32_t modes = 0;      // modes of the basis to use (0: all)
+  bool use_mean = true;    // false for velocities
+  int grid_divisions = 0;  // grid step just under 2 x bound / divisions (1 or 2, 0: try both)
+};
+
+// Encodes like encode() (same bound, key interval, zstd level, verification) as a version 2 blob
+// predicted from `basis`. Throws ClothdbError (InvalidArgument) like encode(), and when the basis
+// does not fit the frames' vertex count.
+std::vector<uint8_t> encode_v2(const float* frames, uint32_t frame_count, uint32_t vertex_count,
+                               const Basis& basis, const EncodeSettings& settings,
+                               const SubspaceSettings& subspace = {}, EncodeStats* stats = nullptr);
 
 // Validates the header, the chunk table and their checksum (not the chunks' contents). Cheap.
 Status read_info(const uint8_t* blob, size_t size, BlobInfo* info, Error* err);
@@ -115,32 +174,39 @@ class DecodeScratch {
   DecodeScratch(DecodeScratch&& other) noexcept;
   DecodeScratch& operator=(DecodeScratch&& other) noexcept;
 
-  void reserve(uint32_t vertex_count, uint32_t key_interval);
+  void reserve(uint32_t vertex_count, uint32_t key_interval, uint32_t modes = 0);
 
   // Frames reconstructed by the last decode call (random-access cost, for tests and benchmarks).
   uint64_t frames_reconstructed() const { return frames_reconstructed_; }
 
  private:
   friend struct DecoderAccess;
+  friend struct DecoderV2Access;
   void* dctx_ = nullptr;  // ZSTD_DCtx*, kept opaque so zstd.h stays out of this header
   std::vector<uint8_t> bytes_;
   // Quantised frames (current, previous, the one before) and one frame of residuals.
   std::vector<uint32_t> q_[4];
+  // Version 2: the subspace prediction of one frame and the coefficients of the last three.
+  std::vector<float> subspace_;
+  std::vector<int32_t> coefficients_;
   uint64_t frames_reconstructed_ = 0;
 };
 
 // Decodes frames [first, first + count) into out (count * vertex_count * 3 floats, out_floats is
 // its capacity). Touches only the chunks holding those frames. Every checksum on the way is
-// verified; on any error out may be partly written and must not be used.
+// verified; on any error out may be partly written and must not be used. A version 2 blob needs the
+// basis it names (`basis`; without it, or with another, NotFound / Corrupt).
 Status decode_frames(const uint8_t* blob, size_t size, uint32_t first, uint32_t count, float* out,
-                     size_t out_floats, DecodeScratch& scratch, Error* err);
+                     size_t out_floats, DecodeScratch& scratch, Error* err,
+                     const Basis* basis = nullptr);
 
 // Decodes every frame of the blob into `out`, resizing it (allocates: convenience for tools).
 Status decode_all(const uint8_t* blob, size_t size, std::vector<float>& out, DecodeScratch& scratch,
-                  Error* err);
+                  Error* err, const Basis* basis = nullptr);
 
 // Checks all checksums and decodes every chunk without writing output (for `clothdb db check`).
-Status verify(const uint8_t* blob, size_t size, DecodeScratch& scratch, Error* err);
+Status verify(const uint8_t* blob, size_t size, DecodeScratch& scratch, Error* err,
+              const Basis* basis = nullptr);
 
 // Frames reconstructed to decode [first, first + count): from the key frame of first's chunk.
 uint64_t decode_cost(const BlobInfo& info, uint32_t first, uint32_t count);

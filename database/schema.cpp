@@ -909,7 +909,8 @@ Reader::Reader(Reader&& other) noexcept
       codec_(other.codec_),
       clip_blob_stmt_(std::exchange(other.clip_blob_stmt_, nullptr)),
       state_blob_stmt_(std::exchange(other.state_blob_stmt_, nullptr)),
-      borrowed_(std::exchange(other.borrowed_, false)) {}
+      borrowed_(std::exchange(other.borrowed_, false)),
+      bases_(std::move(other.bases_)) {}
 
 Reader& Reader::operator=(Reader&& other) noexcept {
   if (this != &other) {
@@ -921,6 +922,7 @@ Reader& Reader::operator=(Reader&& other) noexcept {
     clip_blob_stmt_ = std::exchange(other.clip_blob_stmt_, nullptr);
     state_blob_stmt_ = std::exchange(other.state_blob_stmt_, nullptr);
     borrowed_ = std::exchange(other.borrowed_, false);
+    bases_ = std::move(other.bases_);
   }
   return *this;
 }
@@ -933,6 +935,7 @@ void Reader::close() {
   sqlite3_finalize(clip_blob_stmt_);
   sqlite3_finalize(state_blob_stmt_);
   clip_blob_stmt_ = state_blob_stmt_ = nullptr;
+  bases_.clear();
   if (!borrowed_) sqlite3_close_v2(db_);
   db_ = nullptr;
   borrowed_ = false;
@@ -1229,10 +1232,8 @@ Status Reader::read_state(int64_t state, std::vector<float>* positions,
                           std::vector<float>* velocities, codec::DecodeScratch& scratch,
                           Error* err) {
   if (Status st = state_blobs(state, &state_pos_, &state_vel_, err); st != Status::Ok) return st;
-  if (Status st = codec::decode_all(state_pos_.data(), state_pos_.size(), *positions, scratch, err);
-      st != Status::Ok)
-    return st;
-  return codec::decode_all(state_vel_.data(), state_vel_.size(), *velocities, scratch, err);
+  if (Status st = decode_all(state_pos_, positions, scratch, err); st != Status::Ok) return st;
+  return decode_all(state_vel_, velocities, scratch, err);
 }
 
 }  // namespace clothdb::db

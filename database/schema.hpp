@@ -349,6 +349,19 @@ class Reader {
   Status read_state(int64_t state, std::vector<float>* positions, std::vector<float>* velocities,
                     codec::DecodeScratch& scratch, Error* err);
 
+  // The basis a codec version 2 blob names (table codec_basis, database/basis_store.hpp), loaded
+  // on first use and kept for the Reader's life; null for a version 1 blob. NotFound if the file
+  // has no basis with that id. Defined in basis_store.cpp.
+  Status basis_for(const uint8_t* blob, size_t size, const codec::Basis** out, Error* err);
+  // Decodes frames [first, first + count) of one of this file's blobs, version 1 or 2.
+  Status decode(const std::vector<uint8_t>& blob, uint32_t first, uint32_t count, float* out,
+                size_t out_floats, codec::DecodeScratch& scratch, Error* err);
+  // Decodes all frames of one of this file's blobs, version 1 or 2.
+  Status decode_all(const std::vector<uint8_t>& blob, std::vector<float>* out,
+                    codec::DecodeScratch& scratch, Error* err);
+  // Memory held by the bases loaded so far.
+  size_t basis_bytes() const;
+
   sqlite3* handle() { return db_; }
 
  private:
@@ -362,7 +375,8 @@ class Reader {
   sqlite3_stmt* clip_blob_stmt_ = nullptr;
   sqlite3_stmt* state_blob_stmt_ = nullptr;
   std::vector<uint8_t> state_pos_, state_vel_;
-  bool borrowed_ = false;  // db_ is a Writer's connection
+  bool borrowed_ = false;                             // db_ is a Writer's connection
+  std::vector<std::unique_ptr<codec::Basis>> bases_;  // loaded by basis_for
 };
 
 }  // namespace clothdb::db

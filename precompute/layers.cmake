@@ -3,8 +3,9 @@
 # library per layer, each linking the one below) and by check_layers.cmake (the include check that
 # fails the build, and a test, when an arrow runs the wrong way).
 set(PRECOMPUTE_LAYERS solvers character graph quality explore bench)
-# 1. the cloth model, the four solvers, their candidate settings, the hard-case scenes, output
-set(PRECOMPUTE_LAYER_solvers cloth solvers hard_cases report)
+# 1. the cloth model, the four solvers, their candidate settings, the hard-case scenes, output,
+#    and compress/ (codec v2's garment subspace and `db recode`: database and Eigen only)
+set(PRECOMPUTE_LAYER_solvers cloth solvers hard_cases report compress)
 # 2. skeletons and motion, garments, the character scene (simulation along poses), exchange
 #    formats and the renderer
 set(PRECOMPUTE_LAYER_character character garment character_scene exchange render)

@@ -9,6 +9,7 @@
 #include <new>
 #include <numeric>
 
+#include "database/basis_store.hpp"
 #include "database/cloth_graph.hpp"
 #include "internal.hpp"
 
@@ -117,6 +118,15 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
       return err->set(Status::Corrupt,
                       "%s: garment triangle %zu has vertex index %u (the garment has %u vertices)",
                       file.c_str(), i / 3, triangles[i], vertex_count);
+
+  // Codec version 2 bases: every blob that names one decodes with it (normally one per file).
+  std::vector<BasisRow> basis_rows;
+  if (Status st = list_bases(reader.handle(), file, &basis_rows, err); st != Status::Ok) return st;
+  bases.resize(basis_rows.size());
+  for (size_t i = 0; i < basis_rows.size(); ++i)
+    if (Status st = load_basis(reader.handle(), file, basis_rows[i].id, &bases[i], err);
+        st != Status::Ok)
+      return st;
 
   std::vector<PrimaryClip> pcs;
   std::vector<PrimaryTransition> transitions;
@@ -311,6 +321,7 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
                    triangles.size() * sizeof(uint32_t) +
                    (primary_by_id.size() + clip_by_id.size()) * 32;
   for (const PrimaryInfo& p : primaries) metadata_bytes += p.name.size();
+  for (const auto& b : bases) metadata_bytes += b.memory_bytes();
 
   sync_loader.reader = &reader;
   const int threads = std::clamp(options.prefetch_threads, 0, 8);
@@ -475,7 +486,7 @@ Status Db::load_impl(int clip, Loader& loader, Error* err) {
     t0 = Clock::now();
     st = clothdb::codec::decode_frames(loader.blob.data(), loader.blob.size(), 0, info.frame_count,
                                        static_cast<float*>(entry.buffer.data), floats,
-                                       loader.scratch, err);
+                                       loader.scratch, err, basis_for(info));
     decode_ns.fetch_add(ns_since(t0), std::memory_order_relaxed);
     if (st != Status::Ok) return st;
   } else {
@@ -491,7 +502,7 @@ Status Db::load_impl(int clip, Loader& loader, Error* err) {
       t0 = Clock::now();
       st = clothdb::codec::decode_frames(loader.blob.data(), loader.blob.size(), f, count,
                                          loader.chunk.data(), loader.chunk.size(), loader.scratch,
-                                         err);
+                                         err, basis_for(info));
       decode_ns.fetch_add(ns_since(t0), std::memory_order_relaxed);
       if (st != Status::Ok) return st;
       t0 = Clock::now();
@@ -668,14 +679,17 @@ int32_t Db::search_impl(int clip, uint32_t k, Loader& loader) {
   // velocity of its last frame.
   bool have_reference = false;
   if (c.to_state >= 0) {
-    have_reference = loader.reader->read_state(states[size_t(c.to_state)].id, &loader.x, &loader.v,
-                                               loader.scratch, &err) == Status::Ok;
+    have_reference =
+        read_state(loader, states[size_t(c.to_state)].id, &loader.x, &loader.v, &err) == Status::Ok;
   } else if (loader.reader->clip_blob(c.id, &loader.blob, &err) == Status::Ok) {
     loader.chunk.resize(2 * n);
+    clothdb::codec::BlobInfo info;
     have_reference =
-        clothdb::codec::decode_frames(loader.blob.data(), loader.blob.size(),
-                                      uint32_t(c.frames - 2), 2, loader.chunk.data(),
-                                      loader.chunk.size(), loader.scratch, &err) == Status::Ok;
+        clothdb::codec::read_info(loader.blob.data(), loader.blob.size(), &info, &err) ==
+            Status::Ok &&
+        clothdb::codec::decode_frames(
+            loader.blob.data(), loader.blob.size(), uint32_t(c.frames - 2), 2, loader.chunk.data(),
+            loader.chunk.size(), loader.scratch, &err, basis_for(info)) == Status::Ok;
     if (have_reference) {
       const double rate = primaries[size_t(c.primary)].rate;
       loader.x.assign(loader.chunk.begin() + ptrdiff_t(n), loader.chunk.end());
@@ -689,8 +703,8 @@ int32_t Db::search_impl(int clip, uint32_t k, Loader& loader) {
     double best_d = INFINITY;
     for (uint32_t i = next.cand_begin; i < next.cand_end; ++i) {
       const int cand = candidates[i];
-      if (loader.reader->read_state(states[size_t(clips[size_t(cand)].state)].id, &loader.sx,
-                                    &loader.sv, loader.scratch, &err) != Status::Ok ||
+      if (read_state(loader, states[size_t(clips[size_t(cand)].state)].id, &loader.sx, &loader.sv,
+                     &err) != Status::Ok ||
           loader.sx.size() != n || loader.sv.size() != n)
         continue;
       const double d = clothdb::db::state_distance(loader.x, loader.v, loader.sx, loader.sv, tau);
@@ -702,6 +716,30 @@ int32_t Db::search_impl(int clip, uint32_t k, Loader& loader) {
   }
   sqlite_ns.fetch_add(ns_since(t0), std::memory_order_relaxed);
   return int32_t(best) << 1 | 1;
+}
+
+const clothdb::codec::Basis* Db::basis_for(const clothdb::codec::BlobInfo& info) const {
+  for (const auto& b : bases)
+    if (b.id == info.basis_id) return &b;
+  return nullptr;  // version 1, or a basis the file lacks: the decoder says which
+}
+
+Status Db::read_state(Loader& loader, int64_t state, std::vector<float>* x, std::vector<float>* v,
+                      Error* err) {
+  if (Status st = loader.reader->state_blobs(state, &loader.pos_blob, &loader.vel_blob, err);
+      st != Status::Ok)
+    return st;
+  for (auto [blob, out] : {std::pair{&loader.pos_blob, x}, std::pair{&loader.vel_blob, v}}) {
+    clothdb::codec::BlobInfo info;
+    if (Status st = clothdb::codec::read_info(blob->data(), blob->size(), &info, err);
+        st != Status::Ok)
+      return st;
+    if (Status st = clothdb::codec::decode_all(blob->data(), blob->size(), *out, loader.scratch,
+                                               err, basis_for(info));
+        st != Status::Ok)
+      return st;
+  }
+  return Status::Ok;
 }
 
 int32_t Db::resolve_now(int clip, uint32_t k) {

@@ -6,7 +6,8 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
 PACKAGES=(cmake g++ make pkg-config libeigen3-dev libomp-dev libassimp-dev assimp-testmodels
   libsqlite3-dev libzstd-dev libcli11-dev nlohmann-json3-dev libsuitesparse-dev libpng-dev
-  libgtest-dev libosmesa6-dev libglu1-mesa-dev clang-14 libclang-rt-14-dev libopenmpi-dev openmpi-bin)
+  libgtest-dev libosmesa6-dev libglu1-mesa-dev clang-14 libclang-rt-14-dev libopenmpi-dev openmpi-bin
+  libmeshoptimizer-dev)
 missing=()
 for p in "${PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -144,9 +144,9 @@ std::vector<float> last_frame(db::Reader& reader, int64_t clip, size_t per_frame
   check(reader.clip_blob(clip, &blob, &err), err);
   std::vector<float> out(per_frame);
   codec::DecodeScratch scratch;
-  check(codec::decode_frames(blob.data(), blob.size(), uint32_t(row.frame_count - 1), 1, out.data(),
-                             out.size(), scratch, &err),
-        err);
+  check(
+      reader.decode(blob, uint32_t(row.frame_count - 1), 1, out.data(), out.size(), scratch, &err),
+      err);
   return out;
 }
 
@@ -188,7 +188,10 @@ std::vector<float> read_clip_frames(db::Reader& reader, int64_t clip, db::ClothC
   if (reader.cloth_clip(clip, row, &err) != db::Status::Ok) fail(err.message);
   std::vector<uint8_t> blob;
   check(reader.clip_blob(clip, &blob, &err), err);
-  return decode_clip_blob(blob);
+  std::vector<float> out;
+  codec::DecodeScratch scratch;
+  check(reader.decode_all(blob, &out, scratch, &err), err);  // codec version 1 or 2
+  return out;
 }
 
 // ---- export / import ----------------------------------------------------------------------------

@@ -3,7 +3,10 @@
 //   0: decode the rest as a blob, checksums as given (what a damaged file looks like);
 //   1: the same after recomputing the checksums, so mutations reach the header and chunk parsers,
 //      zstd and the reconstruction behind them;
-//   2: build frames from the bytes, encode them, decode, and check the error bound.
+//   2: build frames from the bytes, encode them, decode, and check the error bound;
+//   3, 4: modes 0 and 1 for codec version 2 blobs, decoded with a made-up basis that fits the
+//      blob's header (so mutations reach the subspace reconstruction);
+//   5: mode 2 with codec version 2 and a made-up basis.
 // Any crash, sanitizer report, bound violation or non-finite decoded value is a bug.
 #include <algorithm>
 #include <cmath>
@@ -26,6 +29,16 @@ void check(bool ok, const char* what) {
   }
 }
 
+// A deterministic basis of `modes` smooth modes over `vertices` vertices, named `id`.
+codec::Basis made_up_basis(int64_t id, uint32_t vertices, uint32_t modes) {
+  const size_t n = size_t(vertices) * 3;
+  std::vector<float> mean(n), m(size_t(modes) * n);
+  for (size_t i = 0; i < n; ++i) mean[i] = float(0.01 * double(i % 97));
+  for (uint32_t k = 0; k < modes; ++k)
+    for (size_t i = 0; i < n; ++i) m[k * n + i] = float(std::sin(0.37 * double((k + 1) * (i + 1))));
+  return codec::make_basis(id, vertices, mean.data(), m.data(), modes);
+}
+
 void decode_blob(const uint8_t* blob, size_t size) {
   codec::BlobInfo info;
   Error err;
@@ -33,13 +46,19 @@ void decode_blob(const uint8_t* blob, size_t size) {
     check(err.message[0] != '\0', "error without a message");
     return;
   }
+  codec::Basis basis;
+  if (info.version == codec::kFormatVersionV2) {
+    if (info.vertex_count > 256 || info.modes > 16) return;  // keep each run small
+    basis = made_up_basis(info.basis_id, info.vertex_count, info.modes);
+  }
+  const codec::Basis* b = info.version == codec::kFormatVersionV2 ? &basis : nullptr;
   codec::DecodeScratch scratch;
   const size_t n = size_t(info.vertex_count) * 3;
   // Bounded output so a large (valid) header cannot exhaust memory: one frame at a time.
   if (n > (size_t(1) << 20)) return;
   std::vector<float> frame(n);
   for (uint32_t f = 0; f < info.frame_count && f < 64; f += 1 + f / 4) {
-    if (codec::decode_frames(blob, size, f, 1, frame.data(), frame.size(), scratch, &err) !=
+    if (codec::decode_frames(blob, size, f, 1, frame.data(), frame.size(), scratch, &err, b) !=
         Status::Ok) {
       check(err.message[0] != '\0', "error without a message");
       return;
@@ -53,10 +72,10 @@ void decode_blob(const uint8_t* blob, size_t size) {
             "decoded value outside the declared range");
     }
   }
-  codec::verify(blob, size, scratch, &err);
+  codec::verify(blob, size, scratch, &err, b);
 }
 
-void roundtrip(const uint8_t* data, size_t size) {
+void roundtrip(const uint8_t* data, size_t size, bool v2) {
   if (size < 4) return;
   const double bounds[] = {1e-5, 1e-4, 5e-4, 2e-3, 0.05};
   codec::EncodeSettings s;
@@ -76,15 +95,19 @@ void roundtrip(const uint8_t* data, size_t size) {
     x[i] = float(0.001 * double(i / 3 % 97) + v * 1e-4);
   }
   std::vector<uint8_t> blob;
+  const codec::Basis basis = made_up_basis(3, vertices, 1 + vertices % 5);
   try {
-    blob = codec::encode(x.data(), frames, vertices, s);
+    blob = v2 ? codec::encode_v2(x.data(), frames, vertices, basis, s)
+              : codec::encode(x.data(), frames, vertices, s);
   } catch (const ClothdbError& e) {
     check(false, e.what());  // valid input must always encode
   }
   codec::DecodeScratch scratch;
   std::vector<float> y;
   Error err;
-  check(codec::decode_all(blob.data(), blob.size(), y, scratch, &err) == Status::Ok, err.message);
+  check(codec::decode_all(blob.data(), blob.size(), y, scratch, &err, v2 ? &basis : nullptr) ==
+            Status::Ok,
+        err.message);
   for (size_t i = 0; i < x.size(); ++i)
     check(std::fabs(double(y[i]) - double(x[i])) <= s.bound, "error bound broken");
 }
@@ -93,17 +116,19 @@ void roundtrip(const uint8_t* data, size_t size) {
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (size < 1) return 0;
-  const uint8_t mode = data[0] % 3;
+  // Modes 3-5 are 0-2 again; decode_blob handles both versions, so the v2 seeds (written with
+  // modes 3 and 4) and mutations of v1 seeds into v2 headers both reach the v2 decoder.
+  const uint8_t mode = data[0] % 6;
   ++data;
   --size;
-  if (mode == 0) {
+  if (mode % 3 == 0) {
     decode_blob(data, size);
-  } else if (mode == 1) {
+  } else if (mode % 3 == 1) {
     std::vector<uint8_t> copy(data, data + size);
     codec::detail::reseal(copy.data(), copy.size());
     decode_blob(copy.data(), copy.size());
   } else {
-    roundtrip(data, size);
+    roundtrip(data, size, mode == 5);
   }
   return 0;
 }
@@ -123,13 +148,16 @@ int main(int argc, char** argv) {
       s.key_interval = k;
       s.predictor = p;
       const auto blob = codec::encode(x.data(), frames, side * side, s);
-      for (uint8_t mode : {uint8_t(0), uint8_t(1)}) {
+      const auto blob2 =
+          codec::encode_v2(x.data(), frames, side * side, made_up_basis(1, side * side, 4), s);
+      for (uint8_t mode : {uint8_t(0), uint8_t(1), uint8_t(3), uint8_t(4)}) {
+        const auto& b = mode < 3 ? blob : blob2;
         char path[4096];
         std::snprintf(path, sizeof path, "%s/seed_%d", argv[1], count++);
         FILE* f = std::fopen(path, "wb");
         if (!f) return 1;
         std::fwrite(&mode, 1, 1, f);
-        std::fwrite(blob.data(), 1, blob.size(), f);
+        std::fwrite(b.data(), 1, b.size(), f);
         std::fclose(f);
       }
     }
@@ -141,6 +169,13 @@ int main(int argc, char** argv) {
   const uint8_t head[5] = {2, 3, 4, 1, 7};
   std::fwrite(head, 1, sizeof head, f);
   for (int i = 0; i < 600; ++i) std::fputc(i * 37 % 251, f);
+  std::fclose(f);
+  std::snprintf(path, sizeof path, "%s/seed_roundtrip_v2", argv[1]);
+  f = std::fopen(path, "wb");
+  if (!f) return 1;
+  const uint8_t head_v2[5] = {5, 3, 4, 1, 7};
+  std::fwrite(head_v2, 1, sizeof head_v2, f);
+  for (int i = 0; i < 600; ++i) std::fputc(i * 53 % 241, f);
   std::fclose(f);
   return 0;
 }

@@ -1,0 +1,200 @@
+#include "compress/recode.hpp"
+
+#include <sqlite3.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <stdexcept>
+
+#include "compress/subspace.hpp"
+#include "database/basis_store.hpp"
+#include "database/codec.hpp"
+#include "database/schema.hpp"
+
+namespace clothdb {
+namespace {
+
+void check(db::Status st, const db::Error& err) {
+  if (st != db::Status::Ok) throw ClothdbError(st, err.message);
+}
+
+uint64_t file_bytes(const std::string& path) {
+  std::error_code ec;
+  uint64_t bytes = std::filesystem::file_size(path, ec);
+  if (ec) bytes = 0;
+  const auto wal = std::filesystem::file_size(path + "-wal", ec);
+  if (!ec) bytes += wal;
+  return bytes;
+}
+
+std::string text(double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.17g", v);
+  return buf;
+}
+
+}  // namespace
+
+RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
+  using Clock = std::chrono::steady_clock;
+  const auto start = Clock::now();
+  auto say = [&](const std::string& line) {
+    if (o.progress) o.progress(line);
+  };
+  if (o.codec != 1 && o.codec != 2) throw std::invalid_argument("recode: --codec must be v1 or v2");
+  if (o.batch == 0) throw std::invalid_argument("recode: batch must be at least 1");
+  RecodeReport report;
+  report.file_bytes_before = file_bytes(path);
+
+  db::Writer writer = db::Writer::open(path);
+  db::Reader reader;  // reads through the writer's connection: sees each batch as written
+  db::Error err;
+  check(reader.open_on(writer, &err), err);
+  const db::CodecSettings file_codec = writer.codec();
+  const double bound = o.bound > 0 ? o.bound : file_codec.position_bound;
+  const double velocity_bound = o.velocity_bound > 0 ? o.velocity_bound : file_codec.velocity_bound;
+  db::Garment garment;
+  check(reader.garment(&garment, &err), err);
+  const uint32_t V = garment.vertex_count();
+  const size_t n = size_t(V) * 3;
+  std::vector<db::ClothClip> clips;
+  std::vector<db::ClothState> states;
+  check(reader.cloth_clips(&clips, &err), err);
+  check(reader.cloth_states(&states, &err), err);
+  report.clips = clips.size();
+  report.states = states.size();
+  codec::DecodeScratch scratch;
+  std::vector<uint8_t> blob, pos_blob, vel_blob;
+  std::vector<float> frames, x, v;
+
+  // The basis: principal components of frames sampled evenly over every clip.
+  codec::Basis basis;
+  if (o.codec == 2) {
+    const auto t0 = Clock::now();
+    uint64_t total = 0;
+    for (const auto& c : clips) total += uint64_t(c.frame_count);
+    const uint64_t stride = std::max<uint64_t>(1, total / std::max<uint32_t>(1, o.basis_frames));
+    std::vector<float> sample;
+    uint64_t index = 0;
+    for (const auto& c : clips) {
+      check(reader.clip_blob(c.id, &blob, &err), err);
+      check(reader.decode_all(blob, &frames, scratch, &err), err);
+      for (int32_t f = 0; f < c.frame_count; ++f, ++index)
+        if (index % stride == 0)
+          sample.insert(sample.end(), frames.begin() + ptrdiff_t(size_t(f) * n),
+                        frames.begin() + ptrdiff_t(size_t(f + 1) * n));
+    }
+    if (sample.empty()) throw std::invalid_argument("recode: the database has no cloth frames");
+    say("basis: " + std::to_string(sample.size() / n) + " frames of " + std::to_string(total) +
+        " sampled, " + std::to_string(o.modes) + " modes ...");
+    const Subspace s = build_subspace(sample, uint32_t(n), o.modes);
+    basis = codec::make_basis(0, V, s.mean.data(), s.basis.data(), s.modes);
+    char source[256];
+    std::snprintf(source, sizeof source,
+                  "PCA of %zu of %llu frames (every %llu-th), %u modes, sample RMS %.3g m, "
+                  "residual RMS %.3g m",
+                  sample.size() / n, (unsigned long long)total, (unsigned long long)stride, s.modes,
+                  s.sample_rms, s.residual_rms);
+    basis.id = db::store_basis(writer, basis, source);  // committed before any blob names it
+    report.basis_id = basis.id;
+    report.basis_modes = s.modes;
+    report.sample_rms = s.sample_rms;
+    report.residual_rms = s.residual_rms;
+    report.basis_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+    say(std::string("basis ") + std::to_string(basis.id) + ": " + source);
+  }
+
+  const codec::EncodeSettings position_settings = db::encode_settings(file_codec, bound);
+  const codec::EncodeSettings velocity_settings = db::encode_settings(file_codec, velocity_bound);
+  codec::SubspaceSettings sub;
+  sub.coefficient_step_factor = o.coefficient_step_factor;
+  auto encode = [&](const std::vector<float>& data, uint32_t count, bool velocities,
+                    codec::EncodeStats* stats) {
+    const auto& settings = velocities ? velocity_settings : position_settings;
+    if (o.codec == 1) return codec::encode(data.data(), count, V, settings, stats);
+    codec::SubspaceSettings s = sub;
+    s.use_mean = !velocities;
+    return codec::encode_v2(data.data(), count, V, basis, settings, s, stats);
+  };
+
+  // Clips, then states, in batches of rows; each batch one transaction.
+  uint64_t batches = 0;
+  const size_t rows = clips.size() + states.size();
+  for (size_t b0 = 0; b0 < rows; b0 += o.batch) {
+    db::Writer::Transaction t(writer);
+    for (size_t r = b0; r < std::min(rows, b0 + o.batch); ++r) {
+      if (r < clips.size()) {
+        const db::ClothClip& c = clips[r];
+        check(reader.clip_blob(c.id, &blob, &err), err);
+        check(reader.decode_all(blob, &frames, scratch, &err), err);
+        codec::EncodeStats stats;
+        const auto fresh = encode(frames, uint32_t(c.frame_count), false, &stats);
+        report.blob_bytes_before += blob.size();
+        report.raw_bytes += frames.size() * sizeof(float);
+        if (o.always || fresh.size() < blob.size()) {
+          db::recode_clip_blob(writer, c.id, fresh, c.error_bound + bound,
+                               c.max_error + stats.max_error);
+          report.max_error = std::max(report.max_error, stats.max_error);
+          report.blob_bytes_after += fresh.size();
+          ++report.clips_replaced;
+        } else {
+          report.blob_bytes_after += blob.size();
+        }
+      } else {
+        const db::ClothState& s = states[r - clips.size()];
+        check(reader.state_blobs(s.id, &pos_blob, &vel_blob, &err), err);
+        check(reader.decode_all(pos_blob, &x, scratch, &err), err);
+        check(reader.decode_all(vel_blob, &v, scratch, &err), err);
+        auto fresh_x = encode(x, 1, false, nullptr);
+        auto fresh_v = encode(v, 1, true, nullptr);
+        report.blob_bytes_before += pos_blob.size() + vel_blob.size();
+        report.raw_bytes += (x.size() + v.size()) * sizeof(float);
+        const bool replace_x = o.always || fresh_x.size() < pos_blob.size();
+        const bool replace_v = o.always || fresh_v.size() < vel_blob.size();
+        if (!replace_x) fresh_x = pos_blob;
+        if (!replace_v) fresh_v = vel_blob;
+        if (replace_x || replace_v) {
+          db::recode_state_blobs(writer, s.id, fresh_x, fresh_v);
+          ++report.states_replaced;
+        }
+        report.blob_bytes_after += fresh_x.size() + fresh_v.size();
+      }
+    }
+    if (b0 + o.batch >= rows) {
+      // The last batch also records what the file now uses (meta keys are read by `db info`). A
+      // basis no blob took is removed again: it would only cost its bytes.
+      const bool basis_used = report.clips_replaced + report.states_replaced > 0;
+      if (o.codec == 1 || basis_used) {
+        writer.set_meta("codec.format_version", std::to_string(o.codec));
+        writer.set_meta("codec.recoded_bound", text(bound));
+      }
+      if (o.codec == 2 && basis_used) writer.set_meta("codec.basis", std::to_string(basis.id));
+      if (o.codec == 2 && !basis_used) {
+        db::remove_basis(writer, basis.id);
+        say("no blob got smaller with the subspace: basis " + std::to_string(basis.id) +
+            " removed, the file keeps its blobs");
+        report.basis_id = 0;
+      }
+    }
+    t.commit();
+    ++batches;
+    if (batches % 8 == 0 || b0 + o.batch >= rows)
+      say("recoded " + std::to_string(std::min(rows, b0 + o.batch)) + " of " +
+          std::to_string(rows) + " rows");
+    if (o.after_batch) o.after_batch(batches);
+  }
+  reader.close();
+  if (o.vacuum) {
+    sqlite3* db = writer.handle();
+    if (sqlite3_exec(db, "VACUUM", nullptr, nullptr, nullptr) != SQLITE_OK ||
+        sqlite3_exec(db, "PRAGMA wal_checkpoint(TRUNCATE)", nullptr, nullptr, nullptr) != SQLITE_OK)
+      say(std::string("vacuum skipped: ") + sqlite3_errmsg(db));
+  }
+  report.file_bytes_after = file_bytes(path);
+  report.seconds = std::chrono::duration<double>(Clock::now() - start).count();
+  return report;
+}
+
+}  // namespace clothdb

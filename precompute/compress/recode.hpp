@@ -1,0 +1,46 @@
+// `clothdb db recode`: re-encodes every cloth clip and state of a database with codec version 2
+// (a subspace built from the database's own frames plus a residual layer, issue 17) or version 1,
+// in place, in batches of rows, each batch one transaction: a process killed at any moment leaves
+// a file whose every blob is either the old or the new one, and which checks and plays.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <string>
+
+namespace clothdb {
+
+struct RecodeOptions {
+  int codec = 2;                 // frame format to write: 1 or 2
+  double bound = 0;              // m per coordinate against the stored frames; 0: the file's bound
+  double velocity_bound = 0;     // m/s for state velocities; 0: the file's velocity bound
+  uint32_t modes = 64;           // basis modes (codec 2)
+  uint32_t basis_frames = 3000;  // frames sampled evenly from all clips to build the basis
+  double coefficient_step_factor = 2.0;
+  uint32_t batch = 32;  // rows per transaction
+  bool always = false;  // replace every blob, even where the new encoding is larger
+  bool vacuum = true;   // give the freed pages back to the file system at the end
+  std::function<void(const std::string&)> progress;  // one line per step
+  // Called after each batch commits (tests end the process here to stand in for a kill).
+  std::function<void(uint64_t batches_committed)> after_batch;
+};
+
+struct RecodeReport {
+  int64_t basis_id = 0;  // 0: codec 1
+  uint32_t basis_modes = 0;
+  double basis_seconds = 0;
+  double sample_rms = 0, residual_rms = 0;  // m, of the basis's sample
+  uint64_t clips = 0, clips_replaced = 0, states = 0, states_replaced = 0;
+  uint64_t blob_bytes_before = 0, blob_bytes_after = 0;  // clip and state blobs
+  uint64_t raw_bytes = 0;                                // the same as float32
+  double max_error = 0;  // m, largest measured |new - stored| over every replaced clip coordinate
+  uint64_t file_bytes_before = 0, file_bytes_after = 0;
+  double seconds = 0;
+};
+
+// Throws ClothdbError (file problems) or std::exception. Blobs are replaced only when the new
+// encoding is smaller; each replaced clip's error_bound and max_error become the old ones plus the
+// new encoding's (the bound against the original simulation adds up, by the triangle inequality).
+RecodeReport recode_database(const std::string& path, const RecodeOptions& options);
+
+}  // namespace clothdb

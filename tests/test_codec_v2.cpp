@@ -1,0 +1,340 @@
+// Codec version 2 (issue 17): the subspace + residual format keeps the hard per-coordinate bound
+// on random and adversarial frames, refuses non-finite input, decodes exactly from any frame,
+// rejects damaged blobs and bases with clear errors; version 1 blobs made before version 2
+// existed still decode bit for bit.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <iterator>
+#include <limits>
+#include <random>
+#include <vector>
+
+#include "compress/subspace.hpp"
+#include "database/checksum.hpp"
+#include "database/codec.hpp"
+
+namespace clothdb::codec {
+namespace {
+
+// A waving sheet with a little high-frequency noise: most of it lies in a few modes.
+std::vector<float> waves(uint32_t frames, uint32_t side, double phase = 0) {
+  std::vector<float> x(size_t(frames) * side * side * 3);
+  for (uint32_t f = 0; f < frames; ++f)
+    for (uint32_t i = 0; i < side; ++i)
+      for (uint32_t j = 0; j < side; ++j) {
+        const double t = f / 30.0 + phase, u = double(i) / side, w = double(j) / side;
+        float* p = x.data() + (size_t(f) * side * side + size_t(i) * side + j) * 3;
+        p[0] = float(u + 0.05 * std::sin(3 * t + 4 * w) +
+                     0.0007 * std::sin(97.0 * (i * 31 + j * 7 + f)));
+        p[1] = float(1.5 - w + 0.2 * std::sin(2.1 * t + 6 * u) * w);
+        p[2] = float(0.2 * std::cos(1.7 * t + 5 * u + 3 * w) * w);
+      }
+  return x;
+}
+
+Basis basis_of(const std::vector<float>& frames, uint32_t vertices, uint32_t modes,
+               int64_t id = 7) {
+  const Subspace s = build_subspace(frames, vertices * 3, modes);
+  return make_basis(id, vertices, s.mean.data(), s.basis.data(), s.modes);
+}
+
+double max_error(const std::vector<float>& a, const std::vector<float>& b) {
+  double m = 0;
+  for (size_t i = 0; i < a.size(); ++i) m = std::max(m, std::fabs(double(a[i]) - double(b[i])));
+  return m;
+}
+
+std::vector<float> decode(const std::vector<uint8_t>& blob, const Basis& basis) {
+  DecodeScratch scratch;
+  std::vector<float> y;
+  Error err;
+  EXPECT_EQ(decode_all(blob.data(), blob.size(), y, scratch, &err, &basis), Status::Ok)
+      << err.message;
+  return y;
+}
+
+// Every coordinate of every frame, checked independently of the encoder's own verification.
+void expect_bound(const std::vector<float>& x, uint32_t frames, uint32_t vertices,
+                  const Basis& basis, const EncodeSettings& s, const SubspaceSettings& sub = {}) {
+  EncodeSettings no_verify = s;
+  no_verify.verify = false;  // the test checks, not the encoder
+  const auto blob = encode_v2(x.data(), frames, vertices, basis, no_verify, sub);
+  BlobInfo info;
+  Error err;
+  ASSERT_EQ(read_info(blob.data(), blob.size(), &info, &err), Status::Ok) << err.message;
+  EXPECT_EQ(info.version, kFormatVersionV2);
+  EXPECT_EQ(info.basis_id, basis.id);
+  const auto y = decode(blob, basis);
+  ASSERT_EQ(y.size(), x.size());
+  size_t over = 0;
+  for (size_t i = 0; i < x.size(); ++i)
+    over += !(std::fabs(double(y[i]) - double(x[i])) <= s.bound);
+  EXPECT_EQ(over, 0u) << "bound " << s.bound << ", K " << s.key_interval << ", max error "
+                      << max_error(x, y);
+}
+
+TEST(CodecV2, BoundHoldsOnSubspaceFramesForEverySetting) {
+  const uint32_t side = 10, V = side * side, F = 40;
+  const auto x = waves(F, side);
+  const Basis basis = basis_of(x, V, 12);
+  for (double bound : {1e-4, 5e-4, 2e-3, 1e-2})
+    for (uint32_t K : {1u, 4u, 0u})
+      for (int grid : {0, 1, 2}) {
+        EncodeSettings s;
+        s.bound = bound;
+        s.key_interval = K;
+        SubspaceSettings sub;
+        sub.grid_divisions = grid;
+        expect_bound(x, F, V, basis, s, sub);
+      }
+}
+
+TEST(CodecV2, BoundHoldsOnRandomFramesTheBasisKnowsNothingAbout) {
+  const uint32_t side = 8, V = side * side, F = 25;
+  const Basis basis = basis_of(waves(30, side), V, 8);
+  std::mt19937 rng(3);
+  for (double range : {0.01, 1.0, 50.0}) {
+    std::uniform_real_distribution<double> d(-range, range);
+    std::vector<float> x(size_t(F) * V * 3);
+    for (auto& v : x) v = float(d(rng));
+    for (double bound : {5e-4, 1e-3}) {
+      EncodeSettings s;
+      s.bound = bound;
+      expect_bound(x, F, V, basis, s);
+    }
+  }
+}
+
+TEST(CodecV2, BoundHoldsWithOutliersFarFromTheSubspace) {
+  const uint32_t side = 10, V = side * side, F = 30;
+  auto x = waves(F, side);
+  const Basis basis = basis_of(x, V, 10);
+  // Vertices thrown far off the garment in some frames (a solver blow-up, a pinned vertex torn
+  // off), single coordinates at the far end of the range, and a whole frame shifted by 3 m.
+  std::mt19937 rng(11);
+  for (int k = 0; k < 40; ++k) x[rng() % x.size()] += (k % 2 ? 1.f : -1.f) * float(0.5 + k * 0.1);
+  for (size_t i = 0; i < size_t(V) * 3; ++i) x[size_t(17) * V * 3 + i] += 3.0f;
+  for (double bound : {2.5e-4, 1e-3}) {
+    EncodeSettings s;
+    s.bound = bound;
+    s.key_interval = 4;
+    expect_bound(x, F, V, basis, s);
+  }
+}
+
+TEST(CodecV2, VelocitiesWithoutTheMeanKeepTheirBound) {
+  const uint32_t side = 9, V = side * side, F = 31;
+  const auto x = waves(F, side);
+  const Basis basis = basis_of(x, V, 10);
+  std::vector<float> v(size_t(F - 1) * V * 3);
+  for (size_t i = 0; i < v.size(); ++i) v[i] = (x[i + size_t(V) * 3] - x[i]) * 30.0f;
+  for (uint32_t f = 0; f < F - 1; ++f) {
+    EncodeSettings s;
+    s.bound = 0.001;  // 1 mm/s
+    SubspaceSettings sub;
+    sub.use_mean = false;
+    std::vector<float> one(v.begin() + ptrdiff_t(size_t(f) * V * 3),
+                           v.begin() + ptrdiff_t(size_t(f + 1) * V * 3));
+    expect_bound(one, 1, V, basis, s, sub);
+  }
+}
+
+TEST(CodecV2, SubspaceFramesCostLessThanVersion1) {
+  const uint32_t side = 16, V = side * side, F = 60;
+  const auto x = waves(F, side);
+  const Basis basis = basis_of(x, V, 16);
+  EncodeSettings s;
+  s.bound = 0.001;
+  const auto v1 = encode(x.data(), F, V, s);
+  const auto v2 = encode_v2(x.data(), F, V, basis, s);
+  EXPECT_LT(v2.size(), v1.size());
+}
+
+TEST(CodecV2, NonFiniteFramesAreRefusedAtEncode) {
+  const uint32_t side = 6, V = side * side, F = 5;
+  const auto good = waves(F, side);
+  const Basis basis = basis_of(good, V, 4);
+  EncodeSettings s;
+  for (float bad :
+       {std::numeric_limits<float>::quiet_NaN(), std::numeric_limits<float>::infinity(), -3e38f}) {
+    auto x = good;
+    x[size_t(2) * V * 3 + 13] = bad;
+    try {
+      encode_v2(x.data(), F, V, basis, s);
+      ADD_FAILURE() << "encoded a frame holding " << bad;
+    } catch (const ClothdbError& e) {
+      EXPECT_EQ(e.status(), Status::InvalidArgument);
+      EXPECT_NE(std::string(e.what()).find("frame 2"), std::string::npos) << e.what();
+    }
+  }
+  // A whole frame of NaN.
+  auto x = good;
+  std::fill(x.begin(), x.begin() + V * 3, std::numeric_limits<float>::quiet_NaN());
+  EXPECT_THROW(encode_v2(x.data(), F, V, basis, s), ClothdbError);
+}
+
+TEST(CodecV2, BasisMustFitTheFramesAndTheBlob) {
+  const uint32_t side = 6, V = side * side, F = 8;
+  const auto x = waves(F, side);
+  const Basis basis = basis_of(x, V, 4);
+  EncodeSettings s;
+  const Basis other = basis_of(waves(F, 5), 25, 4);
+  EXPECT_THROW(encode_v2(x.data(), F, V, other, s), ClothdbError);
+  SubspaceSettings too_many;
+  too_many.modes = basis.mode_count + 1;
+  EXPECT_THROW(encode_v2(x.data(), F, V, basis, s, too_many), ClothdbError);
+  Basis unstored = basis;
+  unstored.id = 0;
+  EXPECT_THROW(encode_v2(x.data(), F, V, unstored, s), ClothdbError);
+
+  const auto blob = encode_v2(x.data(), F, V, basis, s);
+  DecodeScratch scratch;
+  std::vector<float> y;
+  Error err;
+  EXPECT_EQ(decode_all(blob.data(), blob.size(), y, scratch, &err), Status::NotFound);
+  EXPECT_NE(std::string(err.message).find("basis 7"), std::string::npos) << err.message;
+  Basis renamed = basis;
+  renamed.id = 8;
+  EXPECT_EQ(decode_all(blob.data(), blob.size(), y, scratch, &err, &renamed), Status::NotFound);
+  Basis other_id7 = other;
+  other_id7.id = 7;
+  EXPECT_EQ(decode_all(blob.data(), blob.size(), y, scratch, &err, &other_id7), Status::Corrupt);
+}
+
+TEST(CodecV2, RandomAccessDecodesTheSameValuesAsAFullDecode) {
+  const uint32_t side = 10, V = side * side, F = 23;
+  const auto x = waves(F, side);
+  const Basis basis = basis_of(x, V, 8);
+  for (uint32_t K : {1u, 4u, 0u}) {
+    EncodeSettings s;
+    s.key_interval = K;
+    s.bound = 0.0005;
+    const auto blob = encode_v2(x.data(), F, V, basis, s);
+    const auto all = decode(blob, basis);
+    DecodeScratch scratch;
+    std::vector<float> one(size_t(V) * 3);
+    for (uint32_t f = 0; f < F; ++f) {
+      ASSERT_EQ(decode_frames(blob.data(), blob.size(), f, 1, one.data(), one.size(), scratch,
+                              nullptr, &basis),
+                Status::Ok);
+      EXPECT_TRUE(std::equal(one.begin(), one.end(), all.begin() + ptrdiff_t(size_t(f) * V * 3)))
+          << "frame " << f << ", K " << K;
+      EXPECT_LE(scratch.frames_reconstructed(), uint64_t(K ? K : F));
+    }
+    std::vector<float> range(size_t(7) * V * 3);
+    ASSERT_EQ(decode_frames(blob.data(), blob.size(), 9, 7, range.data(), range.size(), scratch,
+                            nullptr, &basis),
+              Status::Ok);
+    EXPECT_TRUE(std::equal(range.begin(), range.end(), all.begin() + ptrdiff_t(size_t(9) * V * 3)));
+    EXPECT_EQ(decode_frames(blob.data(), blob.size(), F, 1, one.data(), one.size(), scratch,
+                            nullptr, &basis),
+              Status::InvalidArgument);
+    EXPECT_EQ(decode_frames(blob.data(), blob.size(), 0, 2, one.data(), one.size(), scratch,
+                            nullptr, &basis),
+              Status::OutputTooSmall);
+  }
+}
+
+TEST(CodecV2, DamagedBlobsFailWithAStatusNeverACrash) {
+  const uint32_t side = 7, V = side * side, F = 9;
+  const auto x = waves(F, side);
+  const Basis basis = basis_of(x, V, 6);
+  EncodeSettings s;
+  s.key_interval = 4;
+  const auto blob = encode_v2(x.data(), F, V, basis, s);
+  DecodeScratch scratch;
+  std::vector<float> y;
+  Error err;
+  // Every single-byte change is caught by a checksum or a field check.
+  for (size_t i = 0; i < blob.size(); ++i) {
+    auto b = blob;
+    b[i] ^= 0x5a;
+    EXPECT_NE(decode_all(b.data(), b.size(), y, scratch, &err, &basis), Status::Ok) << "byte " << i;
+    EXPECT_NE(err.message[0], '\0');
+  }
+  for (size_t cut : {size_t(0), size_t(5), size_t(50), size_t(111), blob.size() - 1}) {
+    std::vector<uint8_t> b(blob.begin(), blob.begin() + ptrdiff_t(cut));
+    const Status st = decode_all(b.data(), b.size(), y, scratch, &err, &basis);
+    EXPECT_TRUE(st == Status::Truncated || st == Status::NotClothdb) << cut << ": " << err.message;
+  }
+  auto longer = blob;
+  longer.push_back(0);
+  EXPECT_EQ(decode_all(longer.data(), longer.size(), y, scratch, &err, &basis), Status::Corrupt);
+  // Past the checksums (resealed): random damage must still give a status or in-range values.
+  std::mt19937 rng(5);
+  for (int trial = 0; trial < 300; ++trial) {
+    auto b = blob;
+    for (int k = 0; k < 3; ++k) b[rng() % b.size()] = uint8_t(rng());
+    detail::reseal(b.data(), b.size());
+    BlobInfo info;
+    if (read_info(b.data(), b.size(), &info, &err) != Status::Ok) continue;
+    if (decode_all(b.data(), b.size(), y, scratch, &err, &basis) != Status::Ok) continue;
+    for (size_t i = 0; i < y.size(); ++i) {
+      const double lo = info.origin[i % 3], hi = lo + info.qmax[i % 3] * info.step;
+      ASSERT_TRUE(std::isfinite(y[i]) && y[i] >= float(lo) - 1e-6f && y[i] <= float(hi) + 1e-6f);
+    }
+  }
+}
+
+TEST(CodecV2, BasisRoundTripsAndRejectsDamage) {
+  const uint32_t side = 5, V = side * side;
+  const Basis basis = basis_of(waves(20, side), V, 5, 3);
+  const auto data = serialize_basis(basis);
+  Basis back;
+  Error err;
+  ASSERT_EQ(parse_basis(data.data(), data.size(), 3, &back, &err), Status::Ok) << err.message;
+  EXPECT_EQ(back.mean, basis.mean);
+  EXPECT_EQ(back.modes, basis.modes);  // the exact floats both sides multiply by
+  EXPECT_EQ(back.scale, basis.scale);
+  auto bad = data;
+  bad[100] ^= 1;
+  EXPECT_EQ(parse_basis(bad.data(), bad.size(), 3, &back, &err), Status::ChecksumMismatch);
+  EXPECT_EQ(parse_basis(data.data(), data.size() - 1, 3, &back, &err), Status::Truncated);
+  EXPECT_EQ(parse_basis(data.data(), 3, 3, &back, &err), Status::NotClothdb);
+  // A header asking for a huge basis is refused before anything is allocated.
+  auto huge = data;
+  huge[12] = 0xff;
+  huge[13] = 0xff;
+  EXPECT_EQ(parse_basis(huge.data(), huge.size(), 3, &back, &err), Status::Corrupt);
+  std::vector<float> nan_mode(size_t(V) * 3, std::numeric_limits<float>::quiet_NaN());
+  EXPECT_THROW(make_basis(1, V, basis.mean.data(), nan_mode.data(), 1), ClothdbError);
+}
+
+// tests/data/codec_v1_waves.blob was written by the codec as it was before version 2 existed
+// (commit 5bc4d0a): the same frames, and the XXH64 of what that build decoded.
+TEST(CodecV2, Version1BlobsStillDecodeBitForBit) {
+  std::ifstream in(std::string(CLOTHDB_SOURCE_DIR) + "/tests/data/codec_v1_waves.blob",
+                   std::ios::binary);
+  ASSERT_TRUE(in);
+  const std::vector<uint8_t> blob((std::istreambuf_iterator<char>(in)),
+                                  std::istreambuf_iterator<char>());
+  ASSERT_EQ(blob.size(), 8513u);
+  DecodeScratch scratch;
+  std::vector<float> y;
+  Error err;
+  ASSERT_EQ(decode_all(blob.data(), blob.size(), y, scratch, &err), Status::Ok) << err.message;
+  EXPECT_EQ(xxh64(y.data(), y.size() * sizeof(float)), 0x331576f70e599e1dull);
+  // The version 1 encoder is unchanged too: the same frames give the same bytes.
+  const uint32_t side = 12, frames = 37;
+  std::vector<float> x(size_t(frames) * side * side * 3);
+  for (uint32_t f = 0; f < frames; ++f)
+    for (uint32_t i = 0; i < side; ++i)
+      for (uint32_t j = 0; j < side; ++j) {
+        const double t = f / 30.0, u = double(i) / side, w = double(j) / side;
+        float* p = x.data() + (size_t(f) * side * side + size_t(i) * side + j) * 3;
+        p[0] = float(u + 0.05 * std::sin(3 * t + 4 * w) +
+                     0.001 * std::sin(97.0 * (i * 31 + j * 7 + f)));
+        p[1] = float(1.5 - w + 0.2 * std::sin(2.1 * t + 6 * u) * w);
+        p[2] = float(0.2 * std::cos(1.7 * t + 5 * u + 3 * w) * w);
+      }
+  ASSERT_EQ(xxh64(x.data(), x.size() * sizeof(float)), 0xc9e88ae8af3c468dull);
+  EncodeSettings s;
+  s.bound = 0.0005;
+  EXPECT_EQ(encode(x.data(), frames, side * side, s), blob);
+}
+
+}  // namespace
+}  // namespace clothdb::codec
