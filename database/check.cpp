@@ -186,7 +186,7 @@ void check_garment(sqlite3* db, CheckReport& report) {
 void check_graph(Reader& reader, CheckReport& report) {
   std::vector<PrimaryClip> pcs;
   std::vector<PrimaryTransition> transitions;
-  std::vector<ClothState> states;
+  std::vector<StoredState> states;
   std::vector<ClothClip> clips;
   std::vector<ClothEdge> edges;
   Error err;
@@ -246,7 +246,7 @@ void check_graph(Reader& reader, CheckReport& report) {
                          (long long)pcs[size_t(a)].id, (long long)pcs[size_t(b)].id));
   }
   std::map<int64_t, int> state_node;  // state id -> node
-  for (const ClothState& s : states) {
+  for (const StoredState& s : states) {
     auto p = primary.find(s.primary_clip);
     if (p != primary.end()) state_node[s.id] = src(p->second);
   }
@@ -309,7 +309,7 @@ void check_graph(Reader& reader, CheckReport& report) {
   }
   {
     Findings f(&report.warnings, "unexplored");
-    for (const ClothState& s : states) {
+    for (const StoredState& s : states) {
       auto n = state_node.find(s.id);
       if (n == state_node.end()) continue;
       for (int b : out_of[n->second])

@@ -14,8 +14,6 @@ namespace {
 
 // Limits: far beyond any useful setting, near enough that a typo (2^40 sub-steps, 1e5 threads)
 // is refused before it allocates or spawns anything.
-constexpr int kMaxSubsteps = 1000000;  // explicit mass-spring may need 10^5 (bench solvers)
-constexpr int kMaxIterations = 10000;
 constexpr int kMaxThreads = 1024;
 constexpr int kMaxHalvings = 30;
 

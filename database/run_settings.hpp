@@ -32,6 +32,12 @@ enum class LinearSolverKind { SimplicialLDLT, Cholmod, ConjugateGradient, Conjug
 const char* linear_solver_name(LinearSolverKind kind);  // "ldlt", "cholmod", "pcg", "pcg-ic"
 LinearSolverKind parse_linear_solver_kind(const std::string& name);
 
+// Sub-steps and iterations per frame above this are refused: well past what any solver asks
+// (explicit mass-spring's stability limit goes up to 200,000 sub-steps in `bench solvers`), far
+// below where an int wraps.
+constexpr int kMaxSubsteps = 1000000;
+constexpr int kMaxIterations = 10000;
+
 struct SolverSettings {
   int substeps = 1;     // sub-steps per step (all solvers)
   int iterations = 10;  // constraint iterations per sub-step (PBD, XPBD)

@@ -82,7 +82,9 @@ void expect_same_solver(SolverKind ka, const SolverSettings& a, SolverKind kb,
   EXPECT_EQ(a.newton_reuse_contraction, b.newton_reuse_contraction);
   EXPECT_EQ(a.newton_exact_hessian, b.newton_exact_hessian);
   EXPECT_EQ(a.linear_solver, b.linear_solver);
-  if (threads) EXPECT_EQ(a.threads, b.threads);
+  if (threads) {
+    EXPECT_EQ(a.threads, b.threads);
+  }
   EXPECT_EQ(a.tethers, b.tethers);
   EXPECT_EQ(a.newton_velocity_tolerance, b.newton_velocity_tolerance);
   EXPECT_EQ(a.newton_accept_decrease, b.newton_accept_decrease);

@@ -64,7 +64,7 @@ Contents read_all(const std::string& path) {
   EXPECT_EQ(r.open(path, &err), db::Status::Ok) << err.message;
   Contents c;
   std::vector<db::ClothClip> clips;
-  std::vector<db::ClothState> states;
+  std::vector<db::StoredState> states;
   r.cloth_clips(&clips, &err);
   r.cloth_states(&states, &err);
   codec::DecodeScratch scratch;

@@ -60,7 +60,7 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
   const uint32_t V = garment.vertex_count();
   const size_t n = size_t(V) * 3;
   std::vector<db::ClothClip> clips;
-  std::vector<db::ClothState> states;
+  std::vector<db::StoredState> states;
   check(reader.cloth_clips(&clips, &err), err);
   check(reader.cloth_states(&states, &err), err);
   report.clips = clips.size();
@@ -143,7 +143,7 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
           report.blob_bytes_after += blob.size();
         }
       } else {
-        const db::ClothState& s = states[r - clips.size()];
+        const db::StoredState& s = states[r - clips.size()];
         check(reader.state_blobs(s.id, &pos_blob, &vel_blob, &err), err);
         check(reader.decode_all(pos_blob, &x, scratch, &err), err);
         check(reader.decode_all(vel_blob, &v, scratch, &err), err);

@@ -15,7 +15,9 @@ static_assert(std::endian::native == std::endian::little, "the wire format is li
 // solver and codec settings travel as their one serialiser's JSON (database/run_settings.hpp), so
 // a new solver option needs nothing here.
 #if defined(__x86_64__) && defined(__GLIBCXX__)
-static_assert(sizeof(JobInput) == 168, "JobInput changed: update encode_job/decode_job");
+// (The settings inside JobInput travel as JSON: their own size does not matter here.)
+static_assert(sizeof(JobInput) - sizeof(SolverSettings) - sizeof(db::CodecSettings) == 64,
+              "JobInput changed: update encode_job/decode_job");
 static_assert(sizeof(ClipQuality) == 40, "ClipQuality changed: update encode_result/decode_result");
 static_assert(sizeof(JobResult) == 200, "JobResult changed: update encode_result/decode_result");
 static_assert(sizeof(WorkerHello) == 64, "WorkerHello changed: update encode_hello/decode_hello");

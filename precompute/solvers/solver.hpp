@@ -50,14 +50,8 @@ class Solver {
 // Largest OpenMP thread count a solver accepts: four per hardware thread, at most 1024. OpenMP
 // crashes asked for 100,000 threads, and a few thousand make a 5-frame run take minutes.
 int max_solver_threads();
-// Sub-steps and iterations per frame above this are refused: well past what any solver asks
-// (explicit mass-spring's stability limit goes up to 200,000 sub-steps in `bench solvers`), far
-// below where an int wraps.
-constexpr int kMaxSubsteps = 1000000;
-constexpr int kMaxIterations = 10000;
-// Throws std::invalid_argument naming the setting and the allowed range when `settings` cannot be
-// run (threads, sub-steps, iterations, Newton tolerance). `prefix` names where they came from.
-void validate_solver_settings(const SolverSettings& settings, const std::string& prefix = "");
+// validate_solver_settings (database/run_settings.hpp) checks every field of the record; make_solver
+// also refuses more threads than max_solver_threads().
 
 std::unique_ptr<Solver> make_solver(SolverKind kind, const ClothModel& model,
                                     const SolverSettings& settings);
