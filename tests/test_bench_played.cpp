@@ -96,8 +96,11 @@ TEST(BenchPlayed, WithinTheCodecBoundUntilTheFirstLinkAndTheBlendsAfter) {
     any_link = any_link || f.linked;
     EXPECT_FALSE(f.fallback) << "a converged database needs no fallback";
     if (!any_link) {
-      // The same simulation, stored: only the codec stands between them.
-      EXPECT_LE(f.max_mm, 1e3 * codec * 1.01) << "frame at " << f.time << " s";
+      // The same simulation, stored: only the codec stands between them. At frame 0 twice: the
+      // clip's first frame re-encodes the stored (already quantised) start state, while the
+      // simulation starts from that state with its pins put back exactly on the bones.
+      const double bound = f.time == 0 ? 2 * codec : codec;
+      EXPECT_LE(f.max_mm, 1e3 * bound * 1.01) << "frame at " << f.time << " s";
       ++before_link;
     } else {
       // Each turn of the loop restarts the played cloth from the rest state while the simulation
@@ -115,11 +118,14 @@ TEST(BenchPlayed, WithinTheCodecBoundUntilTheFirstLinkAndTheBlendsAfter) {
 }
 
 TEST(BenchPlayed, TighterEpsilonPlaysCloserToSimulation) {
+  // Contractive: the skirt, settled for only 10 frames, goes on sagging toward its equilibrium
+  // while the character holds still (chaos floor about 0.02 mm). Swaying, the same skirt is
+  // chaotic and both databases play about 43 mm from simulation: epsilon cannot show there.
   const CharacterScene scene = small_scene();
-  const std::string loose = build_db(scene, "loose", 0.03, 2500);
-  const std::string tight = build_db(scene, "tight", 0.002, 2500);
-  const PlayedReport a = play(scene, loose, 3, 8.0);
-  const PlayedReport b = play(scene, tight, 3, 8.0);
+  const std::string loose = build_db(scene, "loose", 0.03, 2500, true);
+  const std::string tight = build_db(scene, "tight", 0.002, 2500, true);
+  const PlayedReport a = play(scene, loose, 1, 8.0, true);
+  const PlayedReport b = play(scene, tight, 1, 8.0, true);
   EXPECT_LT(b.played_rms_mm_p95, a.played_rms_mm_p95)
       << "epsilon 2 mm: p95 " << b.played_rms_mm_p95 << " mm; 30 mm: " << a.played_rms_mm_p95;
   EXPECT_LT(b.played_rms_mm_p50, a.played_rms_mm_p50);

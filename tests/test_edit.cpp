@@ -480,7 +480,7 @@ TEST(Edit, DeleteReroutesTheEdgesIntoItsStartStateAndEveryPathStillPlays) {
   EXPECT_EQ(rows(path), before);
 }
 
-TEST(Edit, AVersion2FileIsMigratedWithItsEditLogAndItsOldEditsStillUndo) {
+TEST(Edit, AVersion2FileIsMigratedWithItsEditLogAndItsOldEditsAreKeptNotUndone) {
   const std::string path = copy_db("v2");
   const int64_t clip = long_clip(path);
   {
@@ -514,11 +514,20 @@ TEST(Edit, AVersion2FileIsMigratedWithItsEditLogAndItsOldEditsStillUndo) {
   ASSERT_EQ(log.size(), 1u);
   EXPECT_EQ(log[0].description, "flagged by a v2 tool");
   EXPECT_FALSE(log[0].has_changeset);
-  const db::EditLogEntry undone = w.undo_last("test");
-  EXPECT_EQ(undone.id, log[0].id);
+  // Edits logged without a changeset (by builds before schema 3) are kept in the log, but the
+  // column-based undo that restored them is gone (issue 13): undo refuses, naming the edit, and
+  // changes nothing.
+  try {
+    w.undo_last("test");
+    ADD_FAILURE() << "an edit without a changeset was undone";
+  } catch (const ClothdbError& e) {
+    EXPECT_NE(std::string(e.what()).find("without a changeset"), std::string::npos) << e.what();
+  }
   db::ClothClip row;
   ASSERT_EQ(r.cloth_clip(clip, &row, &err), db::Status::Ok);
-  EXPECT_EQ(row.status, db::ClipStatus::Ok);
+  EXPECT_EQ(row.status, db::ClipStatus::Flagged);
+  ASSERT_EQ(r.edit_log(&log, &err), db::Status::Ok);
+  EXPECT_EQ(log.size(), 1u);
   EXPECT_TRUE(db::check_database(path).ok());
 }
 
