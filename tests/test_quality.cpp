@@ -188,6 +188,8 @@ CharacterScene small_scene() {
   file.settings.substeps = 6;
   file.settings.iterations = 1;
   file.settings.tethers = false;
+  file.settings.stretch_iterations = 0;  // as in explore_fixture.hpp
+  file.settings.strain_limit = 0.0;
   file.air_drag = 3.0;
   return build_character_scene(file);
 }
