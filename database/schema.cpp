@@ -281,7 +281,7 @@ Status recognise(sqlite3* db, const std::string& path, int* version, CodecSettin
     // Version keys must be versions this build knows: a newer one is refused like a newer
     // schema, anything else (text, negative) as damage.
     const int known = key == "format_version"         ? kSchemaVersion
-                      : key == "codec.format_version" ? int(codec::kFormatVersion)
+                      : key == "codec.format_version" ? int(codec::kFormatVersionV2)
                                                       : 0;
     if (known > 0) {
       const std::string value = m.text(1);

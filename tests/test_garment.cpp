@@ -395,9 +395,10 @@ TEST(Garment, FastLimbsOnBoxingDoNotTunnel) {
   options.collider_motions = {ColliderMotion::Interpolated, ColliderMotion::Swept};
   const auto one_step = run_character_bench(file, options);
   ASSERT_EQ(one_step.size(), 2u);
-  EXPECT_GT(one_step[0].tunnelled, 0)
-      << "one projection per frame: expected vertices through a limb";
-  EXPECT_GT(one_step[0].deepest_path, 0.5);
+  // One projection per frame let vertices through a limb before issue 15; its collision pass
+  // (contacts resolved per vertex, also before the strain limit) no longer does on this clip, so
+  // only the swept motion's guarantee is asserted here (the limb speed above shows the case is
+  // still hard). `clothdb bench character motions/cape_boxing.json` reports both.
   EXPECT_EQ(one_step[1].tunnelled, 0) << "swept";
   options.substeps = {0};  // the scene's 15
   options.collider_motions = {ColliderMotion::Interpolated};

@@ -155,7 +155,7 @@ TEST(HostileInputs, ThreadCountsAreCapped) {
   expect_refused({"simulate", scene, "--out", out, "--threads", "100000"}, {"--threads", "100000"});
   expect_refused(
       {"simulate", scene_with("threads_scene", R"(, "solver": {"threads": 100000})"), "--out", out},
-      {"solver.threads: expected an integer in [1, ", "got 100000"});
+      {"threads_scene.json: solver.threads: must be an integer in [1, ", "(got 100000)"});
   fs::remove(work_dir() / "threads_ok.json");
   fs::remove(work_dir() / "threads_scene.json");
 }
@@ -164,8 +164,8 @@ TEST(HostileInputs, SceneIntegersDoNotWrap) {
   const std::string out = (work_dir() / "sim_out").string();
   expect_refused({"simulate", scene_with("substeps", R"(, "solver": {"substeps": 1099511627776})"),
                   "--out", out},
-                 {"substeps.json: solver.substeps: expected an integer in [1, 1000000], got "
-                  "1099511627776"});
+                 {"substeps.json: solver.substeps: must be an integer in [1, 1000000] (got "
+                  "1099511627776)"});
   expect_refused(
       {"simulate", scene_with("settle", R"(, "settle_frames": 10000000000)"), "--out", out},
       {"settle_frames: expected an integer in [0, 100000], got 10000000000"});
@@ -174,7 +174,7 @@ TEST(HostileInputs, SceneIntegersDoNotWrap) {
       {"settle_frames: expected an integer in [0, 100000]"});
   expect_refused({"simulate", scene_with("negative", R"(, "solver": {"iterations": -4294967295})"),
                   "--out", out},
-                 {"solver.iterations: expected an integer in [1, 10000]"});
+                 {"solver.iterations: must be an integer in [1, 10000]"});
   for (const char* f : {"substeps", "settle", "settle_float", "negative"})
     fs::remove(work_dir() / (std::string(f) + ".json"));
 }

@@ -9,7 +9,7 @@ SolverCandidate candidate(SolverKind kind, int substeps, int iterations, double 
                           LinearSolverKind linear) {
   SolverCandidate c{kind, SolverSettings{}, ""};
   c.settings.substeps = substeps;
-  c.settings.iterations = iterations;
+  c.settings.iterations = std::max(1, iterations);  // unused by mass-spring and Newton; the record needs >= 1
   c.settings.newton_tolerance = tolerance;
   c.settings.linear_solver = linear;
   char buf[96] = "";
