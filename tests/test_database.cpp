@@ -699,8 +699,8 @@ TEST(DatabaseCheck, UnknownMetaVersions) {
   for (const char* v : {"4", "abc", "-1", ""})
     expect_refused("UPDATE meta SET value = '" + std::string(v) + "' WHERE key = 'format_version';",
                    "meta format_version is", "meta format_version is");
-  expect_refused("UPDATE meta SET value = '2' WHERE key = 'codec.format_version';",
-                 "meta codec.format_version is 2, newer than this build reads",
+  expect_refused("UPDATE meta SET value = '3' WHERE key = 'codec.format_version';",
+                 "meta codec.format_version is 3, newer than this build reads",
                  "codec.format_version");
 }
 
