@@ -15,6 +15,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "character_scene/character_space.hpp"
 #include "clothrt.h"
 #include "database/cloth_graph.hpp"
 #include "report/svg_plot.hpp"
@@ -91,16 +92,6 @@ Walk random_walk(const CharacterScene& scene, const ExploreGraph& graph, int sta
     }
   }
   return w;
-}
-
-Eigen::Matrix3Xd to_world(const std::vector<float>& local, const Eigen::Isometry3d& frame,
-                          bool vectors) {
-  Eigen::Matrix3Xd x(3, static_cast<Eigen::Index>(local.size() / 3));
-  for (Eigen::Index i = 0; i < x.cols(); ++i) {
-    const Vec3 p(local[3 * i], local[3 * i + 1], local[3 * i + 2]);
-    x.col(i) = vectors ? Vec3(frame.linear() * p) : Vec3(frame * p);
-  }
-  return x;
 }
 
 // The walk simulated continuously from `start` (world), in character space per frame.
@@ -249,8 +240,8 @@ PlayedReport bench_played(const std::string& db_path, const CharacterScene& scen
       if (reader.read_state(info.cloth_state, &x, &v, scratch, &err) != db::Status::Ok)
         throw std::runtime_error(err.message);
       const Eigen::Isometry3d f0 = character_frame(scene, w.poses.front());
-      starts[p].x = to_world(x, f0, false);
-      starts[p].v = to_world(v, f0, true);
+      starts[p].x = from_character_space(x, f0, false);
+      starts[p].v = from_character_space(v, f0, true);
       const Eigen::Matrix3Xd pins = skin_pins(scene.garment, scene.bind, w.poses.front());
       for (size_t k = 0; k < scene.garment.pins.size(); ++k)
         starts[p].x.col(scene.garment.pins[k]) = pins.col(static_cast<Eigen::Index>(k));

@@ -14,6 +14,7 @@
 #include <set>
 #include <sstream>
 
+#include "character_scene/character_space.hpp"
 #include "database/checksum.hpp"
 #include "database/codec.hpp"
 #include "explore/auto_solver.hpp"
@@ -47,27 +48,6 @@ std::vector<float> roundtrip(const std::vector<float>& values, double bound) {
   if (codec::decode_all(blob.data(), blob.size(), out, scratch, &err) != db::Status::Ok)
     throw std::runtime_error(std::string("codec round trip failed: ") + err.message);
   return out;
-}
-
-std::vector<float> to_local(const Eigen::Matrix3Xd& x, const Eigen::Isometry3d& frame,
-                            bool vectors) {
-  std::vector<float> out(static_cast<size_t>(x.cols()) * 3);
-  const Eigen::Isometry3d inv = frame.inverse();
-  for (Eigen::Index i = 0; i < x.cols(); ++i) {
-    const Vec3 p = vectors ? Vec3(inv.linear() * x.col(i)) : Vec3(inv * Vec3(x.col(i)));
-    for (int k = 0; k < 3; ++k) out[3 * i + k] = static_cast<float>(p[k]);
-  }
-  return out;
-}
-
-Eigen::Matrix3Xd to_world(const std::vector<float>& local, const Eigen::Isometry3d& frame,
-                          bool vectors) {
-  Eigen::Matrix3Xd x(3, static_cast<Eigen::Index>(local.size() / 3));
-  for (Eigen::Index i = 0; i < x.cols(); ++i) {
-    const Vec3 p(local[3 * i], local[3 * i + 1], local[3 * i + 2]);
-    x.col(i) = vectors ? Vec3(frame.linear() * p) : Vec3(frame * p);
-  }
-  return x;
 }
 
 struct StateRec {
@@ -258,8 +238,8 @@ JobResult run_job(const CharacterScene& scene, const ExploreGraph& graph, const 
   auto solver = make_solver(input.solver, scene.model, input.settings);
   const Eigen::Isometry3d frame0 = character_frame(scene, edge.poses.front());
   ClothState state;
-  state.x = to_world(input.x, frame0, false);
-  state.v = to_world(input.v, frame0, true);
+  state.x = from_character_space(input.x, frame0, false);
+  state.v = from_character_space(input.v, frame0, true);
   // Pins exactly on their bones (the stored state is within the codec bound of them).
   const Eigen::Matrix3Xd pins = skin_pins(scene.garment, scene.bind, edge.poses.front());
   for (size_t k = 0; k < scene.garment.pins.size(); ++k)
@@ -277,14 +257,14 @@ JobResult run_job(const CharacterScene& scene, const ExploreGraph& graph, const 
   frames.insert(frames.end(), input.x.begin(), input.x.end());
   for (size_t f = 0; f < run.frames.size(); ++f) {
     const std::vector<float> local =
-        to_local(run.frames[f], character_frame(scene, edge.poses[f + 1]), false);
+        to_character_space(run.frames[f], character_frame(scene, edge.poses[f + 1]), false);
     frames.insert(frames.end(), local.begin(), local.end());
   }
   r.vertex_count = static_cast<uint32_t>(per_frame / 3);
   r.frame_count = static_cast<uint32_t>(frames.size() / per_frame);
   const std::vector<float> end_x(frames.end() - static_cast<long>(per_frame), frames.end());
   const std::vector<float> end_v =
-      to_local(state.v, character_frame(scene, edge.poses.back()), true);
+      to_character_space(state.v, character_frame(scene, edge.poses.back()), true);
   // On a worker thread an exception would end the process: a clip that cannot be measured or
   // encoded (e.g. non-finite coordinates) is reported and left as a dead end, like an unstable one.
   try {
@@ -447,7 +427,7 @@ void prepare_database(db::Writer& writer, const CharacterScene& scene, ExploreGr
   for (const auto& t : scene.model.mesh.triangles)
     for (int k = 0; k < 3; ++k) g.triangles.push_back(static_cast<uint32_t>(t[k]));
   const std::vector<float> rest =
-      to_local(scene.model.mesh.rest, Eigen::Isometry3d::Identity(), false);
+      to_character_space(scene.model.mesh.rest, Eigen::Isometry3d::Identity(), false);
   g.rest_positions = rest;
   const Material& m = scene.file.material;
   char mat[256];
@@ -566,8 +546,8 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
     const Eigen::Isometry3d frame = character_frame(scene, first.poses.front());
     // The writer stores encode(raw); keeping roundtrip(raw) in memory is exactly what a resumed
     // run decodes (re-encoding an already decoded state could round differently).
-    const std::vector<float> raw_x = to_local(rest.x, frame, false),
-                             raw_v = to_local(rest.v, frame, true);
+    const std::vector<float> raw_x = to_character_space(rest.x, frame, false),
+                             raw_v = to_character_space(rest.v, frame, true);
     StateRec rec;
     rec.node = graph.start_node;
     rec.x = roundtrip(raw_x, pos_bound);
