@@ -32,6 +32,7 @@ struct ClipTable {
   std::map<int64_t, std::string> primary_name;
   std::map<int64_t, std::vector<db::ClothEdge>> edges_from;  // clip id -> its out edges
   std::vector<db::StoredState> states;
+  std::map<int64_t, db::ClipSteering> steering;  // clip id -> how its end was steered (issue 16)
 };
 
 ClipTable read_table(db::Reader& reader) {
@@ -45,6 +46,10 @@ ClipTable read_table(db::Reader& reader) {
       reader.cloth_edges(&edges, &err) != db::Status::Ok ||
       reader.cloth_states(&t.states, &err) != db::Status::Ok)
     throw std::runtime_error(err.message);
+  std::vector<db::ClipSteering> steering;
+  if (reader.clip_steering(&steering, &err) != db::Status::Ok)
+    throw std::runtime_error(err.message);
+  for (const auto& st : steering) t.steering[st.clip] = st;
   for (const auto& p : primary) t.primary_name[p.id] = p.name;
   for (const auto& e : edges) t.edges_from[e.from_clip].push_back(e);
   return t;
@@ -82,6 +87,12 @@ const Metric kMetrics[] = {
      }},
     {"pop", "worst_pop_mm", 1e3,
      [](const ClipTable& t, const db::ClothClip& c) { return worst_pop(t, c.id); }},
+    // The largest displacement steering gave a vertex in one frame (0: not steered).
+    {"steering", "steering_mm", 1e3,
+     [](const ClipTable& t, const db::ClothClip& c) {
+       auto it = t.steering.find(c.id);
+       return it == t.steering.end() ? 0.0 : it->second.displacement;
+     }},
 };
 
 const Metric& find_metric(const std::string& name) {
@@ -147,19 +158,22 @@ void list_clips(const std::string& path, int worst, const std::string& by, bool 
   }
   std::printf("%zu of %zu clips in %s, worst %s first (? = not measured)\n", order.size(),
               t.clips.size(), path.c_str(), metric.name);
-  std::printf("%6s  %-34s %6s  %-7s %8s %8s %8s %8s %6s %8s %6s\n", "id", "primary clip", "frames",
-              "status", "strain%", "pen mm", "mpen mm", "jit mm", "halved", "pop mm", "worst");
+  std::printf("%6s  %-34s %6s  %-7s %8s %8s %8s %8s %6s %8s %8s %6s\n", "id", "primary clip",
+              "frames", "status", "strain%", "pen mm", "mpen mm", "jit mm", "halved", "pop mm",
+              "steer mm", "worst");
   for (const db::ClothClip* c : order) {
     std::string name =
         t.primary_name.count(c->primary_clip) ? t.primary_name.at(c->primary_clip) : "?";
     if (name.size() > 34) name = name.substr(0, 31) + "...";
     std::printf(
-        "%6lld  %-34s %6d  %-7s %8s %8s %8s %8s %6s %8s %6s\n", (long long)c->id, name.c_str(),
+        "%6lld  %-34s %6d  %-7s %8s %8s %8s %8s %6s %8s %8s %6s\n", (long long)c->id, name.c_str(),
         c->frame_count, db::clip_status_name(c->status), cell(100 * c->max_strain, "%.2f").c_str(),
         cell(1e3 * c->max_penetration, "%.2f").c_str(),
         cell(1e3 * c->mean_penetration, "%.2f").c_str(), cell(1e3 * c->jitter, "%.3f").c_str(),
         c->halved_steps < 0 ? "?" : std::to_string(c->halved_steps).c_str(),
         cell(1e3 * worst_pop(t, c->id), "%.2f").c_str(),
+        t.steering.count(c->id) ? cell(1e3 * t.steering.at(c->id).displacement, "%.2f").c_str()
+                                : "-",
         c->worst_frame < 0 ? "?" : std::to_string(c->worst_frame).c_str());
   }
 }
@@ -398,7 +412,8 @@ void register_clip_quality_commands(CLI::App& app) {
       ->capture_default_str()
       ->check(non_negative_number());
   list->add_option("--by", la->by,
-                   "strain | penetration | mean-penetration | jitter | halved | pop")
+                   "strain | penetration | mean-penetration | jitter | halved | pop | steering "
+                   "(the largest pull steering gave a vertex in one frame; 0: not steered)")
       ->capture_default_str();
   list->add_flag("--json", la->json, "Print JSON (lengths in mm, strain in %; null: not measured)");
   list->callback([la] { list_clips(la->file, la->worst, la->by, la->json); });

@@ -12,6 +12,27 @@ namespace clothdb::cli {
 
 namespace {
 
+// Primary clips by how many cloth clips run along them, in power-of-two buckets, with a bar: a
+// run that spent its budget going round one loop shows a few edges in the top bucket.
+void print_clips_per_edge(const std::vector<uint64_t>& per_edge) {
+  uint64_t edges = 0, most = 0;
+  for (uint64_t n : per_edge) edges += n;
+  std::vector<std::pair<std::string, uint64_t>> buckets;
+  for (size_t lo = 0; lo < per_edge.size(); lo = lo == 0 ? 1 : 2 * lo) {
+    const size_t hi = lo == 0 ? 0 : std::min(per_edge.size() - 1, 2 * lo - 1);
+    uint64_t n = 0;
+    for (size_t k = lo; k <= hi; ++k) n += per_edge[k];
+    buckets.push_back(
+        {lo == hi ? std::to_string(lo) : std::to_string(lo) + "-" + std::to_string(hi), n});
+    most = std::max(most, n);
+  }
+  std::printf("clips per edge  of %llu primary clips, how many have k cloth clips along them:\n",
+              (unsigned long long)edges);
+  for (const auto& [label, n] : buckets)
+    std::printf("  k = %-9s %5llu %s\n", label.c_str(), (unsigned long long)n,
+                std::string(most ? size_t(40 * n / most) : 0, '#').c_str());
+}
+
 void print_info(const db::DatabaseInfo& i) {
   std::printf("file            %s (%.2f MB with WAL)\n", i.path.c_str(), i.file_bytes / 1e6);
   std::printf("schema version  %d\n", i.schema_version);
@@ -54,6 +75,12 @@ void print_info(const db::DatabaseInfo& i) {
         "did not make\n",
         (unsigned long long)i.linked_edges, (unsigned long long)i.cloth_edges,
         100.0 * double(i.linked_edges) / double(i.cloth_edges));
+  if (i.schema_version >= 4)
+    std::printf(
+        "dead ends       %llu linked to the nearest state's clip (blend error mean %.2f mm, worst "
+        "%.2f mm); the runtime needs no fallback search when db check passes\n",
+        (unsigned long long)i.cloth_links, 1e3 * i.mean_link_error, 1e3 * i.max_link_error);
+  if (!i.clips_per_edge.empty()) print_clips_per_edge(i.clips_per_edge);
   std::printf("runs            %llu, %.1f CPU s; %llu edits logged\n", (unsigned long long)i.runs,
               i.run_cpu_seconds, (unsigned long long)i.edits);
   if (!i.last_run_notes.empty()) std::printf("last run        %s\n", i.last_run_notes.c_str());

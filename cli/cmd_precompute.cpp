@@ -126,14 +126,19 @@ void register_precompute(CLI::App& app) {
         "worst error  %.2f mm unresolved (%.2f mm weighted by reach), %.2f mm largest blend on "
         "an edge (epsilon %.1f mm)\n"
         "linked       %.1f %% of clip ends linked back within epsilon\n"
+        "dead ends    %d closed with a link to the nearest state's clip (blend error mean %.2f "
+        "mm, worst %.2f mm): the runtime needs no fallback\n"
+        "steering     %d clip ends steered onto a state this run (largest pull %.2f mm in a "
+        "frame)\n"
         "curve        %s.csv, %s.svg\n",
         request.db.c_str(), report.states, report.clips, report.dead_ends,
         report.converged ? "converged" : "budget reached", report.frames, report.frames_this_run,
         report.cpu_seconds,
         report.frames_this_run > 0 ? report.cpu_seconds / report.frames_this_run : 0.0,
         1e3 * report.worst_error, 1e3 * report.weighted_worst_error, 1e3 * report.worst_blend_error,
-        *epsilon_mm, 100 * report.linked_fraction, out.curve_prefix.c_str(),
-        out.curve_prefix.c_str());
+        *epsilon_mm, 100 * report.linked_fraction, report.links, 1e3 * report.mean_link_error,
+        1e3 * report.worst_link_error, report.steered, 1e3 * report.worst_steering,
+        out.curve_prefix.c_str(), out.curve_prefix.c_str());
   });
 }
 

@@ -310,17 +310,67 @@ void check_graph(Reader& reader, CheckReport& report) {
                    (long long)c.id));
     }
   }
+  // Schema 4: every dead end must have a link (ClothLink), so the runtime never searches for a
+  // fallback (issue 16). Older files have no links: their dead ends are warnings, as before.
+  std::vector<ClothLink> links;
+  if (reader.cloth_links(&links, &err) != Status::Ok) {
+    report.problems.push_back(std::string("cloth link: cannot read: ") + err.message);
+    return;
+  }
+  std::set<std::pair<int64_t, int>> linked;  // (state, primary index)
   {
-    Findings f(&report.warnings, "unexplored");
+    Findings f(&report.problems, "cloth link");
+    for (const ClothLink& l : links) {
+      auto s = state_node.find(l.from_state);
+      auto p = primary.find(l.primary_clip);
+      auto c = clip_index.find(l.to_clip);
+      if (s == state_node.end() || p == primary.end() || c == clip_index.end()) {
+        f.add(format("%lld: names a missing state %lld, primary clip %lld or cloth clip %lld",
+                     (long long)l.id, (long long)l.from_state, (long long)l.primary_clip,
+                     (long long)l.to_clip));
+        continue;
+      }
+      if (clips[c->second].primary_clip != l.primary_clip)
+        f.add(format("%lld: continues with cloth clip %lld, which is not along primary clip %lld",
+                     (long long)l.id, (long long)l.to_clip, (long long)l.primary_clip));
+      if (s->second != src(p->second))
+        f.add(format("%lld: from state %lld, which is not at primary clip %lld's source node",
+                     (long long)l.id, (long long)l.from_state, (long long)l.primary_clip));
+      if (!(l.blend_error >= 0) || !std::isfinite(l.blend_error))
+        f.add(
+            format("%lld: blend error %g is not a finite length", (long long)l.id, l.blend_error));
+      if (explored.count({l.from_state, p->second}))
+        f.add(format("%lld: state %lld already has a clip along primary clip %lld", (long long)l.id,
+                     (long long)l.from_state, (long long)l.primary_clip));
+      linked.insert({l.from_state, p->second});
+    }
+  }
+  {
+    // Once the explorer has linked the dead ends (meta dead_ends_linked), every way out of every
+    // state the runtime can reach through a cloth edge must have a clip or a link: the runtime
+    // never falls back. Before that (older files, hand-made ones) they are warnings.
+    std::string flag;
+    const bool required = reader.schema_version() >= 4 &&
+                          reader.meta(meta::kDeadEndsLinked, &flag, &err) == Status::Ok &&
+                          flag == "1";
+    std::set<int64_t> reached;
+    for (const ClothEdge& e : edges) reached.insert(e.to_state);
+    Findings f(required ? &report.problems : &report.warnings,
+               required ? "dead end" : "unexplored");
     for (const StoredState& s : states) {
       auto n = state_node.find(s.id);
       if (n == state_node.end()) continue;
+      if (required && !reached.count(s.id)) continue;
       for (int b : out_of[n->second])
-        if (with_cloth.count(b) && !explored.count({s.id, b}))
-          f.add(
-              format("state %lld has no clip along primary clip %lld (the runtime falls back "
-                     "to the nearest state that has one)",
-                     (long long)s.id, (long long)pcs[size_t(b)].id));
+        if (with_cloth.count(b) && !explored.count({s.id, b}) && !linked.count({s.id, b}))
+          f.add(required
+                    ? format("state %lld has neither a clip nor a link along primary clip %lld "
+                             "(the runtime would have to fall back; run `clothdb precompute` "
+                             "again on this database to link its dead ends)",
+                             (long long)s.id, (long long)pcs[size_t(b)].id)
+                    : format("state %lld has no clip along primary clip %lld (the runtime falls "
+                             "back to the nearest state that has one)",
+                             (long long)s.id, (long long)pcs[size_t(b)].id));
     }
   }
   std::string start;
@@ -548,6 +598,28 @@ DatabaseInfo read_database_info(const std::string& path) {
       sqlite3_step(s) == SQLITE_ROW) {
     info.max_clip_error = sqlite3_column_double(s, 0);
     info.run_cpu_seconds = sqlite3_column_double(s, 1);
+  }
+  sqlite3_finalize(s);
+  if (info.schema_version >= 4 &&
+      sqlite3_prepare_v2(db,
+                         "SELECT count(*), coalesce(avg(blend_error), 0), "
+                         "coalesce(max(blend_error), 0) FROM cloth_link",
+                         -1, &s, nullptr) == SQLITE_OK &&
+      sqlite3_step(s) == SQLITE_ROW) {
+    info.cloth_links = uint64_t(sqlite3_column_int64(s, 0));
+    info.mean_link_error = sqlite3_column_double(s, 1);
+    info.max_link_error = sqlite3_column_double(s, 2);
+  }
+  sqlite3_finalize(s);
+  if (sqlite3_prepare_v2(db,
+                         "SELECT (SELECT count(*) FROM cloth_clip c WHERE c.primary_clip = p.id) "
+                         "FROM primary_clip p",
+                         -1, &s, nullptr) == SQLITE_OK) {
+    while (sqlite3_step(s) == SQLITE_ROW) {
+      const auto k = size_t(sqlite3_column_int64(s, 0));
+      if (info.clips_per_edge.size() <= k) info.clips_per_edge.resize(k + 1, 0);
+      ++info.clips_per_edge[k];
+    }
   }
   sqlite3_finalize(s);
   if (sqlite3_prepare_v2(db, "SELECT notes FROM run WHERE notes != '' ORDER BY id DESC LIMIT 1", -1,

@@ -56,7 +56,13 @@ struct DatabaseInfo {
   uint64_t clips_v1 = 0, clips_v2 = 0, states_v1 = 0, states_v2 = 0;
   std::vector<BasisRow> bases;
   double run_cpu_seconds = 0;
-  uint64_t linked_edges = 0;   // clip ends that linked back to a state their clip did not make
+  uint64_t linked_edges = 0;  // clip ends that linked back to a state their clip did not make
+  // Dead ends closed by a link (schema 4, ClothLink) and their blend errors, m.
+  uint64_t cloth_links = 0;
+  double mean_link_error = 0, max_link_error = 0;
+  // How exploration spread over the graph: clips_per_edge[k] primary clips have k cloth clips
+  // along them (k up to the largest count), so a run that spent its budget on one loop shows.
+  std::vector<uint64_t> clips_per_edge;
   std::string last_run_notes;  // the newest run's summary (e.g. the explorer's unresolved errors)
 };
 

@@ -65,6 +65,9 @@ inline constexpr const char* kSceneHash = "scene_hash";      // content_hash of 
 inline constexpr const char* kMotionGraph = "motion_graph";  // the primary graph, JSON
 inline constexpr const char* kStartClip = "start_clip";      // primary clip id (integer)
 inline constexpr const char* kAutoSolver = "auto_solver";    // --auto's table (Markdown)
+// "1": the explorer linked every dead end when its last run ended (schema 4, ClothLink), so db
+// check requires a clip or a link for every way out of every state a cloth edge leads into.
+inline constexpr const char* kDeadEndsLinked = "dead_ends_linked";
 // The keys a file may hold; `db check` reports any other.
 const std::vector<std::string>& known_keys();
 }  // namespace meta

@@ -21,6 +21,30 @@ namespace {
 // Tables, in dependency order. CHECK constraints keep statuses and counts sane even when another
 // tool writes the file; foreign keys are enforced by the writer (PRAGMA foreign_keys=ON) and
 // re-verified by `clothdb db check`.
+// Version 4 (issue 16): steered clip ends are recorded (cloth_clip_steering: ClipSteering), and a
+// dead end (a state and a way out of its node with no clip) links to the clip that
+// the nearest state at that node has along the same way out, with the state distance recorded as
+// the blend error, so the runtime never searches for a fallback (issue 16). Written by the
+// explorer when its budget ends; a clip removed by an edit takes its links with it.
+#define CLOTHDB_CLOTH_LINK_SQL                                         \
+  "CREATE TABLE IF NOT EXISTS cloth_link(\n"                           \
+  "  id INTEGER PRIMARY KEY,\n"                                        \
+  "  from_state INTEGER NOT NULL REFERENCES cloth_state(id),\n"        \
+  "  primary_clip INTEGER NOT NULL REFERENCES primary_clip(id),\n"     \
+  "  to_clip INTEGER NOT NULL REFERENCES cloth_clip(id),\n"            \
+  "  blend_error REAL NOT NULL CHECK (blend_error >= 0),\n"            \
+  "  run INTEGER REFERENCES run(id),\n"                                \
+  "  UNIQUE (from_state, primary_clip)\n"                              \
+  ");\n"                                                               \
+  "CREATE INDEX IF NOT EXISTS cloth_link_to ON cloth_link(to_clip);\n" \
+  "CREATE TABLE IF NOT EXISTS cloth_clip_steering(\n"                  \
+  "  clip INTEGER PRIMARY KEY REFERENCES cloth_clip(id),\n"            \
+  "  target_state INTEGER NOT NULL REFERENCES cloth_state(id),\n"      \
+  "  distance REAL NOT NULL CHECK (distance >= 0),\n"                  \
+  "  displacement REAL NOT NULL CHECK (displacement >= 0),\n"          \
+  "  acceleration REAL NOT NULL CHECK (acceleration >= 0)\n"           \
+  ");\n"
+
 constexpr const char* kSchemaSql = R"sql(
 CREATE TABLE meta(
   key TEXT PRIMARY KEY NOT NULL,
@@ -105,7 +129,7 @@ CREATE TABLE cloth_edge(
 CREATE INDEX cloth_state_at ON cloth_state(primary_clip, frame);
 CREATE INDEX cloth_clip_from ON cloth_clip(start_state);
 CREATE INDEX cloth_edge_from ON cloth_edge(from_clip);
-)sql";
+)sql" CLOTHDB_CLOTH_LINK_SQL;
 
 // The edit log's columns, shared by new files (Writer::create) and the version 3 migration.
 constexpr const char* kEditLogColumns = R"sql(
@@ -150,7 +174,8 @@ CREATE INDEX edit_log_clip ON edit_log(clip);
 )sql";
 
 // The tables an edit may change and undo restores (everything but the log itself).
-constexpr const char* kEditedTables[] = {"cloth_state", "cloth_clip", "cloth_edge", "run", "meta"};
+constexpr const char* kEditedTables[] = {
+    "cloth_state", "cloth_clip", "cloth_edge", "cloth_link", "cloth_clip_steering", "run", "meta"};
 
 constexpr const char* kNow = "strftime('%Y-%m-%dT%H:%M:%fZ', 'now')";
 
@@ -479,6 +504,7 @@ void Writer::migrate(int from_version) {
     exec(("PRAGMA defer_foreign_keys = ON; CREATE TABLE edit_log_v3(" +
           std::string(kEditLogColumns) + ";" + kMigrateTo3Sql)
              .c_str());
+  if (from_version < 4) exec(CLOTHDB_CLOTH_LINK_SQL);
   exec(("PRAGMA user_version=" + std::to_string(kSchemaVersion)).c_str());
   set_meta("format_version", std::to_string(kSchemaVersion));
   t.commit();
@@ -701,6 +727,36 @@ int64_t Writer::add_cloth_edge(int64_t from_clip, int64_t to_state, double blend
   return sqlite3_last_insert_rowid(db_);
 }
 
+int64_t Writer::add_cloth_link(const ClothLink& l) {
+  Stmt s(db_,
+         "INSERT INTO cloth_link(from_state, primary_clip, to_clip, blend_error, run) "
+         "VALUES(?, ?, ?, ?, ?)");
+  if (!s.ok()) throw_sql("adding a cloth link");
+  s.bind(1, l.from_state).bind(2, l.primary_clip).bind(3, l.to_clip).bind(4, l.blend_error);
+  if (l.run > 0)
+    s.bind(5, l.run);
+  else
+    sqlite3_bind_null(s.get(), 5);
+  if (s.step() != SQLITE_DONE) throw_sql("adding a cloth link");
+  return sqlite3_last_insert_rowid(db_);
+}
+
+void Writer::set_clip_steering(const ClipSteering& st) {
+  Stmt s(db_,
+         "INSERT OR REPLACE INTO cloth_clip_steering(clip, target_state, distance, displacement, "
+         "acceleration) VALUES(?, ?, ?, ?, ?)");
+  s.bind(1, st.clip).bind(2, st.target_state).bind(3, st.distance).bind(4, st.displacement);
+  if (!s.ok() || s.bind(5, st.acceleration).step() != SQLITE_DONE)
+    throw_sql("recording a clip's steering");
+}
+
+void Writer::replace_cloth_links(const std::vector<ClothLink>& links) {
+  Transaction t(*this);
+  exec("DELETE FROM cloth_link");
+  for (const ClothLink& l : links) add_cloth_link(l);
+  t.commit();
+}
+
 void Writer::set_clip_metrics(int64_t clip, const ClipMetrics& m) {
   Stmt s(db_,
          "UPDATE cloth_clip SET max_strain = ?, max_penetration = ?, mean_penetration = ?, "
@@ -889,9 +945,11 @@ void Writer::set_edge(int64_t edge, int64_t to_state, double blend_error, double
 
 void Writer::remove_clip(int64_t clip) {
   Transaction t(*this);
-  for (const char* sql : {"DELETE FROM cloth_edge WHERE from_clip = ?",
-                          "UPDATE cloth_state SET source_clip = NULL WHERE source_clip = ?",
-                          "DELETE FROM cloth_clip WHERE id = ?"}) {
+  for (const char* sql :
+       {"DELETE FROM cloth_edge WHERE from_clip = ?", "DELETE FROM cloth_link WHERE to_clip = ?",
+        "DELETE FROM cloth_clip_steering WHERE clip = ?",
+        "UPDATE cloth_state SET source_clip = NULL WHERE source_clip = ?",
+        "DELETE FROM cloth_clip WHERE id = ?"}) {
     Stmt s(db_, sql);
     if (!s.ok() || s.bind(1, clip).step() != SQLITE_DONE) throw_sql("removing a cloth clip");
   }
@@ -1148,6 +1206,29 @@ Status Reader::cloth_edges(std::vector<ClothEdge>* out, Error* err) {
   return for_each_row(db_, path_, sql, err, [&](Stmt& s) {
     out->push_back({s.i64(0), s.i64(1), s.i64(2), s.f64(3), s.metric(4)});
   });
+}
+
+Status Reader::cloth_links(std::vector<ClothLink>* out, Error* err) {
+  out->clear();
+  if (schema_version_ < 4) return Status::Ok;  // no links before version 4
+  return for_each_row(
+      db_, path_,
+      "SELECT id, from_state, primary_clip, to_clip, blend_error, "
+      "coalesce(run, 0) FROM cloth_link ORDER BY id",
+      err, [&](Stmt& s) {
+        out->push_back({s.i64(0), s.i64(1), s.i64(2), s.i64(3), s.f64(4), s.i64(5)});
+      });
+}
+
+Status Reader::clip_steering(std::vector<ClipSteering>* out, Error* err) {
+  out->clear();
+  if (schema_version_ < 4) return Status::Ok;  // no steering before version 4
+  return for_each_row(db_, path_,
+                      "SELECT clip, target_state, distance, displacement, acceleration FROM "
+                      "cloth_clip_steering ORDER BY clip",
+                      err, [&](Stmt& s) {
+                        out->push_back({s.i64(0), s.i64(1), s.f64(2), s.f64(3), s.f64(4)});
+                      });
 }
 
 Status Reader::runs(std::vector<Run>* out, Error* err) {

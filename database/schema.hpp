@@ -30,8 +30,9 @@ namespace clothdb::db {
 // Version 2 added the quality metrics (cloth_clip: mean_penetration, jitter, halved_steps,
 // worst_frame; cloth_edge: pop). Version 3: the edit log keeps each edit's changeset (exact undo
 // of edits that touch many rows) and the actions flag, unflag, import, resim, delete. Writer::open
-// migrates older files in one transaction; the Reader reads them as they are.
-constexpr int kSchemaVersion = 3;
+// migrates older files in one transaction; the Reader reads them as they are. Version 4: the
+// cloth_link table (a dead end's precomputed continuation, ClothLink).
+constexpr int kSchemaVersion = 4;
 constexpr int32_t kApplicationId = 0x434C4442;  // "CLDB"
 
 enum class ClipStatus { Ok, Flagged, Edited };
@@ -132,6 +133,30 @@ struct ClothEdge {
   double pop = kUnknownMetric;
 };
 
+// A dead end closed without simulating it: state `from_state` has no clip along `primary_clip`,
+// so the game continues with clip `to_clip` (along the same primary clip, from the nearest state
+// at the same node that has one), blending away `blend_error` (m, db::state_distance of the two
+// states). Written by the explorer when its budget ends; the runtime needs no fallback search.
+struct ClothLink {
+  int64_t id = 0;
+  int64_t from_state = 0;
+  int64_t primary_clip = 0;
+  int64_t to_clip = 0;
+  double blend_error = 0;
+  int64_t run = 0;  // 0: none recorded
+};
+
+// A clip whose end was steered onto a state (issue 16, SceneFile::steering in the precompute):
+// how far its unsteered end was from that state (m, db::state_distance) and how hard the pull was
+// (the largest displacement of a vertex in one frame, m, and that over dt^2, m/s^2).
+struct ClipSteering {
+  int64_t clip = 0;
+  int64_t target_state = 0;
+  double distance = 0;
+  double displacement = 0;
+  double acceleration = 0;
+};
+
 struct Run {
   int64_t id = 0;
   std::string started;   // ISO 8601 UTC
@@ -230,6 +255,10 @@ class Writer {
                               double max_error);
   int64_t add_cloth_edge(int64_t from_clip, int64_t to_state, double blend_error,
                          double pop = kUnknownMetric);
+  // Replaces every cloth link (one transaction; ClothLink::id is ignored).
+  void replace_cloth_links(const std::vector<ClothLink>& links);
+  int64_t add_cloth_link(const ClothLink& link);  // ClothLink::id is ignored
+  void set_clip_steering(const ClipSteering& steering);
   // Replaces a clip's quality metrics (e.g. after its frames were edited or re-simulated) and an
   // edge's pop. Not logged: an edit that changes frames records the change itself.
   void set_clip_metrics(int64_t clip, const ClipMetrics& metrics);
@@ -337,6 +366,8 @@ class Reader {
   Status cloth_clips(std::vector<ClothClip>* out, Error* err);
   Status cloth_clip(int64_t id, ClothClip* out, Error* err);
   Status cloth_edges(std::vector<ClothEdge>* out, Error* err);
+  Status cloth_links(std::vector<ClothLink>* out, Error* err);       // empty before schema 4
+  Status clip_steering(std::vector<ClipSteering>* out, Error* err);  // empty before schema 4
   Status runs(std::vector<Run>* out, Error* err);
   Status edit_log(std::vector<EditLogEntry>* out, Error* err);
 

@@ -139,7 +139,9 @@ const char* clothrt_player_errmsg(const clothrt_player* player);
 size_t clothrt_player_memory(const clothrt_player* player);
 
 /* Frames over which a transition into a different state is blended (default 8, 0: snap). A blend
- * interrupted by the next transition continues from the pose shown at that moment. */
+ * interrupted by the next transition continues from the pose shown at that moment. A transition
+ * through a dead end that the precompute closed with a link to the nearest state (schema 4) blends
+ * over its recorded error / 1 mm frames instead when that is longer, at most 60. */
 int clothrt_player_set_blend_frames(clothrt_player* player, double frames);
 
 /* Starts at the source node of primary clip `clip` (0: the graph's start clip), in the first cloth

@@ -138,6 +138,8 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
   if (Status st = reader.cloth_states(&cstates, err); st != Status::Ok) return st;
   if (Status st = reader.cloth_clips(&cclips, err); st != Status::Ok) return st;
   if (Status st = reader.cloth_edges(&cedges, err); st != Status::Ok) return st;
+  std::vector<ClothLink> clinks;
+  if (Status st = reader.cloth_links(&clinks, err); st != Status::Ok) return st;
   if (pcs.empty()) return err->set(Status::NotFound, "%s: no primary clips", file.c_str());
   if (cclips.empty()) return err->set(Status::NotFound, "%s: no cloth clips", file.c_str());
 
@@ -276,6 +278,29 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
     primaries[size_t(i)].cand_end = uint32_t(candidates.size());
   }
 
+  // A dead end's precomputed continuation (schema 4, ClothLink): state and primary clip -> the
+  // clip to take and the blend it needs.
+  std::unordered_map<uint64_t, std::pair<int, double>> link_of;
+  for (const ClothLink& l : clinks) {
+    auto s = state_by_id.find(l.from_state);
+    auto p = primary_by_id.find(l.primary_clip);
+    auto c = clip_by_id.find(l.to_clip);
+    if (s == state_by_id.end() || p == primary_by_id.end() || c == clip_by_id.end())
+      return err->set(Status::Corrupt,
+                      "%s: cloth link %lld names a missing state, primary clip "
+                      "or cloth clip",
+                      file.c_str(), (long long)l.id);
+    if (clips[size_t(c->second)].primary != p->second ||
+        primaries[size_t(states[size_t(s->second)].primary)].src_node !=
+            primaries[size_t(p->second)].src_node)
+      return err->set(Status::Corrupt,
+                      "%s: cloth link %lld continues with a clip that is not along its primary "
+                      "clip, or from a state at another node",
+                      file.c_str(), (long long)l.id);
+    link_of[uint64_t(s->second) << 32 | uint32_t(p->second)] = {
+        c->second, std::isfinite(l.blend_error) ? l.blend_error : 1.0};
+  }
+
   // Slots: where each clip continues for each successor, known now unless a fallback search is
   // needed.
   for (ClipInfo& c : clips) {
@@ -284,6 +309,7 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
     slot_count += p.succ_end - p.succ_begin;
   }
   slots.reset(new std::atomic<int32_t>[slot_count == 0 ? 1 : slot_count]);
+  slot_blend.assign(slot_count, 0.0f);
   for (const ClipInfo& c : clips) {
     const PrimaryInfo& p = primaries[size_t(c.primary)];
     for (uint32_t k = 0; k < p.succ_end - p.succ_begin; ++k) {
@@ -293,8 +319,14 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
       if (pb.cand_begin == pb.cand_end) {
         v = kSlotNone;
       } else if (c.to_state >= 0) {
-        auto it = by_state_primary.find(uint64_t(c.to_state) << 32 | uint32_t(b));
-        if (it != by_state_primary.end()) v = int32_t(it->second) << 1;
+        const uint64_t key = uint64_t(c.to_state) << 32 | uint32_t(b);
+        auto it = by_state_primary.find(key);
+        if (it != by_state_primary.end()) {
+          v = int32_t(it->second) << 1;
+        } else if (auto l = link_of.find(key); l != link_of.end()) {
+          v = int32_t(l->second.first) << 1;
+          slot_blend[c.slot_begin + k] = float(l->second.second);
+        }
       }
       slots[c.slot_begin + k].store(v, std::memory_order_relaxed);
     }
@@ -317,7 +349,7 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
   metadata_bytes = primaries.size() * sizeof(PrimaryInfo) + successors.size() * sizeof(int) +
                    candidates.size() * sizeof(int) + states.size() * sizeof(StateInfo) +
                    clips.size() * (sizeof(ClipInfo) + sizeof(Entry)) +
-                   slot_count * sizeof(int32_t) + queue.size() * sizeof(int64_t) +
+                   slot_count * (sizeof(int32_t) + sizeof(float)) + queue.size() * sizeof(int64_t) +
                    triangles.size() * sizeof(uint32_t) +
                    (primary_by_id.size() + clip_by_id.size()) * 32;
   for (const PrimaryInfo& p : primaries) metadata_bytes += p.name.size();

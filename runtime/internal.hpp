@@ -135,6 +135,8 @@ struct Db {
   std::vector<StateInfo> states;
   std::vector<ClipInfo> clips;
   std::unique_ptr<std::atomic<int32_t>[]> slots;
+  // Per slot: the blend error (m) of a precomputed link (ClothLink) the slot follows, 0 otherwise.
+  std::vector<float> slot_blend;
   size_t slot_count = 0;
   std::unordered_map<int64_t, int> primary_by_id, clip_by_id;
   int start_primary = 0;

@@ -13,6 +13,12 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
+// Blend length from a link's blend error (issue 16): a transition through a precomputed link
+// (ClothLink) whose error exceeds blend_frames x kBlendPerFrame fades over error / kBlendPerFrame
+// frames, at most kMaxBlendFrames. Edges linked within epsilon keep the player's blend_frames.
+constexpr double kBlendPerFrame = 1e-3;  // m of state distance per frame
+constexpr double kMaxBlendFrames = 60;
+
 uint64_t ns_since(Clock::time_point t) {
   return uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now() - t).count());
 }
@@ -282,7 +288,7 @@ int Player::transition() {
 
   int target = -1;
   bool fallback = holding_;
-  double blend_error = 0;
+  double blend_error = 0, link_error = 0;
   if (holding_) {
     target = db->candidates[to.cand_begin];
   } else {
@@ -297,6 +303,8 @@ int Player::transition() {
       fallback = v & 1;
     }
     blend_error = db->clips[size_t(clip_)].blend_error;
+    link_error = db->slot_blend[db->clips[size_t(clip_)].slot_begin + k];
+    blend_error = std::max(blend_error, link_error);
   }
   ClipView nv;
   bool stalled = false;
@@ -335,7 +343,10 @@ int Player::transition() {
       for (size_t i = 0; i < n; ++i) offset_[i] -= value(nv, n, 0, i);
       if (r_end > 0) ++interrupted_;
       r0_ = blend_frames > 0 ? 1.0 : 0.0;
-      blend_span_ = std::max(blend_frames, 1e-9);
+      // A link that closed a dead end (up to the garment's error floor away) fades over more
+      // frames, so that no frame moves the cloth by much more than kBlendPerFrame of it.
+      blend_span_ =
+          std::max({blend_frames, 1e-9, std::min(kMaxBlendFrames, link_error / kBlendPerFrame)});
     } else {
       // Same state: nothing to blend, but a blend still in progress carries on across the node.
       if (r_end > 0) ++interrupted_;

@@ -30,6 +30,7 @@ inline CharacterScene small_scene() {
   // Heavy air drag: the cloth forgets its history within about two edges, so the explorer
   // converges in a few dozen clips (a light fabric needs Kim et al.'s CPU-hours).
   file.air_drag = 3.0;
+  file.steering = {};  // off unless a test turns it on (the demo scene steers)
   return build_character_scene(file);
 }
 

@@ -696,8 +696,9 @@ TEST(DatabaseCheck, ClipWithoutAnEdgeOut) {
 }
 
 TEST(DatabaseCheck, UnknownMetaVersions) {
-  for (const char* v : {"4", "abc", "-1", ""})
-    expect_refused("UPDATE meta SET value = '" + std::string(v) + "' WHERE key = 'format_version';",
+  for (const std::string& v :
+       {std::to_string(kSchemaVersion + 1), std::string("abc"), std::string("-1"), std::string("")})
+    expect_refused("UPDATE meta SET value = '" + v + "' WHERE key = 'format_version';",
                    "meta format_version is", "meta format_version is");
   expect_refused("UPDATE meta SET value = '3' WHERE key = 'codec.format_version';",
                  "meta codec.format_version is 3, newer than this build reads",

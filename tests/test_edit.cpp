@@ -508,7 +508,7 @@ TEST(Edit, AVersion2FileIsMigratedWithItsEditLogAndItsOldEditsAreKeptNotUndone) 
   db::Reader r;
   db::Error err;
   ASSERT_EQ(r.open(path, &err), db::Status::Ok);
-  EXPECT_EQ(r.schema_version(), 3);
+  EXPECT_EQ(r.schema_version(), db::kSchemaVersion);
   std::vector<db::EditLogEntry> log;
   ASSERT_EQ(r.edit_log(&log, &err), db::Status::Ok);
   ASSERT_EQ(log.size(), 1u);

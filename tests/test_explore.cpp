@@ -2,6 +2,7 @@
 // within epsilon, every state has cloth for every way out of its node, the result does not depend
 // on the thread count, and a run stopped part-way resumes to the same database content.
 #include <gtest/gtest.h>
+#include <sqlite3.h>
 
 #include <cmath>
 #include <cstdlib>
@@ -9,6 +10,7 @@
 #include <fstream>
 #include <map>
 
+#include "clothrt.h"
 #include "database/check.hpp"
 #include "database/checksum.hpp"
 #include "database/schema.hpp"
@@ -339,4 +341,183 @@ TEST(Explore, UnresolvedErrorIsTheDistanceToTheNearestOtherStateAtItsNode) {
   EXPECT_NEAR(report.worst_error, worst, 1e-12);
   EXPECT_NEAR(report.weighted_worst_error, worst, 1e-12);  // every edge has reach 1 here
   EXPECT_EQ(report.linked_fraction, 0.0);
+}
+
+// Issue 16, no runtime fallback: a run stopped by its budget links every dead end to the clip of
+// the nearest state at its node that has one, with that state distance as the blend error; every
+// way out of every state then plays without a fallback, and db check refuses a file that lost a
+// link.
+TEST(Explore, BudgetLimitedRunLinksEveryDeadEndSoPlaybackNeverFallsBack) {
+  const CharacterScene scene = small_scene();
+  const std::string path = temp_db("links");
+  ExploreOptions options;
+  options.epsilon = 0.0005;  // nothing links back: dead ends are left when the budget ends
+  options.max_frames = 400;
+  const ExploreReport report = run(scene, path, options);
+  ASSERT_GT(report.dead_ends, 0);
+  EXPECT_EQ(report.links, report.dead_ends);
+
+  db::Reader r;
+  db::Error err;
+  ASSERT_EQ(r.open(path, &err), db::Status::Ok);
+  std::vector<db::StoredState> states;
+  std::vector<db::ClothClip> clips;
+  std::vector<db::ClothLink> links;
+  std::vector<db::PrimaryClip> primary;
+  r.cloth_states(&states, &err);
+  r.cloth_clips(&clips, &err);
+  r.cloth_links(&links, &err);
+  r.primary_clips(&primary, &err);
+  ASSERT_EQ(static_cast<int>(links.size()), report.dead_ends);
+  std::map<int64_t, size_t> index;
+  std::vector<std::vector<float>> x(states.size()), v(states.size());
+  codec::DecodeScratch scratch;
+  for (size_t i = 0; i < states.size(); ++i) {
+    index[states[i].id] = i;
+    ASSERT_EQ(r.read_state(states[i].id, &x[i], &v[i], scratch, &err), db::Status::Ok);
+  }
+  // Each (state, primary clip) has exactly one of a clip and a link; a link goes to the clip of
+  // the nearest state that has one along the same primary clip, its distance recorded.
+  for (const auto& s : states)
+    for (const auto& p : primary) {
+      int own = 0, linked = 0;
+      for (const auto& c : clips) own += c.start_state == s.id && c.primary_clip == p.id;
+      const db::ClothLink* link = nullptr;
+      for (const auto& l : links)
+        if (l.from_state == s.id && l.primary_clip == p.id) ++linked, link = &l;
+      EXPECT_EQ(own + linked, 1) << "state " << s.id << " along " << p.name;
+      if (!link) continue;
+      double nearest = INFINITY;
+      int64_t nearest_clip = 0;
+      for (const auto& c : clips) {
+        if (c.primary_clip != p.id) continue;
+        const size_t a = index[s.id], b = index[c.start_state];
+        const double d = db::state_distance(x[a], v[a], x[b], v[b], 1.0 / 30);
+        if (d < nearest) nearest = d, nearest_clip = c.id;
+      }
+      EXPECT_EQ(link->to_clip, nearest_clip);
+      EXPECT_NEAR(link->blend_error, nearest, 1e-12);
+    }
+  r.close();
+  {
+    const db::CheckReport check = db::check_database(path);
+    for (const auto& problem : check.problems) ADD_FAILURE() << problem;
+  }
+
+  // Every clip, then each way out of the state it ends in: no fallback, no error.
+  clothrt_db* rt = nullptr;
+  ASSERT_EQ(clothrt_db_open(path.c_str(), nullptr, &rt), CLOTHRT_OK) << clothrt_last_open_errmsg();
+  clothrt_player* player = nullptr;
+  ASSERT_EQ(clothrt_player_create(rt, &player), CLOTHRT_OK);
+  int transitions = 0;
+  for (const auto& c : clips)
+    for (const auto& p : primary) {
+      ASSERT_EQ(clothrt_player_start_cloth_clip(player, c.id), CLOTHRT_OK)
+          << clothrt_player_errmsg(player);
+      ASSERT_EQ(clothrt_player_set_next(player, p.id), CLOTHRT_OK) << clothrt_player_errmsg(player);
+      clothrt_frame_info before{}, info{};
+      ASSERT_EQ(clothrt_player_info(player, &before), CLOTHRT_OK);
+      for (int step = 0; step < 40; ++step) {
+        ASSERT_EQ(clothrt_player_advance(player, 1.0 / 30), CLOTHRT_OK)
+            << clothrt_player_errmsg(player);
+        ASSERT_EQ(clothrt_player_info(player, &info), CLOTHRT_OK);
+        if (info.transitions > before.transitions) break;
+      }
+      ASSERT_EQ(info.transitions, before.transitions + 1) << "clip " << c.id;
+      EXPECT_EQ(info.primary_clip, p.id);
+      EXPECT_EQ(info.fallback, 0) << "clip " << c.id << " then " << p.name;
+      EXPECT_EQ(info.fallbacks, before.fallbacks);
+      ++transitions;
+    }
+  EXPECT_EQ(transitions, static_cast<int>(clips.size() * primary.size()));
+  clothrt_stats stats{};
+  ASSERT_EQ(clothrt_db_stats(rt, &stats), CLOTHRT_OK);
+  EXPECT_EQ(stats.fallbacks_resolved, 0u);
+  clothrt_player_destroy(player);
+  clothrt_db_close(rt);
+
+  // A file that lost one link: db check names the dead end.
+  {
+    sqlite3* raw = nullptr;
+    ASSERT_EQ(sqlite3_open(path.c_str(), &raw), SQLITE_OK);
+    ASSERT_EQ(
+        sqlite3_exec(raw, "DELETE FROM cloth_link WHERE id = (SELECT min(id) FROM cloth_link)",
+                     nullptr, nullptr, nullptr),
+        SQLITE_OK);
+    sqlite3_close(raw);
+  }
+  const db::CheckReport check = db::check_database(path);
+  bool named = false;
+  for (const auto& problem : check.problems)
+    named |= problem.find("neither a clip nor a link") != std::string::npos;
+  EXPECT_TRUE(named) << "db check did not report the missing link";
+}
+
+// Issue 16, steered clip ends: with steering on, a clip whose end lands farther than epsilon but
+// within max_mm of a state at its end node is pulled onto that state over its last frames, so it
+// links with a blend within epsilon instead of making a new state; what the pull did is recorded.
+TEST(Explore, SteeredClipsEndWithinEpsilonOfTheirTargetState) {
+  CharacterScene scene = small_scene();
+  ExploreOptions options;
+  options.epsilon = 0.002;
+  options.max_frames = 500;
+  const std::string unsteered_path = temp_db("unsteered");
+  const ExploreReport unsteered = run(scene, unsteered_path, options);
+  EXPECT_EQ(unsteered.steered, 0);
+
+  scene.file.steering.frames = 6;
+  scene.file.steering.max_distance = 0.2;
+  const std::string path = temp_db("steered");
+  const ExploreReport report = run(scene, path, options);
+  ASSERT_GT(report.steered, 0);
+  // More clip ends link (fewer new states) than without steering, on the same budget.
+  EXPECT_GT(report.linked_fraction, unsteered.linked_fraction);
+
+  db::Reader r;
+  db::Error err;
+  ASSERT_EQ(r.open(path, &err), db::Status::Ok);
+  std::vector<db::ClipSteering> steering;
+  std::vector<db::ClothEdge> edges;
+  std::vector<db::ClothClip> clips;
+  ASSERT_EQ(r.clip_steering(&steering, &err), db::Status::Ok);
+  r.cloth_edges(&edges, &err);
+  r.cloth_clips(&clips, &err);
+  EXPECT_EQ(static_cast<int>(steering.size()), report.steered);
+  for (const auto& st : steering) {
+    EXPECT_GT(st.distance, options.epsilon);  // ends already within epsilon are not steered
+    EXPECT_LE(st.distance, scene.file.steering.max_distance);
+    EXPECT_GT(st.displacement, 0.0);
+    EXPECT_NEAR(st.acceleration, st.displacement * 30 * 30, 1e-9);
+    // It links within epsilon (to its target, or to a state nearer still) ...
+    int found = 0;
+    for (const auto& e : edges)
+      if (e.from_clip == st.clip) {
+        ++found;
+        EXPECT_LE(e.blend_error, options.epsilon) << "clip " << st.clip;
+      }
+    EXPECT_EQ(found, 1);
+    // ... and its last frame, as stored, is on the target state: the RMS position distance (the
+    // position part of the state distance) within the codec's bound.
+    const db::ClothClip* clip = nullptr;
+    for (const auto& c : clips)
+      if (c.id == st.clip) clip = &c;
+    ASSERT_NE(clip, nullptr);
+    std::vector<uint8_t> blob;
+    ASSERT_EQ(r.clip_blob(clip->id, &blob, &err), db::Status::Ok);
+    std::vector<float> frames, tx, tv;
+    codec::DecodeScratch scratch;
+    ASSERT_EQ(codec::decode_all(blob.data(), blob.size(), frames, scratch, &err), db::Status::Ok);
+    ASSERT_EQ(r.read_state(st.target_state, &tx, &tv, scratch, &err), db::Status::Ok);
+    const size_t n = tx.size();
+    double sum = 0;
+    for (size_t i = 0; i < n; ++i) {
+      const double d = frames[frames.size() - n + i] - tx[i];
+      sum += d * d;
+    }
+    EXPECT_LE(std::sqrt(sum / static_cast<double>(n / 3)), 2 * r.codec().position_bound)
+        << "clip " << st.clip;
+  }
+  r.close();
+  const db::CheckReport check = db::check_database(path);
+  for (const auto& problem : check.problems) ADD_FAILURE() << problem;
 }

@@ -94,7 +94,7 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   if (!j.is_object()) f.fail("(top level)", "expected an object");
   f.only(j,
          {"name", "manifest", "clips", "garment", "material", "solver", "colliders", "air_drag",
-          "settle_frames"},
+          "settle_frames", "steering"},
          "");
   s.name = f.string(j, "name", "", file.stem().string());
   const std::string manifest = f.string(j, "manifest", "", "");
@@ -237,6 +237,11 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   }
   s.air_drag = f.number(j, "air_drag", "", s.air_drag, false, true);
   s.settle_frames = f.integer(j, "settle_frames", "", s.settle_frames, 0, kMaxSettleFrames);
+  const json& st = f.object(j, "steering", "");
+  f.only(st, {"frames", "max_mm"}, "steering.");
+  s.steering.frames = f.integer(st, "frames", "steering.", s.steering.frames, 0, 1000);
+  s.steering.max_distance =
+      1e-3 * f.number(st, "max_mm", "steering.", 1e3 * s.steering.max_distance, true);
   return s;
 }
 
@@ -372,7 +377,8 @@ ClothState settle_garment(const CharacterScene& scene, Solver& solver,
 
 PoseRun simulate_poses(const CharacterScene& scene, Solver& solver,
                        const std::vector<std::vector<JointPose>>& poses, double rate,
-                       ClothState& state) {
+                       ClothState& state,
+                       const std::function<void(size_t, ClothState&)>& after_step) {
   PoseRun run;
   Environment env = scene.env;
   StepInputs inputs;
@@ -390,6 +396,7 @@ PoseRun simulate_poses(const CharacterScene& scene, Solver& solver,
       break;
     }
     run.step_halvings += report.step_halvings;
+    if (after_step) after_step(f, state);
     FrameMetrics m;
     m.max_strain = max_edge_strain(scene.model, state.x);
     m.max_penetration = max_penetration(state.x, scene.model.inv_mass, env);

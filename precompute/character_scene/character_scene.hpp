@@ -51,6 +51,16 @@ struct SceneError : std::runtime_error {
 
 enum class GarmentKind { Skirt, Cape, Mesh };
 
+// Steered clip ends (issue 16, beyond Kim et al. 2013): over the last `frames` frames of a clip,
+// the cloth is pulled toward the nearest state at the clip's end node, ramped in, so that the clip
+// ends on that state and links to it instead of making a new state. Only ends within
+// `max_distance` (m, db::state_distance) of a state are steered; farther ones make new states as
+// without steering. frames 0: off (the scene file's "steering": {"frames": K, "max_mm": D}).
+struct SteeringSpec {
+  int frames = 0;
+  double max_distance = 0.03;
+};
+
 struct SceneFile {
   std::filesystem::path path;
   std::string text;  // the file as given (stored in the database)
@@ -71,6 +81,7 @@ struct SceneFile {
   ColliderMotion collider_motion = ColliderMotion::Interpolated;
   double air_drag = 0.3;
   int settle_frames = 30;
+  SteeringSpec steering;
 };
 
 // Reads and validates a scene file. Throws SceneError "<file>: <field>: <problem>" (and passes on
@@ -116,9 +127,12 @@ struct PoseRun {
 
 // Simulates from `state` (at poses[0]) through poses[1..] at `rate` Hz, one solver step per pose;
 // `state` ends at the last pose. Pins follow by skinning; capsules sweep between poses.
+// after_step (optional): called after each step with the frame index (1 .. poses.size() - 1) and
+// the state, which it may change (steering); the frame is recorded after it.
 PoseRun simulate_poses(const CharacterScene& scene, Solver& solver,
                        const std::vector<std::vector<JointPose>>& poses, double rate,
-                       ClothState& state);
+                       ClothState& state,
+                       const std::function<void(size_t, ClothState&)>& after_step = {});
 
 // Character space (docs/SECONDARY_GRAPH.md), where a clothdb file stores cloth: the root
 // projected to the floor, facing +z (its bind-pose +z carried by its rotation).

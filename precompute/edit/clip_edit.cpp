@@ -655,9 +655,33 @@ DeleteReport delete_clip(EditContext& ctx, int64_t clip) {
            " and no other state at its node has cloth along every way out; re-simulate it "
            "(clip resim) instead");
   }
+  // Dead ends linked to this clip (issue 16) continue with the clip of the nearest other state
+  // at the node along the same primary clip, so the runtime still never falls back.
+  std::vector<db::ClothLink> links, relinked;
+  check(ctx.reader.cloth_links(&links, &err), err);
+  for (const db::ClothLink& l : links) {
+    if (l.to_clip != clip) continue;
+    const StateData from = decode_state(ctx.reader, l.from_state);
+    db::ClothLink next = l;
+    double nearest = std::numeric_limits<double>::infinity();
+    for (const auto& c : clips) {
+      if (c.id == clip || c.primary_clip != l.primary_clip) continue;
+      const StateData to = decode_state(ctx.reader, c.start_state);
+      const double d = db::state_distance(from.x, from.v, to.x, to.v, 1.0 / graph.rate);
+      if (d < nearest) nearest = d, next.to_clip = c.id;
+    }
+    if (!std::isfinite(nearest))
+      fail(ctx.path + ": clip " + std::to_string(clip) + " cannot be deleted: state " +
+           std::to_string(l.from_state) +
+           " continues with it through a link and no other clip runs along primary clip " +
+           std::to_string(l.primary_clip));
+    next.blend_error = nearest;
+    relinked.push_back(next);
+  }
   const size_t per_frame = start.x.size();
   db::Writer::Edit edit(ctx.writer, clip, "delete", ctx.author);
   ctx.writer.remove_clip(clip);
+  for (const db::ClothLink& l : relinked) ctx.writer.add_cloth_link(l);
   for (const db::ClothEdge* e : into) {
     const std::vector<float> from = last_frame(ctx.reader, e->from_clip, per_frame);
     EdgeCheck c{e->id,

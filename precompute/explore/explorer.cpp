@@ -89,8 +89,9 @@ struct Exploration {
   std::vector<StateRec> states;
   std::vector<std::vector<int>> states_at_node;  // indices into states, per node
   long clips = 0, linked = 0;  // clip ends so far, and those that linked back within epsilon
-  std::set<std::pair<int64_t, int>> done;    // (state id, edge) with a clip
-  std::set<std::pair<int64_t, int>> failed;  // unstable in this run: not retried
+  std::set<std::pair<int64_t, int>> done;              // (state id, edge) with a clip
+  std::map<std::pair<int64_t, int>, int64_t> clip_of;  // (state id, edge) -> its cloth clip id
+  std::set<std::pair<int64_t, int>> failed;            // unstable in this run: not retried
 };
 
 // Kim et al. expand the dead end whose unresolved error matters most: its error times how often
@@ -160,7 +161,14 @@ void integrate_batch(Exploration& ex, db::Writer& writer, const std::vector<Job>
     clip.first_frame = 0;
     clip.run = run_id;
     const int64_t clip_id = writer.add_cloth_clip_blob(clip, r.clip_blob, r.clip_max_error);
+    if (r.steer_target != 0) {
+      writer.set_clip_steering(
+          {clip_id, r.steer_target, r.steer_distance, r.steer_displacement, r.steer_acceleration});
+      ++report.steered;
+      report.worst_steering = std::max(report.worst_steering, r.steer_displacement);
+    }
     ex.done.insert({start_id, job.edge});
+    ex.clip_of[{start_id, job.edge}] = clip_id;
     report.frames += r.frame_count;
     report.frames_this_run += r.frame_count;
     // The end as it is stored (and as a resumed run reads it), then the closest state at the end
@@ -215,10 +223,143 @@ void integrate_batch(Exploration& ex, db::Writer& writer, const std::vector<Job>
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
+// When the budget ends (issue 16: no runtime fallback), every dead end (a state and a way out of
+// its node with no clip) continues with the clip that the nearest state at the same node has along
+// that way out; the state distance is its blend error. A way out that no state at the node has
+// explored gets no link (db check reports it). Deterministic: nodes, edges and states in order,
+// ties to the older state.
+std::vector<db::ClothLink> link_dead_ends(const Exploration& ex, int64_t run_id) {
+  std::vector<db::ClothLink> links;
+  for (size_t node = 0; node < ex.states_at_node.size(); ++node) {
+    const std::vector<int>& here = ex.states_at_node[node];
+    for (int e : ex.out_edges[node]) {
+      std::vector<int> with_clip;
+      for (int s : here)
+        if (ex.clip_of.count({ex.states[static_cast<size_t>(s)].id, e})) with_clip.push_back(s);
+      if (with_clip.empty()) continue;
+      for (int s : here) {
+        const StateRec& from = ex.states[static_cast<size_t>(s)];
+        if (ex.clip_of.count({from.id, e})) continue;
+        double best = std::numeric_limits<double>::infinity();
+        int best_state = with_clip.front();
+        for (int w : with_clip) {
+          const StateRec& to = ex.states[static_cast<size_t>(w)];
+          const double d = db::state_distance(from.x, from.v, to.x, to.v, ex.tau);
+          if (d < best) best = d, best_state = w;
+        }
+        db::ClothLink link;
+        link.from_state = from.id;
+        link.primary_clip = ex.graph.edges[static_cast<size_t>(e)].db_clip;
+        link.to_clip = ex.clip_of.at({ex.states[static_cast<size_t>(best_state)].id, e});
+        link.blend_error = std::isfinite(best) ? best : 1.0;
+        link.run = run_id;
+        links.push_back(link);
+      }
+    }
+  }
+  return links;
+}
+
 std::string bar(double fraction, int width) {
   fraction = std::clamp(fraction, 0.0, 1.0);
   const int full = static_cast<int>(fraction * width);
   return std::string(full, '#') + std::string(width - full, '.');
+}
+
+// Steered clip ends (issue 16; SceneFile::steering). The clip is simulated as usual, keeping the
+// state K frames before its end. If its end is farther than epsilon from the nearest state at the
+// end node, but within max_distance, the last K frames are simulated again from that state with a
+// pull after each step: frame f (1..K) moves every free vertex a fraction s of the way to the
+// unsteered frame shifted by s times the end's offset to the target, s = smoothstep(f / K). At
+// f = K, s = 1: the clip ends on the target state (positions and velocities), so the explorer links
+// it with a blend of only the codec's rounding. The pull is ramped in, and the solver's constraints
+// and collisions act on the pulled cloth in every step but the last.
+PoseRun simulate_with_steering(const CharacterScene& scene, const ExploreGraph& graph,
+                               const JobInput& input, ClothState& state, JobResult& result) {
+  const ExploreEdge& edge = graph.edges[static_cast<size_t>(input.edge)];
+  const size_t poses = edge.poses.size();
+  const size_t k = scene.file.steering.frames > 0 && !input.targets.empty() && poses > 2
+                       ? std::min(static_cast<size_t>(scene.file.steering.frames), poses - 2)
+                       : 0;
+  if (k == 0) {
+    auto solver = make_solver(input.solver, scene.model, input.settings);
+    return simulate_poses(scene, *solver, edge.poses, graph.rate, state);
+  }
+  const std::vector<std::vector<JointPose>> head(edge.poses.begin(),
+                                                 edge.poses.end() - static_cast<long>(k)),
+      tail(edge.poses.end() - static_cast<long>(k) - 1, edge.poses.end());
+  auto solver = make_solver(input.solver, scene.model, input.settings);
+  PoseRun run = simulate_poses(scene, *solver, head, graph.rate, state);
+  if (!run.stable) return run;
+  const ClothState before_tail = state;
+  PoseRun rest = simulate_poses(scene, *solver, tail, graph.rate, state);
+  auto append = [](PoseRun& to, PoseRun& from) {
+    to.frames.insert(to.frames.end(), from.frames.begin(), from.frames.end());
+    to.metrics.insert(to.metrics.end(), from.metrics.begin(), from.metrics.end());
+    to.end_velocity = from.end_velocity;
+    to.stable = from.stable;
+    to.message = from.message;
+    to.seconds += from.seconds;
+    to.step_halvings += from.step_halvings;
+  };
+  if (!rest.stable) {
+    append(run, rest);
+    return run;
+  }
+  const Eigen::Isometry3d end_frame = character_frame(scene, edge.poses.back());
+  const std::vector<float> end_x = to_character_space(state.x, end_frame, false),
+                           end_v = to_character_space(state.v, end_frame, true);
+  const double tau = 1.0 / graph.rate;
+  double nearest = std::numeric_limits<double>::infinity();
+  const SteerTarget* target = nullptr;
+  for (const SteerTarget& t : input.targets) {
+    const double d = db::state_distance(end_x, end_v, t.x, t.v, tau);
+    if (d < nearest) nearest = d, target = &t;
+  }
+  if (!target || nearest <= input.epsilon || nearest > scene.file.steering.max_distance) {
+    append(run, rest);
+    return run;
+  }
+  // The unsteered tail in character space, and the end's offset to the target.
+  const size_t n = end_x.size();
+  std::vector<std::vector<float>> unsteered(k + 1);
+  for (size_t f = 1; f <= k; ++f)
+    unsteered[f] = to_character_space(rest.frames[f - 1], character_frame(scene, tail[f]), false);
+  std::vector<float> offset(n);
+  for (size_t i = 0; i < n; ++i) offset[i] = target->x[i] - end_x[i];
+  double largest = 0;
+  auto pull = [&](size_t f, ClothState& st) {
+    const double t = static_cast<double>(f) / static_cast<double>(k);
+    const double s = t * t * (3 - 2 * t);
+    const Eigen::Isometry3d frame = character_frame(scene, tail[f]);
+    const std::vector<float> now = to_character_space(st.x, frame, false);
+    for (Eigen::Index v = 0; v < st.x.cols(); ++v) {
+      if (scene.model.inv_mass(v) <= 0) continue;  // pins follow the bones
+      Vec3 c;
+      for (int a = 0; a < 3; ++a) {
+        const size_t i = 3 * static_cast<size_t>(v) + static_cast<size_t>(a);
+        const double goal = unsteered[f][i] + s * offset[i];
+        c[a] = s * (goal - now[i]);
+      }
+      largest = std::max(largest, c.norm());
+      st.x.col(v) += frame.linear() * c;
+      if (f == k) {
+        const size_t i = 3 * static_cast<size_t>(v);
+        st.v.col(v) = frame.linear() * Vec3(target->v[i], target->v[i + 1], target->v[i + 2]);
+      }
+    }
+  };
+  state = before_tail;
+  auto fresh = make_solver(input.solver, scene.model, input.settings);
+  PoseRun steered = simulate_poses(scene, *fresh, tail, graph.rate, state, pull);
+  append(run, steered);
+  if (steered.stable) {
+    result.steer_target = target->state;
+    result.steer_distance = nearest;
+    result.steer_displacement = largest;
+    result.steer_acceleration = largest * graph.rate * graph.rate;
+  }
+  return run;
 }
 
 }  // namespace
@@ -235,7 +376,6 @@ JobResult run_job(const CharacterScene& scene, const ExploreGraph& graph, const 
                              " vertices, the scene's garment " + std::to_string(per_frame / 3));
   JobResult r;
   const double t0 = thread_cpu_seconds();
-  auto solver = make_solver(input.solver, scene.model, input.settings);
   const Eigen::Isometry3d frame0 = character_frame(scene, edge.poses.front());
   ClothState state;
   state.x = from_character_space(input.x, frame0, false);
@@ -244,7 +384,7 @@ JobResult run_job(const CharacterScene& scene, const ExploreGraph& graph, const 
   const Eigen::Matrix3Xd pins = skin_pins(scene.garment, scene.bind, edge.poses.front());
   for (size_t k = 0; k < scene.garment.pins.size(); ++k)
     state.x.col(scene.garment.pins[k]) = pins.col(static_cast<Eigen::Index>(k));
-  const PoseRun run = simulate_poses(scene, *solver, edge.poses, graph.rate, state);
+  PoseRun run = simulate_with_steering(scene, graph, input, state, r);
   // The budget counts simulations: measuring the quality and encoding are not in cpu_seconds.
   r.cpu_seconds = thread_cpu_seconds() - t0;
   if (!run.stable) {
@@ -508,8 +648,10 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
                                std::string(err.message));
     states.push_back(std::move(rec));
   }
-  for (const auto& c : stored_clips)
+  for (const auto& c : stored_clips) {
     ex.done.insert({c.start_state, edge_of_clip.at(c.primary_clip)});
+    ex.clip_of[{c.start_state, edge_of_clip.at(c.primary_clip)}] = c.id;
+  }
   for (const auto& c : stored_clips) report.frames += c.frame_count;
   for (const auto& e : stored_edges)
     report.worst_blend_error = std::max(report.worst_blend_error, e.blend_error);
@@ -601,6 +743,12 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
       inputs[b].settings.threads =
           1;  // parallel across jobs, not inside one (a runner may change it)
       inputs[b].codec = codec_settings;
+      inputs[b].epsilon = options.epsilon;
+      if (scene.file.steering.frames > 0)
+        for (int t : ex.states_at_node[static_cast<size_t>(graph.edges[batch[b].edge].to_node)])
+          inputs[b].targets.push_back({states[static_cast<size_t>(t)].id,
+                                       states[static_cast<size_t>(t)].x,
+                                       states[static_cast<size_t>(t)].v});
     }
     std::vector<JobResult> results(batch.size());
     runner(inputs, results);
@@ -634,14 +782,24 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
     }
   }
   if (options.progress) std::fprintf(stderr, "\n");
+  const std::vector<db::ClothLink> links = link_dead_ends(ex, run_id);
+  writer.replace_cloth_links(links);
+  db::set_meta_text(writer, db::meta::kDeadEndsLinked, "1");
+  report.links = static_cast<int>(links.size());
+  for (const db::ClothLink& l : links) {
+    report.worst_link_error = std::max(report.worst_link_error, l.blend_error);
+    report.mean_link_error += l.blend_error / static_cast<double>(links.size());
+  }
   const CurvePoint& last = report.curve.back();
-  char notes[256];
+  char notes[384];
   std::snprintf(
       notes, sizeof notes,
       "%s; unresolved error worst %.2f mm, reach-weighted worst %.2f mm; %.1f %% of "
-      "clip ends linked within epsilon",
+      "clip ends linked within epsilon; %d dead ends linked to the nearest state (blend error "
+      "mean %.2f mm, worst %.2f mm)",
       queue.empty() ? "converged" : (std::to_string(queue.size()) + " dead ends left").c_str(),
-      1e3 * last.worst_error, 1e3 * last.weighted_worst_error, 100 * last.linked_fraction);
+      1e3 * last.worst_error, 1e3 * last.weighted_worst_error, 100 * last.linked_fraction,
+      report.links, 1e3 * report.mean_link_error, 1e3 * report.worst_link_error);
   writer.finish_run(run_id, report.cpu_seconds, notes);
   report.states = static_cast<int>(states.size());
   report.clips = static_cast<int>(ex.done.size());

@@ -57,9 +57,19 @@ struct ExploreGraph {
 
 // One job: simulate the garment along one primary edge from one cloth state. Everything a worker
 // needs beyond the scene and graph it loaded itself.
+// A state at a job's end node that steering may pull the clip's end toward (issue 16).
+struct SteerTarget {
+  int64_t state = 0;        // its id
+  std::vector<float> x, v;  // character space, as stored (decoded)
+};
+
 struct JobInput {
   int edge = 0;             // index into ExploreGraph::edges
   std::vector<float> x, v;  // start state in character space, as stored (decoded)
+  // Steering (SceneFile::steering, on when frames > 0): the states at the edge's end node when the
+  // batch was chosen, and the explorer's epsilon (an end already within it is not steered).
+  std::vector<SteerTarget> targets;
+  double epsilon = 0;
   SolverKind solver = SolverKind::Xpbd;
   SolverSettings settings;  // settings.threads: OpenMP threads inside this one simulation
   db::CodecSettings codec;  // the database's: the worker encodes exactly what the writer would
@@ -78,6 +88,11 @@ struct JobResult {
   std::vector<uint8_t> end_x_blob, end_v_blob;  // one frame each, position / velocity bound
   ClipQuality quality;     // strain, penetration, jitter, halved steps, worst frame
   double cpu_seconds = 0;  // thread CPU time of the simulation (not measuring or encoding)
+  // Steering (0 / 0 when the clip was not steered): the state its end was pulled to, the state
+  // distance before steering (m), the largest displacement one frame's pull applied to a vertex
+  // (m) and that displacement over dt^2 (m/s^2).
+  int64_t steer_target = 0;
+  double steer_distance = 0, steer_displacement = 0, steer_acceleration = 0;
 };
 
 // Runs one job (thread-safe: its own solver; input.settings.threads threads inside).
@@ -119,7 +134,7 @@ struct CurvePoint {
   long frames = 0;
   int states = 0;
   int dead_ends = 0;
-  double worst_error = 0;  // m, largest unresolved error among dead ends (0 when none)
+  double worst_error = 0;           // m, largest unresolved error among dead ends (0 when none)
   double weighted_worst_error = 0;  // m, largest unresolved error x the edge's reach
   double mean_error = 0;            // m
   double linked_fraction = 0;       // clip ends so far that linked back within epsilon
@@ -132,12 +147,18 @@ struct ExploreReport {
   int dead_ends = 0;  // left when it stopped
   long frames = 0;    // stored cloth frames in the database
   long frames_this_run = 0;
-  double cpu_seconds = 0;        // this run
-  double worst_error = 0;        // m
+  double cpu_seconds = 0;           // this run
+  double worst_error = 0;           // m
   double weighted_worst_error = 0;  // m, x the edge's reach
   double linked_fraction = 0;       // of all clip ends in the database
-  double worst_blend_error = 0;  // m, largest recorded blend error on a cloth edge
-  bool converged = false;        // no dead end left above epsilon
+  double worst_blend_error = 0;     // m, largest recorded blend error on a cloth edge
+  int steered = 0;                  // clips of this run whose end was steered onto a state
+  double worst_steering = 0;        // m, largest steering displacement of a vertex in one frame
+  // Dead ends closed when the run ended (db::ClothLink: continue with the nearest state's clip)
+  // and their blend errors (m).
+  int links = 0;
+  double worst_link_error = 0, mean_link_error = 0;
+  bool converged = false;  // no dead end left above epsilon
   bool resumed = false;
   long jobs_this_run = 0;         // simulations integrated (stable or not)
   double integrate_seconds = 0;   // wall time spent integrating them into the database

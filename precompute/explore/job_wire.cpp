@@ -16,10 +16,10 @@ static_assert(std::endian::native == std::endian::little, "the wire format is li
 // a new solver option needs nothing here.
 #if defined(__x86_64__) && defined(__GLIBCXX__)
 // (The settings inside JobInput travel as JSON: their own size does not matter here.)
-static_assert(sizeof(JobInput) - sizeof(SolverSettings) - sizeof(db::CodecSettings) == 64,
+static_assert(sizeof(JobInput) - sizeof(SolverSettings) - sizeof(db::CodecSettings) == 96,
               "JobInput changed: update encode_job/decode_job");
 static_assert(sizeof(ClipQuality) == 40, "ClipQuality changed: update encode_result/decode_result");
-static_assert(sizeof(JobResult) == 200, "JobResult changed: update encode_result/decode_result");
+static_assert(sizeof(JobResult) == 232, "JobResult changed: update encode_result/decode_result");
 static_assert(sizeof(WorkerHello) == 64, "WorkerHello changed: update encode_hello/decode_hello");
 #endif
 
@@ -180,6 +180,13 @@ std::vector<uint8_t> encode_job(uint64_t seq, const JobInput& job) {
   run.settings = job.settings;
   run.codec = job.codec;
   o.str(db::run_settings_json(run));
+  o.f64(job.epsilon);
+  o.u32(static_cast<uint32_t>(job.targets.size()));
+  for (const SteerTarget& t : job.targets) {
+    o.i64(t.state);
+    o.floats(t.x);
+    o.floats(t.v);
+  }
   return o.take();
 }
 
@@ -201,6 +208,19 @@ JobInput decode_job(const uint8_t* data, size_t size, uint64_t* seq) {
     job.codec = run.codec;
   } catch (const db::SettingsError& e) {
     in.fail("settings", e.what());
+  }
+  job.epsilon = in.f64("epsilon");
+  const uint32_t targets = in.u32("targets");
+  for (uint32_t k = 0; k < targets; ++k) {
+    SteerTarget t;
+    t.state = in.i64("target state");
+    t.x = in.floats("target x");
+    t.v = in.floats("target v");
+    if (t.x.size() != job.x.size() || t.v.size() != job.x.size())
+      in.fail("targets", "target " + std::to_string(k) + " has " + std::to_string(t.x.size()) +
+                             " position and " + std::to_string(t.v.size()) +
+                             " velocity floats, the job's state " + std::to_string(job.x.size()));
+    job.targets.push_back(std::move(t));
   }
   in.finish();
   return job;
@@ -226,6 +246,10 @@ std::vector<uint8_t> encode_result(uint64_t seq, const JobResult& r) {
   o.i32(q.halved_steps);
   o.i32(q.worst_frame);
   o.f64(r.cpu_seconds);
+  o.i64(r.steer_target);
+  o.f64(r.steer_distance);
+  o.f64(r.steer_displacement);
+  o.f64(r.steer_acceleration);
   return o.take();
 }
 
@@ -250,6 +274,10 @@ JobResult decode_result(const uint8_t* data, size_t size, uint64_t* seq) {
   q.halved_steps = in.i32("halved_steps");
   q.worst_frame = in.i32("worst_frame");
   r.cpu_seconds = in.f64("cpu_seconds");
+  r.steer_target = in.i64("steer_target");
+  r.steer_distance = in.f64("steer_distance");
+  r.steer_displacement = in.f64("steer_displacement");
+  r.steer_acceleration = in.f64("steer_acceleration");
   in.finish();
   if (r.stable) {  // an unstable job carries no frames
     check_blob(in, r.clip_blob, r.frame_count, r.vertex_count, "clip_blob");

@@ -18,8 +18,9 @@
 
 namespace clothdb {
 
-constexpr uint32_t kWireVersion = 4;  // 2: clip quality metrics and the last frame; 3: Newton
-                                      // options; 4: solver and codec settings as RunSettings JSON
+constexpr uint32_t kWireVersion = 5;  // 2: clip quality metrics and the last frame; 3: Newton
+                                      // options; 4: solver and codec settings as RunSettings JSON;
+                                      // 5: steering (targets, epsilon, what the pull did)
 
 class WireError : public std::runtime_error {
  public:
