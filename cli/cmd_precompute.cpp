@@ -17,12 +17,25 @@
 
 namespace clothdb::cli {
 
+namespace {
+
+std::string floor_text(const PrecomputeOutcome& out) {
+  if (out.error_floor < 0) return "not measured (--no-floor)";
+  char text[96];
+  std::snprintf(text, sizeof text, "%.2f mm (%s)", 1e3 * out.error_floor,
+                out.floor_measured ? "measured in this run" : "the database's meta");
+  return text;
+}
+
+}  // namespace
+
 void register_precompute(CLI::App& app) {
   auto args = std::make_shared<PrecomputeRequest>();
   auto epsilon_mm = std::make_shared<double>(5.0);
   args->explore.threads = 0;
   args->explore.batch = 16;
   auto quiet = std::make_shared<bool>(false);
+  auto floor_seconds = std::make_shared<double>(args->floor.continuation_seconds);
   CLI::App* cmd = app.add_subcommand(
       "precompute",
       "Builds the scene's motion graph and explores the secondary cloth graph into the database "
@@ -61,6 +74,20 @@ void register_precompute(CLI::App& app) {
                   "Write the error-against-CPU-time curve to PREFIX.csv and PREFIX.svg (default: "
                   "beside the database)");
   cmd->add_flag("--quiet", *quiet, "No progress bar");
+  cmd->add_flag("--force", args->force,
+                "Explore even with an --epsilon below the garment's error floor (which cannot "
+                "link clip ends: `clothdb floor --help`)");
+  cmd->add_flag("!--no-floor", args->measure_floor,
+                "Do not measure the error floor of a database that has none (a floor already "
+                "in its meta is still checked)");
+  cmd->add_option("--floor-seconds", *floor_seconds,
+                  "Error floor: seconds of the common continuation and of holding still (each)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 600.0));
+  cmd->add_option("--floor-histories", args->floor.histories,
+                  "Error floor: different histories that meet at a common node")
+      ->capture_default_str()
+      ->check(CLI::Range(2, 64));
   cmd->add_flag(
       "--auto", args->automatic,
       "Choose the solver setting: simulate the garment along the first --auto-frames frames of the "
@@ -95,9 +122,10 @@ void register_precompute(CLI::App& app) {
   cmd->add_flag("--mpi-verbose", args->mpi_verbose,
                 "Under mpirun: one line per job handed out, lost or late");
 #endif
-  cmd->callback([args, epsilon_mm, quiet] {
+  cmd->callback([args, epsilon_mm, quiet, floor_seconds] {
     PrecomputeRequest request = *args;
     request.explore.epsilon = 1e-3 * *epsilon_mm;
+    request.floor.continuation_seconds = request.floor.hold_seconds = *floor_seconds;
     request.explore.progress = !*quiet;
     PrecomputeOutcome out;
     try {
@@ -126,14 +154,15 @@ void register_precompute(CLI::App& app) {
         "worst error  %.2f mm unresolved (%.2f mm weighted by reach), %.2f mm largest blend on "
         "an edge (epsilon %.1f mm)\n"
         "linked       %.1f %% of clip ends linked back within epsilon\n"
+        "error floor  %s\n"
         "curve        %s.csv, %s.svg\n",
         request.db.c_str(), report.states, report.clips, report.dead_ends,
         report.converged ? "converged" : "budget reached", report.frames, report.frames_this_run,
         report.cpu_seconds,
         report.frames_this_run > 0 ? report.cpu_seconds / report.frames_this_run : 0.0,
         1e3 * report.worst_error, 1e3 * report.weighted_worst_error, 1e3 * report.worst_blend_error,
-        *epsilon_mm, 100 * report.linked_fraction, out.curve_prefix.c_str(),
-        out.curve_prefix.c_str());
+        *epsilon_mm, 100 * report.linked_fraction, floor_text(out).c_str(),
+        out.curve_prefix.c_str(), out.curve_prefix.c_str());
   });
 }
 

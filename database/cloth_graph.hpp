@@ -65,6 +65,11 @@ inline constexpr const char* kSceneHash = "scene_hash";      // content_hash of 
 inline constexpr const char* kMotionGraph = "motion_graph";  // the primary graph, JSON
 inline constexpr const char* kStartClip = "start_clip";      // primary clip id (integer)
 inline constexpr const char* kAutoSolver = "auto_solver";    // --auto's table (Markdown)
+// The garment's error floor on the motion graph (explore/error_floor.hpp), measured by the
+// precompute before it explored: m (a number), and the measurement's detail (JSON: pairwise
+// distances in mm, histories, options). An epsilon below the floor cannot link clip ends.
+inline constexpr const char* kErrorFloor = "error_floor";
+inline constexpr const char* kErrorFloorDetail = "error_floor_detail";
 // The keys a file may hold; `db check` reports any other.
 const std::vector<std::string>& known_keys();
 }  // namespace meta
@@ -78,6 +83,8 @@ std::optional<double> meta_number(Reader& reader, const char* key);
 // Typed writes (inside the caller's transaction, if any).
 void set_meta_text(Writer& writer, const char* key, const std::string& value);
 void set_meta_integer(Writer& writer, const char* key, int64_t value);
+// Written with 17 significant digits: meta_number reads back the same double.
+void set_meta_number(Writer& writer, const char* key, double value);
 
 // meta start_clip as the runtime reads it: an id (or, from older tools, a primary clip's name).
 // Returns the index into `clips` or -1 when the value names none of them.
