@@ -40,7 +40,10 @@ void register_precompute(CLI::App& app) {
       "precompute",
       "Builds the scene's motion graph and explores the secondary cloth graph into the database "
       "(Kim et al. 2013) until every dead end is within --epsilon or a budget (--frames, "
-      "--cpu-hours) runs out. Killed at any moment, the same command resumes from the database.");
+      "--cpu-hours) runs out. Killed at any moment, the same command resumes from the database. "
+      "Before a new database is explored, the garment's error floor on the graph is measured "
+      "(`clothdb floor`; stored in meta error_floor) and an --epsilon below it is refused "
+      "unless --force: no clip end could link within it.");
   cmd->add_option("SCENE", args->scene, "Scene file (JSON), e.g. motions/skirt_walk.json")
       ->required();
   cmd->add_option("--db", args->db, "Database file (created, or resumed if it exists)")->required();

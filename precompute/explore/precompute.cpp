@@ -78,12 +78,10 @@ std::optional<ErrorFloor> check_error_floor(const PrecomputeRequest& request,
     if (const std::optional<double> stored = db::meta_number(reader, db::meta::kErrorFloor))
       out.error_floor = *stored;
   }
-  std::string what;
+  std::string floor_text, details;  // "26.81 mm (median of ...)", then indented lines
   if (out.error_floor >= 0) {
-    what = request.db +
-           ": error floor of this garment on this motion (measured when it was "
-           "made, meta error_floor): " +
-           millimetres(out.error_floor);
+    floor_text = millimetres(out.error_floor) + " (measured when " + request.db +
+                 " was made: meta error_floor)";
   } else if (request.measure_floor) {
     if (log)
       std::fprintf(log,
@@ -94,12 +92,12 @@ std::optional<ErrorFloor> check_error_floor(const PrecomputeRequest& request,
     measured = measure_error_floor(scene, eg, floor_options);
     out.error_floor = measured->floor;
     out.floor_measured = true;
-    what = "error floor of this garment on this motion: " + error_floor_summary(*measured);
-    if (measured->fallback) what += "\n  note: " + measured->note;
+    floor_text = error_floor_summary(*measured);
+    if (measured->fallback) details += "\n  note: " + measured->note;
     char cpu[96];
     std::snprintf(cpu, sizeof cpu, "\n  measured in %.1f CPU s (%ld solver steps)",
                   measured->cpu_seconds, measured->frames);
-    what += cpu;
+    details += cpu;
   } else {
     return measured;
   }
@@ -108,17 +106,18 @@ std::optional<ErrorFloor> check_error_floor(const PrecomputeRequest& request,
   std::snprintf(verdict, sizeof verdict, "; epsilon %.1f mm is %s it%s", 1e3 * epsilon,
                 below ? "below" : "not below",
                 below && request.force ? " (--force: exploring anyway)" : "");
-  out.floor_line = what + verdict;
+  out.floor_line = "error floor of this garment on this motion: " + floor_text + verdict + details;
   if (below && !request.force) {
     char advice[320];
     std::snprintf(advice, sizeof advice,
-                  "states that reach the same node by different histories stay about that far "
+                  "States that reach the same node by different histories stay about that far "
                   "apart, so clip ends cannot link within epsilon %.1f mm and every clip would "
                   "make a new state. Use --epsilon %.0f (1.5 x the floor, rounded up to a mm), "
-                  "or --force to explore with %.1f mm anyway; nothing was written",
+                  "or --force to explore with %.1f mm anyway; nothing was written.",
                   1e3 * epsilon, 1e3 * suggested_epsilon(out.error_floor), 1e3 * epsilon);
     throw std::runtime_error(request.db + ": epsilon " + millimetres(epsilon) +
-                             " is below the error floor; " + what + "\n" + advice);
+                             " is below the error floor of this garment on this motion, " +
+                             floor_text + details + "\n" + advice);
   }
   if (log) std::fprintf(log, "%s\n", out.floor_line.c_str());
   return measured;
