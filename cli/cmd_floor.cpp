@@ -1,5 +1,6 @@
 // `clothdb floor SCENE`: the error floor of a garment on a motion (explore/error_floor.hpp),
 // measured without making a database: what epsilon the exploration can reach at all.
+#include <algorithm>
 #include <cstdio>
 #include <memory>
 
@@ -10,6 +11,16 @@
 #include "report/output.hpp"
 
 namespace clothdb::cli {
+
+namespace {
+
+double largest_of(const std::vector<double>& v) {
+  double m = 0;
+  for (double d : v) m = std::max(m, d);
+  return m;
+}
+
+}  // namespace
 
 void register_floor(CLI::App& app) {
   struct Args {
@@ -91,6 +102,7 @@ void register_floor(CLI::App& app) {
       std::printf("\n");
     };
     row("met", f.met, f.met_median, f.met_max);
+    row("halfway", f.halfway, f.halfway_median, largest_of(f.halfway));
     row("walked", f.walked, f.floor, f.walked_max);
     row("held", f.held, f.held_median, f.held_max);
     std::printf(

@@ -73,6 +73,7 @@ TEST(ErrorFloor, MultiStableSkirtMeasuresAboveAWellPosedOne) {
     EXPECT_EQ(f->histories(), 4);
     EXPECT_EQ(f->walked.size(), 6u);
     EXPECT_EQ(f->held.size(), 6u);
+    EXPECT_EQ(f->halfway.size(), 6u);
   }
   // Measured: about 43, 7 and 1 mm walked; 38, 6 and 0.2 mm held still.
   EXPECT_GT(f_flared.floor, 3 * f_straight.floor)

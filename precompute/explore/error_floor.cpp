@@ -233,12 +233,12 @@ LocalState local_state(const CharacterScene& scene, const ClothState& state,
 struct HistoryPlan {
   std::vector<std::vector<JointPose>> poses;
   size_t first = 0;  // frame it starts simulating from (the shared part is done before)
-  size_t arrive = 0, walked = 0, held = 0;
+  size_t arrive = 0, halfway = 0, walked = 0, held = 0;
   int start_frame = 0;  // fallback: frame of the start edge settled at
 };
 
 struct HistoryResult {
-  LocalState met, walked, held;
+  LocalState met, halfway, walked, held;
   long frames = 0;
   double cpu = 0;
   std::string error;
@@ -347,8 +347,16 @@ ErrorFloor measure_error_floor(const CharacterScene& scene, const ExploreGraph& 
         append_edge(scene, graph.edges[static_cast<size_t>(e)], p.poses);
     }
     p.arrive = p.poses.size() - 1;
-    for (int e : floor.continuation_edges)
+    p.halfway = p.arrive;
+    for (int e : floor.continuation_edges) {
+      // Halfway: the first node of the continuation at least half of it along (a node, as a
+      // clip end is).
+      if (2 * (p.halfway - p.arrive) < static_cast<size_t>(floor.continuation_frames))
+        p.halfway = p.poses.size() - 1;
       append_edge(scene, graph.edges[static_cast<size_t>(e)], p.poses);
+    }
+    if (2 * (p.halfway - p.arrive) < static_cast<size_t>(floor.continuation_frames))
+      p.halfway = p.poses.size() - 1;
     p.walked = p.poses.size() - 1;
     for (int f = 0; f < floor.hold_frames; ++f) p.poses.push_back(p.poses.back());
     p.held = p.poses.size() - 1;
@@ -391,7 +399,9 @@ ErrorFloor measure_error_floor(const CharacterScene& scene, const ExploreGraph& 
       }
       run_segment(scene, *solver, p, p.first, p.arrive, graph.rate, state, k, &r.frames);
       r.met = local_state(scene, state, p.poses[p.arrive]);
-      run_segment(scene, *solver, p, p.arrive, p.walked, graph.rate, state, k, &r.frames);
+      run_segment(scene, *solver, p, p.arrive, p.halfway, graph.rate, state, k, &r.frames);
+      r.halfway = local_state(scene, state, p.poses[p.halfway]);
+      run_segment(scene, *solver, p, p.halfway, p.walked, graph.rate, state, k, &r.frames);
       r.walked = local_state(scene, state, p.poses[p.walked]);
       run_segment(scene, *solver, p, p.walked, p.held, graph.rate, state, k, &r.frames);
       r.held = local_state(scene, state, p.poses[p.held]);
@@ -419,11 +429,13 @@ ErrorFloor measure_error_floor(const CharacterScene& scene, const ExploreGraph& 
         return db::state_distance(sa.x, sa.v, sb.x, sb.v, tau);
       };
       floor.met.push_back(distance(&HistoryResult::met));
+      floor.halfway.push_back(distance(&HistoryResult::halfway));
       floor.walked.push_back(distance(&HistoryResult::walked));
       floor.held.push_back(distance(&HistoryResult::held));
     }
   floor.floor = median(floor.walked);
   floor.walked_max = largest(floor.walked);
+  floor.halfway_median = median(floor.halfway);
   floor.held_median = median(floor.held);
   floor.held_max = largest(floor.held);
   floor.met_median = median(floor.met);
@@ -445,7 +457,15 @@ std::string error_floor_summary(const ErrorFloor& f) {
                 "largest %.2f mm; held still: %.2f mm, largest %.2f mm)",
                 1e3 * f.floor, f.walked.size(), f.histories(), f.common_node, 1e3 * f.walked_max,
                 1e3 * f.held_median, 1e3 * f.held_max);
-  return line;
+  std::string text = line;
+  if (f.still_falling()) {
+    std::snprintf(line, sizeof line,
+                  "; still falling while walking (%.2f mm halfway): a longer continuation may "
+                  "measure it lower",
+                  1e3 * f.halfway_median);
+    text += line;
+  }
+  return text;
 }
 
 double suggested_epsilon(double floor) {
@@ -478,6 +498,9 @@ std::string error_floor_json(const ErrorFloor& f, const ExploreGraph& graph,
                       {"met_max_mm", 1e3 * f.met_max},
                       {"nearest_median_mm", 1e3 * f.nearest_median},
                       {"walked_mm", mm(f.walked)},
+                      {"halfway_mm", mm(f.halfway)},
+                      {"halfway_median_mm", 1e3 * f.halfway_median},
+                      {"still_falling", f.still_falling()},
                       {"held_mm", mm(f.held)},
                       {"met_mm", mm(f.met)},
                       {"common_node", f.common_node},

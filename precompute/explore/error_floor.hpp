@@ -60,8 +60,13 @@ struct ErrorFloor {
   // floor: with few histories it mostly says whether they fell into a few shared shapes (close
   // pairs) or each into its own; shown next to the floor.
   double nearest_median = 0;
+  // m: halfway through the continuation (at its first node at least half of it along). A floor
+  // well below it means the histories were still converging while walking: the floor then holds
+  // part of the transient of a garment that forgets its history slowly, and a longer continuation
+  // would measure it lower (still_falling()).
+  double halfway_median = 0;
   // Pairwise distances, m, in the order (0,1), (0,2), ..., (1,2), ...
-  std::vector<double> met, walked, held;
+  std::vector<double> met, halfway, walked, held;
   // What was simulated.
   std::vector<std::vector<int>> history_edges;  // per history: edges (ExploreGraph indices)
   std::vector<int> start_frames;  // per history: frame of the start edge settled at (fallback)
@@ -74,6 +79,8 @@ struct ErrorFloor {
   double cpu_seconds = 0;  // thread CPU time of the simulations
 
   int histories() const { return static_cast<int>(history_edges.size()); }
+  // The walked distance fell by more than a fifth over the second half of the continuation.
+  bool still_falling() const { return floor < 0.8 * halfway_median; }
 };
 
 // Throws std::invalid_argument naming the option when one is out of range, std::runtime_error
