@@ -9,6 +9,7 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
+#include "database/check.hpp"
 #include "database/cloth_graph.hpp"
 #include "explore/error_floor.hpp"
 #include "explore/precompute.hpp"
@@ -189,6 +190,24 @@ TEST(Precompute, RefusesAnEpsilonBelowTheErrorFloorWithoutForce) {
     const nlohmann::json j = nlohmann::json::parse(*detail);
     EXPECT_EQ(j["walked_mm"].size(), expected.walked.size());
     EXPECT_FALSE(j.contains("cpu_seconds"));  // meta is the same whoever measured it
+  }
+  {
+    // `db check` accepts the stored floor and names a damaged one.
+    const db::CheckReport ok = db::check_database(path);
+    for (const auto& problem : ok.problems) ADD_FAILURE() << problem;
+    const std::string damaged = temp_path("damaged.db");
+    remove_db(damaged);
+    for (const char* suffix : {"", "-wal"})
+      if (std::filesystem::exists(path + suffix))
+        std::filesystem::copy_file(path + suffix, damaged + suffix);
+    {
+      db::Writer w = db::Writer::open(damaged);
+      db::set_meta_text(w, db::meta::kErrorFloor, "-0.01");
+    }
+    bool named = false;
+    for (const auto& problem : db::check_database(damaged).problems)
+      named |= problem.find("error_floor") != std::string::npos;
+    EXPECT_TRUE(named);
   }
 
   // Resumed: the stored floor is checked, not measured again.
