@@ -233,8 +233,22 @@ TEST(Precompute, RefusesAnEpsilonBelowTheErrorFloorWithoutForce) {
   request.explore.epsilon = 0.5 * expected.floor;
   const PrecomputeOutcome unmeasured = run_precompute(request, nullptr);
   EXPECT_LT(unmeasured.error_floor, 0);
+  {
+    db::Reader r;
+    db::Error err;
+    ASSERT_EQ(r.open(none, &err), db::Status::Ok) << err.message;
+    EXPECT_FALSE(db::meta_number(r, db::meta::kErrorFloor).has_value());
+  }
+  // A database without a floor (made with --no-floor, or before floors) has it measured when it
+  // is resumed: the same refusal, and with --force the same stored value as a new database.
+  request.measure_floor = true;
+  EXPECT_THROW(run_precompute(request, nullptr), std::runtime_error);
+  request.force = true;
+  const PrecomputeOutcome late = run_precompute(request, nullptr);
+  EXPECT_TRUE(late.resumed);
+  EXPECT_TRUE(late.floor_measured);
   db::Reader r;
   db::Error err;
   ASSERT_EQ(r.open(none, &err), db::Status::Ok) << err.message;
-  EXPECT_FALSE(db::meta_number(r, db::meta::kErrorFloor).has_value());
+  EXPECT_EQ(db::meta_number(r, db::meta::kErrorFloor), expected.floor);
 }
