@@ -1,12 +1,16 @@
 // `clothdb db info FILE` and `clothdb db check FILE`.
+#include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <string>
 
 #include "cli_util.hpp"
 #include "commands.hpp"
 #include "compress/recode.hpp"
 #include "database/check.hpp"
+#include "database/cloth_graph.hpp"
 
 namespace clothdb::cli {
 
@@ -31,6 +35,29 @@ void print_clips_per_edge(const std::vector<uint64_t>& per_edge) {
   for (const auto& [label, n] : buckets)
     std::printf("  k = %-9s %5llu %s\n", label.c_str(), (unsigned long long)n,
                 std::string(most ? size_t(40 * n / most) : 0, '#').c_str());
+}
+
+// The garment's error floor the precompute measured (meta error_floor, m, and its detail JSON).
+void print_error_floor(const db::DatabaseInfo& i) {
+  std::string floor, detail;
+  for (const auto& [key, value] : i.meta) {
+    if (key == db::meta::kErrorFloor) floor = value;
+    if (key == db::meta::kErrorFloorDetail) detail = value;
+  }
+  if (floor.empty()) return;
+  char* end = nullptr;
+  const double metres = std::strtod(floor.c_str(), &end);
+  if (*end != '\0' || !std::isfinite(metres)) {
+    std::printf("error floor     '%s' (not a number)\n", floor.c_str());
+    return;
+  }
+  std::printf("error floor     %.2f mm", 1e3 * metres);
+  const nlohmann::json j = nlohmann::json::parse(detail, nullptr, false);
+  if (j.is_object() && j.contains("walked_mm") && j.contains("held_median_mm") &&
+      j.contains("histories"))
+    std::printf(" (median of %zu pairwise distances between %zu histories; held still %.2f mm)",
+                j["walked_mm"].size(), j["histories"].size(), j["held_median_mm"].get<double>());
+  std::printf(": an epsilon below it cannot link clip ends\n");
 }
 
 void print_info(const db::DatabaseInfo& i) {
@@ -84,6 +111,7 @@ void print_info(const db::DatabaseInfo& i) {
   std::printf("runs            %llu, %.1f CPU s; %llu edits logged\n", (unsigned long long)i.runs,
               i.run_cpu_seconds, (unsigned long long)i.edits);
   if (!i.last_run_notes.empty()) std::printf("last run        %s\n", i.last_run_notes.c_str());
+  print_error_floor(i);
   for (const auto& [key, value] : i.meta) {
     // Long values (the scene file) are shown by their first line only.
     const std::string first = value.substr(0, std::min(value.find('\n'), size_t(100)));

@@ -17,17 +17,33 @@
 
 namespace clothdb::cli {
 
+namespace {
+
+std::string floor_text(const PrecomputeOutcome& out) {
+  if (out.error_floor < 0) return "not measured (--no-floor)";
+  char text[96];
+  std::snprintf(text, sizeof text, "%.2f mm (%s)", 1e3 * out.error_floor,
+                out.floor_measured ? "measured in this run" : "the database's meta");
+  return text;
+}
+
+}  // namespace
+
 void register_precompute(CLI::App& app) {
   auto args = std::make_shared<PrecomputeRequest>();
   auto epsilon_mm = std::make_shared<double>(5.0);
   args->explore.threads = 0;
   args->explore.batch = 16;
   auto quiet = std::make_shared<bool>(false);
+  auto floor_seconds = std::make_shared<double>(args->floor.continuation_seconds);
   CLI::App* cmd = app.add_subcommand(
       "precompute",
       "Builds the scene's motion graph and explores the secondary cloth graph into the database "
       "(Kim et al. 2013) until every dead end is within --epsilon or a budget (--frames, "
-      "--cpu-hours) runs out. Killed at any moment, the same command resumes from the database.");
+      "--cpu-hours) runs out. Killed at any moment, the same command resumes from the database. "
+      "Before a new database is explored, the garment's error floor on the graph is measured "
+      "(`clothdb floor`; stored in meta error_floor) and an --epsilon below it is refused "
+      "unless --force: no clip end could link within it.");
   cmd->add_option("SCENE", args->scene, "Scene file (JSON), e.g. motions/skirt_walk.json")
       ->required();
   cmd->add_option("--db", args->db, "Database file (created, or resumed if it exists)")->required();
@@ -61,6 +77,20 @@ void register_precompute(CLI::App& app) {
                   "Write the error-against-CPU-time curve to PREFIX.csv and PREFIX.svg (default: "
                   "beside the database)");
   cmd->add_flag("--quiet", *quiet, "No progress bar");
+  cmd->add_flag("--force", args->force,
+                "Explore even with an --epsilon below the garment's error floor (which cannot "
+                "link clip ends: `clothdb floor --help`)");
+  cmd->add_flag("!--no-floor", args->measure_floor,
+                "Do not measure the error floor of a database that has none (a floor already "
+                "in its meta is still checked)");
+  cmd->add_option("--floor-seconds", *floor_seconds,
+                  "Error floor: seconds of the common continuation and of holding still (each)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 600.0));
+  cmd->add_option("--floor-histories", args->floor.histories,
+                  "Error floor: different histories that meet at a common node")
+      ->capture_default_str()
+      ->check(CLI::Range(2, 64));
   cmd->add_flag(
       "--auto", args->automatic,
       "Choose the solver setting: simulate the garment along the first --auto-frames frames of the "
@@ -95,9 +125,10 @@ void register_precompute(CLI::App& app) {
   cmd->add_flag("--mpi-verbose", args->mpi_verbose,
                 "Under mpirun: one line per job handed out, lost or late");
 #endif
-  cmd->callback([args, epsilon_mm, quiet] {
+  cmd->callback([args, epsilon_mm, quiet, floor_seconds] {
     PrecomputeRequest request = *args;
     request.explore.epsilon = 1e-3 * *epsilon_mm;
+    request.floor.continuation_seconds = request.floor.hold_seconds = *floor_seconds;
     request.explore.progress = !*quiet;
     PrecomputeOutcome out;
     try {
@@ -130,6 +161,7 @@ void register_precompute(CLI::App& app) {
         "mm, worst %.2f mm): the runtime needs no fallback\n"
         "steering     %d clip ends steered onto a state this run (largest pull %.2f mm in a "
         "frame)\n"
+        "error floor  %s\n"
         "curve        %s.csv, %s.svg\n",
         request.db.c_str(), report.states, report.clips, report.dead_ends,
         report.converged ? "converged" : "budget reached", report.frames, report.frames_this_run,
@@ -138,7 +170,7 @@ void register_precompute(CLI::App& app) {
         1e3 * report.worst_error, 1e3 * report.weighted_worst_error, 1e3 * report.worst_blend_error,
         *epsilon_mm, 100 * report.linked_fraction, report.links, 1e3 * report.mean_link_error,
         1e3 * report.worst_link_error, report.steered, 1e3 * report.worst_steering,
-        out.curve_prefix.c_str(), out.curve_prefix.c_str());
+        floor_text(out).c_str(), out.curve_prefix.c_str(), out.curve_prefix.c_str());
   });
 }
 

@@ -14,6 +14,7 @@ void register_scene_commands(CLI::App& app);   // cmd_scene.cpp: `clothdb scene 
 void register_simulate(CLI::App& app);
 // cmd_precompute.cpp: `clothdb precompute`
 void register_precompute(CLI::App& app);
+void register_floor(CLI::App& app);            // cmd_floor.cpp: `clothdb floor`
 void register_motion_commands(CLI::App& app);  // cmd_motion.cpp: `clothdb motion info`
 void register_graph_commands(CLI::App& app);   // cmd_graph.cpp: `clothdb graph build|show`
 

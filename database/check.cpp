@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdarg>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <map>
@@ -378,6 +379,16 @@ void check_graph(Reader& reader, CheckReport& report) {
     bool found = false;
     for (const PrimaryClip& p : pcs) found |= std::to_string(p.id) == start || p.name == start;
     if (!found) report.problems.push_back("meta: start_clip '" + start + "' names no primary clip");
+  }
+  // The error floor the precompute measured (explore/error_floor.hpp): a distance, so a finite
+  // number >= 0; the precompute compares every resumed run's epsilon with it.
+  std::string floor;
+  if (reader.meta(meta::kErrorFloor, &floor, &err) == Status::Ok) {
+    char* end = nullptr;
+    const double metres = std::strtod(floor.c_str(), &end);
+    if (floor.empty() || *end != '\0' || !std::isfinite(metres) || metres < 0)
+      report.problems.push_back("meta: error_floor '" + floor +
+                                "' is not a distance in metres (a finite number >= 0)");
   }
 }
 

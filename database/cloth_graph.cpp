@@ -2,6 +2,7 @@
 
 #include <cerrno>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <stdexcept>
 
@@ -65,7 +66,10 @@ const std::vector<std::string>& known_keys() {
                                                 kSceneHash,
                                                 kMotionGraph,
                                                 kStartClip,
-                                                kAutoSolver};
+                                                kAutoSolver,
+                                                kErrorFloor,
+                                                kErrorFloorDetail,
+                                                kDeadEndsLinked};
   return keys;
 }
 }  // namespace meta
@@ -108,6 +112,12 @@ void set_meta_text(Writer& writer, const char* key, const std::string& value) {
 
 void set_meta_integer(Writer& writer, const char* key, int64_t value) {
   writer.set_meta(key, std::to_string(value));
+}
+
+void set_meta_number(Writer& writer, const char* key, double value) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%.17g", value);
+  writer.set_meta(key, text);
 }
 
 int parse_start_clip(const std::string& value, const std::vector<PrimaryClip>& clips) {

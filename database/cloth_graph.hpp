@@ -68,6 +68,11 @@ inline constexpr const char* kAutoSolver = "auto_solver";    // --auto's table (
 // "1": the explorer linked every dead end when its last run ended (schema 4, ClothLink), so db
 // check requires a clip or a link for every way out of every state a cloth edge leads into.
 inline constexpr const char* kDeadEndsLinked = "dead_ends_linked";
+// The garment's error floor on the motion graph (explore/error_floor.hpp), measured by the
+// precompute before it explored: m (a number), and the measurement's detail (JSON: pairwise
+// distances in mm, histories, options). An epsilon below the floor cannot link clip ends.
+inline constexpr const char* kErrorFloor = "error_floor";
+inline constexpr const char* kErrorFloorDetail = "error_floor_detail";
 // The keys a file may hold; `db check` reports any other.
 const std::vector<std::string>& known_keys();
 }  // namespace meta
@@ -81,6 +86,8 @@ std::optional<double> meta_number(Reader& reader, const char* key);
 // Typed writes (inside the caller's transaction, if any).
 void set_meta_text(Writer& writer, const char* key, const std::string& value);
 void set_meta_integer(Writer& writer, const char* key, int64_t value);
+// Written with 17 significant digits: meta_number reads back the same double.
+void set_meta_number(Writer& writer, const char* key, double value);
 
 // meta start_clip as the runtime reads it: an id (or, from older tools, a primary clip's name).
 // Returns the index into `clips` or -1 when the value names none of them.

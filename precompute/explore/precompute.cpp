@@ -5,9 +5,11 @@
 #include <filesystem>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <sstream>
 #include <thread>
 
+#include "database/cloth_graph.hpp"
 #include "database/writer_lock.hpp"
 #include "explore/auto_solver.hpp"
 #include "explore/primary_graph.hpp"
@@ -39,6 +41,86 @@ std::vector<std::string> split_names(const std::string& list) {
   while (std::getline(in, item, ','))
     if (!item.empty()) out.push_back(item);
   return out;
+}
+
+ErrorFloorOptions floor_options_for(const PrecomputeRequest& request,
+                                    const ExploreOptions& options) {
+  ErrorFloorOptions o = request.floor;
+  if (o.threads <= 0) o.threads = options.threads;
+  o.progress = options.progress;
+  return o;
+}
+
+std::string millimetres(double metres) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%.2f mm", 1e3 * metres);
+  return text;
+}
+
+// The error floor rule of precompute.hpp: the floor stored in the database's meta, else (unless
+// --no-floor) measured now, and the epsilon checked against it. Runs before the database is
+// created or changed, so a refusal writes nothing. Returns the measurement made now, if any.
+std::optional<ErrorFloor> check_error_floor(const PrecomputeRequest& request,
+                                            const CharacterScene& scene, const ExploreGraph& eg,
+                                            const std::string& graph_json, double epsilon,
+                                            bool exists, const ErrorFloorOptions& floor_options,
+                                            PrecomputeOutcome& out, std::FILE* log) {
+  std::optional<ErrorFloor> measured;
+  if (exists) {
+    db::Reader reader;
+    db::Error err;
+    if (reader.open(request.db, &err) != db::Status::Ok)
+      throw std::runtime_error(request.db + ": " + std::string(err.message));
+    // A database holding another motion graph is refused for that (by prepare_database's own
+    // check, read-only here) before a floor is measured on the wrong graph.
+    ExploreGraph copy = eg;
+    attach_primary_graph(reader, copy, graph_json);
+    if (const std::optional<double> stored = db::meta_number(reader, db::meta::kErrorFloor))
+      out.error_floor = *stored;
+  }
+  std::string floor_text, details;  // "26.81 mm (median of ...)", then indented lines
+  if (out.error_floor >= 0) {
+    floor_text = millimetres(out.error_floor) + " (measured when " + request.db +
+                 " was made: meta error_floor)";
+  } else if (request.measure_floor) {
+    if (log)
+      std::fprintf(log,
+                   "measuring the error floor of this garment on this motion: %d histories, %g s "
+                   "walked together, %g s held still (--no-floor to skip)...\n",
+                   floor_options.histories, floor_options.continuation_seconds,
+                   floor_options.hold_seconds);
+    measured = measure_error_floor(scene, eg, floor_options);
+    out.error_floor = measured->floor;
+    out.floor_measured = true;
+    floor_text = error_floor_summary(*measured);
+    if (measured->fallback) details += "\n  note: " + measured->note;
+    char cpu[96];
+    std::snprintf(cpu, sizeof cpu, "\n  measured in %.1f CPU s (%ld solver steps)",
+                  measured->cpu_seconds, measured->frames);
+    details += cpu;
+  } else {
+    return measured;
+  }
+  const bool below = epsilon < out.error_floor;
+  char verdict[160];
+  std::snprintf(verdict, sizeof verdict, "; epsilon %.1f mm is %s it%s", 1e3 * epsilon,
+                below ? "below" : "not below",
+                below && request.force ? " (--force: exploring anyway)" : "");
+  out.floor_line = "error floor of this garment on this motion: " + floor_text + verdict + details;
+  if (below && !request.force) {
+    char advice[320];
+    std::snprintf(advice, sizeof advice,
+                  "States that reach the same node by different histories stay about that far "
+                  "apart, so clip ends cannot link within epsilon %.1f mm and every clip would "
+                  "make a new state. Use --epsilon %.0f (1.5 x the floor, rounded up to a mm), "
+                  "or --force to explore with %.1f mm anyway; nothing was written.",
+                  1e3 * epsilon, 1e3 * suggested_epsilon(out.error_floor), 1e3 * epsilon);
+    throw std::runtime_error(request.db + ": epsilon " + millimetres(epsilon) +
+                             " is below the error floor of this garment on this motion, " +
+                             floor_text + details + "\n" + advice);
+  }
+  if (log) std::fprintf(log, "%s\n", out.floor_line.c_str());
+  return measured;
 }
 
 }  // namespace
@@ -198,9 +280,21 @@ PrecomputeOutcome run_precompute(const PrecomputeRequest& request, std::FILE* lo
     std::fprintf(log, "--auto: resuming with the setting chosen when %s was made: %s\n",
                  request.db.c_str(),
                  solver_settings_json(scene.file.solver, scene.file.settings).c_str());
+  const ErrorFloorOptions floor_options = floor_options_for(request, options);
+  const std::optional<ErrorFloor> measured = check_error_floor(
+      request, scene, eg, chosen.json, options.epsilon, exists, floor_options, out, log);
   db::Writer writer = exists ? db::Writer::open(request.db) : db::Writer::create(request.db);
   prepare_database(writer, scene, eg, chosen.json);
   if (!out.auto_table.empty()) db::set_meta_text(writer, db::meta::kAutoSolver, out.auto_table);
+  if (measured) {
+    // Without timings: the meta of two runs of the same command must be the same (a killed and
+    // resumed precompute gives the uninterrupted one's database).
+    db::Writer::Transaction tx(writer);
+    db::set_meta_number(writer, db::meta::kErrorFloor, measured->floor);
+    db::set_meta_text(writer, db::meta::kErrorFloorDetail,
+                      error_floor_json(*measured, eg, floor_options, false));
+    tx.commit();
+  }
   char line[512];
   std::snprintf(line, sizeof line,
                 "%s: %s of %d vertices, %zu capsules, %s; motion graph %d nodes, %d edges (%d "

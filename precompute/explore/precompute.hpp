@@ -10,13 +10,18 @@
 //                 auto_fraction x epsilon (explore/auto_solver.hpp); a resumed run reuses the
 //                 choice the database records;
 //   MPI:          under mpirun only rank 0 opens the database and chooses the graph; workers get
-//                 its JSON and simulate jobs.
+//                 its JSON and simulate jobs;
+//   error floor:  a database without a floor in meta (a new one) first has the garment's error
+//                 floor on the graph measured (explore/error_floor.hpp) and stored in meta; an
+//                 epsilon below the floor (measured now or stored) is refused before anything is
+//                 written, unless --force.
 // The run settings are validated (database/run_settings.hpp) before any file is created.
 #pragma once
 
 #include <cstdio>
 #include <string>
 
+#include "explore/error_floor.hpp"
 #include "explore/explorer.hpp"
 #include "graph/motion_graph.hpp"
 
@@ -36,6 +41,10 @@ struct PrecomputeRequest {
   int auto_frames = 15;
   bool auto_quick = false;
   bool auto_newton_reference = false;
+  // the error floor
+  bool measure_floor = true;  // --no-floor: false (a floor already in meta is still checked)
+  ErrorFloorOptions floor;    // threads <= 0: the exploration's
+  bool force = false;         // --force: explore with an epsilon below the floor
   // under mpirun
   double job_timeout = 60.0;
   bool mpi_verbose = false;
@@ -48,6 +57,11 @@ struct PrecomputeOutcome {
   std::string auto_table;   // --auto's table ("" when not chosen now)
   std::string mpi_summary;  // rank 0's MPI summary ("" without MPI)
   std::string curve_prefix;
+  // The floor the epsilon was checked against (m; < 0: none, --no-floor on a database without
+  // one), and whether it was measured in this run (else read from meta).
+  double error_floor = -1;
+  bool floor_measured = false;
+  std::string floor_line;  // what was printed about it
   ExploreReport report;
 };
 
