@@ -1,8 +1,10 @@
 // `clothdb bench solvers`: the solvers' accuracy, separated into chaos, step size and model
 // (issue 14); `clothdb bench newton`: the Newton loop's speed study.
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <memory>
+#include <stdexcept>
 
 #include "bench/solver_accuracy.hpp"
 #include "bench/solver_bench.hpp"
@@ -14,7 +16,7 @@ namespace clothdb::cli {
 
 void register_bench_solvers(CLI::App& bench) {
   struct Args {
-    std::string scenes, solvers, out = "out/bench-solvers";
+    std::string scenes, solvers, targets = "1,10", out = "out/bench-solvers";
     AccuracyOptions options;
   };
   auto args = std::make_shared<Args>();
@@ -70,10 +72,9 @@ void register_bench_solvers(CLI::App& bench) {
                   "A scene whose chaos floor reaches this RMS (mm) is chaotic")
       ->capture_default_str()
       ->check(positive_number());
-  cmd->add_option("--target-mm", args->options.target_error_mm,
-                  "Short-horizon RMS error at which the cost is read")
-      ->capture_default_str()
-      ->check(positive_number());
+  cmd->add_option("--target-mm", args->targets,
+                  "Comma-separated short-horizon RMS errors (mm) at which the cost is read")
+      ->capture_default_str();
   cmd->add_option("--static-frames", args->options.static_frames,
                   "Frames each setting gets to settle a static case")
       ->capture_default_str()
@@ -90,6 +91,17 @@ void register_bench_solvers(CLI::App& bench) {
     options.scenes = split_list(args->scenes);
     options.solvers = split_list(args->solvers);
     for (const auto& s : options.solvers) parse_solver_kind(s);  // fail before any work
+    options.target_errors_mm.clear();
+    for (const auto& t : split_list(args->targets)) {
+      double v = NAN;
+      try {
+        v = std::stod(t);
+      } catch (const std::exception&) {
+      }
+      if (!(v > 0 && v < 1e6))
+        throw std::invalid_argument("--target-mm: " + t + " is not in (0, 1e6) mm");
+      options.target_errors_mm.push_back(v);
+    }
     SolverBenchOptions check;
     for (const auto& s : options.scenes) make_bench_scene(s, check);
     make_directories(args->out);
