@@ -4,6 +4,10 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
 #include <string>
 
 #include "bench/solver_accuracy.hpp"
@@ -222,4 +226,32 @@ TEST(SolverAccuracy, EnsembleSpreadBoundsItsMembers) {
   EnsembleStats far = spread.mean;
   far.sag_mm = spread.max.sag_mm + 1e3;
   EXPECT_EQ(stats_within_spread(far, spread), 3);
+}
+
+TEST(SolverAccuracy, CommandWritesItsTablesAndPlots) {
+  const std::string out = std::string(CLOTHDB_BINARY_DIR) + "/test_bench_solvers_out";
+  std::filesystem::remove_all(out);
+  const std::string cmd = std::string(CLOTHDB_EXE) +
+                          " bench solvers --quick --solvers xpbd --scenes hanging-sheet "
+                          "--resolution 5 --frames 4 --restart-every 2 --static-frames 3 --out " +
+                          out + " > " + out + ".log 2>&1";
+  ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
+  for (const char* f :
+       {"accuracy.json", "rows.csv", "statics.csv", "accuracy.md", "hanging-sheet.svg"})
+    EXPECT_TRUE(std::filesystem::exists(out + "/" + f)) << f;
+  std::ifstream in(out + "/accuracy.json");
+  const nlohmann::json j = nlohmann::json::parse(in);
+  ASSERT_EQ(j["scenes"].size(), 1u);
+  const auto& scene = j["scenes"][0];
+  EXPECT_EQ(scene["chaos_floor_rms_mm"].size(), 5u) << scene["chaos_floor_message"];  // frames 0..4
+  EXPECT_EQ(scene["reference_step_halvings"], 0);
+  EXPECT_EQ(scene["rows"].size(), 2u);  // the two quick XPBD settings
+  for (const auto& row : scene["rows"]) {
+    EXPECT_TRUE(row["short_horizon_rms_mm"].is_number());
+    EXPECT_TRUE(row["self_convergence_rms_mm"].is_number());
+  }
+  EXPECT_EQ(scene["cost_at_target"].size(), 2u);  // xpbd at 1 and 10 mm
+  // Every static case, each XPBD setting with and without tethers.
+  EXPECT_EQ(j["statics"].size(), static_case_names().size() * 4);
+  std::filesystem::remove_all(out);
 }

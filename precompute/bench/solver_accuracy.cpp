@@ -618,9 +618,11 @@ SceneAccuracy measure_scene_accuracy(const ClothScene& scene, const AccuracyOpti
   }
   out.chaos_floor_final_rms_mm = out.chaos_floor.empty() ? NAN : out.chaos_floor.back().rms;
   out.chaotic = out.chaos_floor_peak_rms_mm >= options.chaotic_floor_mm;
+  if (!perturbed.stable) out.chaos_floor_message = "perturbed run stopped: " + perturbed.message;
   say(progress, scene.name + ": chaos floor " + fmt("%.3g", out.chaos_floor_final_rms_mm) +
                     " mm RMS at the last frame, peak " + fmt("%.3g", out.chaos_floor_peak_rms_mm) +
-                    " mm" + (out.chaotic ? " (chaotic)" : ""));
+                    " mm" + (out.chaotic ? " (chaotic)" : "") +
+                    (perturbed.stable ? "" : " (" + out.chaos_floor_message + ")"));
 
   // 2. The reference's own time error: its windows at twice the sub-steps.
   const Windows ref_windows = reference_windows(reference, k, h);
@@ -861,6 +863,7 @@ std::string accuracy_json(const AccuracyReport& report) {
                       {"chaos_floor_peak_rms_mm", num(s.chaos_floor_peak_rms_mm)},
                       {"chaos_floor_peak_max_mm", num(s.chaos_floor_peak_max_mm)},
                       {"chaotic", s.chaotic},
+                      {"chaos_floor_message", s.chaos_floor_message},
                       {"ensemble", members},
                       {"ensemble_min", stats_json(s.spread.min)},
                       {"ensemble_max", stats_json(s.spread.max)},

@@ -168,6 +168,7 @@ struct SceneAccuracy {
   double chaos_floor_final_rms_mm = NAN, chaos_floor_peak_rms_mm = NAN,
          chaos_floor_peak_max_mm = NAN;
   bool chaotic = false;
+  std::string chaos_floor_message;      // why the perturbed run stopped early, if it did
   std::vector<EnsembleStats> ensemble;  // members (reference first)
   EnsembleSpread spread;
   std::vector<AccuracyRow> rows;
