@@ -1,8 +1,12 @@
-// `clothdb bench solvers`: speed against error for the four solvers (core issue).
+// `clothdb bench solvers`: the solvers' accuracy, separated into chaos, step size and model
+// (issue 14); `clothdb bench newton`: the Newton loop's speed study.
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <memory>
+#include <stdexcept>
 
+#include "bench/solver_accuracy.hpp"
 #include "bench/solver_bench.hpp"
 #include "cli_util.hpp"
 #include "commands.hpp"
@@ -12,67 +16,112 @@ namespace clothdb::cli {
 
 void register_bench_solvers(CLI::App& bench) {
   struct Args {
-    std::string scenes, solvers, threads = "1", out = "out/bench-solvers";
-    SolverBenchOptions options;
+    std::string scenes, solvers, targets = "1,10", out = "out/bench-solvers";
+    AccuracyOptions options;
   };
   auto args = std::make_shared<Args>();
   CLI::App* cmd = bench.add_subcommand(
       "solvers",
-      "Runs every solver over a range of settings on the hard-case scenes and a large sheet, "
-      "measures each against a reference (Newton, 8 sub-steps, tolerance 1e-9), and writes "
-      "solvers.csv, solvers.json, solvers.md and one SVG plot per scene (error against time, "
-      "Pareto front dashed).");
+      "Solver accuracy, separated (issue 14): per scene a chaos floor (the reference against "
+      "itself started 1 um away), the short-horizon error (every solver setting restarted from "
+      "the reference's states every --restart-every frames and run --horizon frames, against "
+      "Newton with uniform sub-steps), self-convergence (the same windows at --refine x the "
+      "sub-steps: discretisation error against model mismatch), ensemble statistics against a "
+      "perturbed reference ensemble on chaotic scenes, the CPU cost per simulated second at "
+      "--target-mm, and static cases with analytic answers (membrane elongation, cantilever, "
+      "catenary). Writes accuracy.json, rows.csv, statics.csv, accuracy.md and one Pareto SVG "
+      "per scene into --out.");
   cmd->add_option("--scenes", args->scenes,
-                  "Comma-separated scenes (default: all hard cases, seed004-529, large-sheet)");
+                  "Comma-separated scenes (default: hanging-sheet, swung-sheet, sphere-drape, "
+                  "stretched-start, seed004-fall; also any hard case, seed004-529, large-sheet)");
   cmd->add_option("--solvers", args->solvers, "Comma-separated solvers (default: all four)");
-  cmd->add_option("--frames", args->options.frames, "Frames per run at 30 fps")
-      ->capture_default_str()
-      ->check(positive_number());
-  cmd->add_option("--resolution", args->options.resolution,
-                  "Nodes per side of the hard-case sheets (0: scene default)")
-      ->capture_default_str();
-  cmd->add_option("--large-vertices", args->options.large_vertices,
-                  "Vertices of the large-sheet scene")
-      ->capture_default_str();
-  cmd->add_option("--threads", args->threads, "Comma-separated thread counts, e.g. 1,2")
-      ->capture_default_str();
   cmd->add_flag("--quick", args->options.quick,
                 "Two settings per solver instead of the full sweep");
+  cmd->add_option("--frames", args->options.frames, "Frames (1/30 s) of every continuous run")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  cmd->add_option("--resolution", args->options.resolution,
+                  "Nodes per side of the hard-case sheets (0: scene default)")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 1000));
+  cmd->add_option("--restart-every", args->options.restart_every,
+                  "A short-horizon window starts every this many frames")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  cmd->add_option("--horizon", args->options.horizon, "Frames run in each window")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 3));
+  cmd->add_option("--refine", args->options.refine,
+                  "Self-convergence: sub-steps multiplied by this (4-8)")
+      ->capture_default_str()
+      ->check(CLI::Range(2, 64));
+  cmd->add_option("--reference-substeps", args->options.reference_substeps,
+                  "Uniform sub-steps per frame of the Newton reference")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 1024));
+  cmd->add_option("--reference-tolerance", args->options.reference_tolerance,
+                  "Newton force tolerance of the reference (x max vertex weight; the solver "
+                  "never asks for less than its rounding floor)")
+      ->capture_default_str()
+      ->check(number_in(0, 1e-2, true));
+  cmd->add_option("--ensemble", args->options.ensemble,
+                  "Members of the perturbed reference ensemble on chaotic scenes")
+      ->capture_default_str()
+      ->check(CLI::Range(2, 64));
+  cmd->add_option("--chaotic-mm", args->options.chaotic_floor_mm,
+                  "A scene whose chaos floor reaches this RMS (mm) is chaotic")
+      ->capture_default_str()
+      ->check(positive_number());
+  cmd->add_option("--target-mm", args->targets,
+                  "Comma-separated short-horizon RMS errors (mm) at which the cost is read")
+      ->capture_default_str();
+  cmd->add_option("--static-frames", args->options.static_frames,
+                  "Frames each setting gets to settle a static case")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  cmd->add_flag("!--no-statics", args->options.statics, "Skip the static analytic cases");
+  cmd->add_option("--max-mass-spring-substeps", args->options.max_mass_spring_substeps,
+                  "Mass-spring settings needing more sub-steps per frame are not run")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000000));
+  cmd->add_option("--seed", args->options.seed, "Seed of the perturbations")->capture_default_str();
   cmd->add_option("--out", args->out, "Output directory")->capture_default_str();
   cmd->callback([args] {
-    SolverBenchOptions options = args->options;
+    AccuracyOptions options = args->options;
     options.scenes = split_list(args->scenes);
     options.solvers = split_list(args->solvers);
-    options.threads.clear();
-    for (const auto& t : split_list(args->threads)) options.threads.push_back(std::stoi(t));
     for (const auto& s : options.solvers) parse_solver_kind(s);  // fail before any work
+    options.target_errors_mm.clear();
+    for (const auto& t : split_list(args->targets)) {
+      double v = NAN;
+      try {
+        v = std::stod(t);
+      } catch (const std::exception&) {
+      }
+      if (!(v > 0 && v < 1e6))
+        throw std::invalid_argument("--target-mm: " + t + " is not in (0, 1e6) mm");
+      options.target_errors_mm.push_back(v);
+    }
+    SolverBenchOptions check;
+    for (const auto& s : options.scenes) make_bench_scene(s, check);
     make_directories(args->out);
     const auto start = std::chrono::steady_clock::now();
-    // The tables are rewritten after every run, so a sweep stopped part-way (the full one takes
-    // over half an hour) keeps every row it finished.
-    auto write_tables = [&](const std::vector<BenchRow>& rows) {
-      write_file_atomic(args->out + "/solvers.csv", bench_rows_csv(rows));
-      write_file_atomic(args->out + "/solvers.json", bench_rows_json(rows));
-      write_file_atomic(args->out + "/solvers.md", bench_rows_markdown(rows));
-    };
-    const auto rows = run_solver_bench(
-        options,
-        [&](const std::string& line) {
-          const double s =
-              std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-          std::fprintf(stderr, "[%6.1fs] %s\n", s, line.c_str());
-        },
-        write_tables);
-    write_tables(rows);
-    std::vector<std::string> scenes;
-    for (const auto& r : rows)
-      if (std::find(scenes.begin(), scenes.end(), r.scene) == scenes.end())
-        scenes.push_back(r.scene);
-    for (const auto& s : scenes)
-      write_file_atomic(args->out + "/" + s + ".svg", render_svg(bench_plot(rows, s)));
-    std::printf("%s", bench_rows_markdown(rows).c_str());
-    std::printf("\nwrote %s/solvers.{csv,json,md} and %zu SVG plots\n", args->out.c_str(),
-                scenes.size());
+    const AccuracyReport report = run_accuracy_bench(options, [&](const std::string& line, int done,
+                                                                  int total) {
+      const double s =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      const double eta = done > 0 ? s / done * (total - done) : 0.0;
+      std::fprintf(stderr, "[%6.1fs %3d/%d ETA %5.0fs] %s\n", s, done, total, eta, line.c_str());
+    });
+    write_file_atomic(args->out + "/accuracy.json", accuracy_json(report));
+    write_file_atomic(args->out + "/rows.csv", accuracy_rows_csv(report));
+    write_file_atomic(args->out + "/statics.csv", accuracy_statics_csv(report));
+    write_file_atomic(args->out + "/accuracy.md", accuracy_markdown(report));
+    for (const auto& s : report.scenes)
+      write_file_atomic(args->out + "/" + s.name + ".svg", render_svg(accuracy_plot(s)));
+    std::printf("%s", accuracy_markdown(report).c_str());
+    std::printf("\nwrote %s/{accuracy.json,rows.csv,statics.csv,accuracy.md} and %zu SVG plots\n",
+                args->out.c_str(), report.scenes.size());
   });
 }
 

@@ -1,10 +1,16 @@
 // The solver benchmark's own logic: mass-spring sub-steps derived from the stability limit, the
-// cap on them, and one measured row against its reference.
+// cap on them, and one measured row against its reference; and the accuracy benchmark of issue 14
+// (chaos floor, short-horizon windows, self-convergence, static cases, cost at a fixed error).
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
 #include <string>
 
+#include "bench/solver_accuracy.hpp"
 #include "bench/solver_bench.hpp"
 #include "hard_cases/hard_cases.hpp"
 #include "solvers/solver.hpp"
@@ -67,4 +73,185 @@ TEST(SolverBench, NewtonRowsMeasureIterationsAndFactorisations) {
   // sag over the three frames (centimetres).
   EXPECT_GT(row.rms_error_mm, 0.0);
   EXPECT_LT(row.rms_error_mm, 10.0);
+}
+
+// ---- issue 14: the accuracy benchmark (bench/solver_accuracy.hpp) ----
+
+namespace {
+
+// A small equilateral grid laid flat and pinned at the two corners of one edge: it falls and
+// swings, deterministically (a smaller seed004-fall).
+ClothScene small_falling_grid() {
+  ClothMesh mesh = make_equilateral_sheet(7, 7, 1.0 / 6.0);
+  Eigen::Matrix3d lay;
+  lay << 1, 0, 0, 0, 0, 1, 0, -1, 0;
+  transform_mesh(mesh, lay, Vec3(0, 0, 0));
+  std::vector<int> pins{grid_index(mesh, 0, 6), grid_index(mesh, 6, 6)};
+  Material m;
+  ClothScene scene;
+  scene.name = "small-fall";
+  scene.model = make_model(std::move(mesh), m, pins);
+  scene.env.air_drag = 2.0 * m.density;
+  scene.env.collision_margin = m.thickness;
+  scene.initial = rest_state(scene.model);
+  scene.frames = 8;
+  return scene;
+}
+
+AccuracyRow row_at(const std::string& settings, double cost, double error) {
+  AccuracyRow r;
+  r.solver = "xpbd";
+  r.settings = settings;
+  r.cpu_s_per_sim_s = cost;
+  r.short_rms_mm = error;
+  return r;
+}
+
+}  // namespace
+
+TEST(SolverAccuracy, ChaosFloorOfANonChaoticFallIsTinyButTheRunsDiffer) {
+  const ClothScene scene = small_falling_grid();
+  const SolverCandidate ref = accuracy_reference(4, 1e-7);
+  const Trajectory a = simulate_from(scene, ref, scene.initial, 0, scene.frames);
+  const Trajectory b =
+      simulate_from(scene, ref, perturbed_state(scene, scene.initial, 1e-6, 1), 0, scene.frames);
+  ASSERT_TRUE(a.stable && b.stable) << a.message << b.message;
+  const std::vector<ErrorMm> floor = frame_errors(a, b);
+  ASSERT_EQ(floor.size(), static_cast<size_t>(scene.frames + 1));
+  // The start differs by 1 um at every free vertex (RMS over all, pins included, just under).
+  EXPECT_GT(floor.front().rms, 0.5e-3);
+  EXPECT_LE(floor.front().max, 1.0e-3 + 1e-12);
+  for (const ErrorMm& e : floor) {
+    EXPECT_GT(e.rms, 0.0);   // the perturbed run is a different run
+    EXPECT_LT(e.rms, 0.01);  // and stays within 10 um: no amplification to speak of
+  }
+}
+
+TEST(SolverAccuracy, TheReferenceTakesUniformStepsAndMatchesItselfOnRestart) {
+  ClothScene scene = make_hard_case("swung-sheet", 6);
+  const SolverCandidate ref = accuracy_reference(4, 1e-7);
+  const Trajectory reference = simulate_from(scene, ref, scene.initial, 0, 6);
+  ASSERT_TRUE(reference.stable) << reference.message;
+  EXPECT_EQ(reference.step_halvings, 0);
+  // Restarted from its own states, the reference reproduces its frames (fresh solver, same steps).
+  const Windows again = run_windows(scene, ref, reference, 2, 2);
+  EXPECT_EQ(again.step_halvings, 0);
+  ASSERT_EQ(again.starts, (std::vector<int>{0, 2, 4}));
+  const ErrorMm self = windows_error(again, reference_windows(reference, 2, 2));
+  EXPECT_LT(self.max, 1e-9);
+  // Twice the sub-steps is a different answer (the reference's own time error, first order in
+  // the step: backward Euler), and it shrinks as the sub-steps grow.
+  const Windows at4 = reference_windows(reference, 2, 2);
+  const Windows at8 = run_windows(scene, accuracy_reference(8, 1e-7), reference, 2, 2);
+  const Windows at16 = run_windows(scene, accuracy_reference(16, 1e-7), reference, 2, 2);
+  EXPECT_EQ(at8.step_halvings + at16.step_halvings, 0);
+  const double error_4 = windows_error(at4, at16).rms, error_8 = windows_error(at8, at16).rms;
+  EXPECT_GT(error_8, 0.0);
+  EXPECT_LT(error_8, 0.7 * error_4);
+}
+
+TEST(SolverAccuracy, XpbdSelfConvergenceErrorFallsAsStepsAreRefined) {
+  const ClothScene scene = make_hard_case("hanging-sheet", 7);
+  const Trajectory reference =
+      simulate_from(scene, accuracy_reference(4, 1e-7), scene.initial, 0, 6);
+  ASSERT_TRUE(reference.stable);
+  const SolverCandidate base = candidate(SolverKind::Xpbd, 2, 1);
+  const Windows w1 = run_windows(scene, base, reference, 3, 2);
+  const Windows w4 = run_windows(scene, refined_candidate(base, 4), reference, 3, 2);
+  const Windows w16 = run_windows(scene, refined_candidate(base, 16), reference, 3, 2);
+  const double error_1x = windows_error(w1, w16).rms;
+  const double error_4x = windows_error(w4, w16).rms;
+  EXPECT_GT(error_1x, 0.0);
+  EXPECT_LT(error_4x, error_1x);
+  EXPECT_NE(refined_candidate(base, 4).label.find("x4"), std::string::npos);
+  EXPECT_EQ(refined_candidate(base, 4).settings.substeps, 8);
+}
+
+TEST(SolverAccuracy, ConvergedNewtonMatchesTheStaticFormulas) {
+  const SolverCandidate newton = candidate(SolverKind::Newton, 1, 0, 1e-6);
+  // Equilateral strip: the edge-spring membrane has Young's modulus E t; F L / (E t w) within a
+  // few per cent (the clamped top row and the lattice's Poisson ratio 1/3).
+  const StaticRow strip = measure_static(membrane_strip_case(false), newton, 40);
+  ASSERT_TRUE(strip.stable) << strip.message;
+  EXPECT_NEAR(strip.measured_mm / strip.analytic_mm, 1.0, 0.04) << strip.measured_mm;
+  // Quad grid with diagonals: the same springs are 1.2 E t stiff in uniaxial stress.
+  const StaticRow quad = measure_static(membrane_strip_case(true), newton, 40);
+  ASSERT_TRUE(quad.stable) << quad.message;
+  EXPECT_NEAR(quad.measured_mm / quad.analytic_mm, 1.0 / 1.2, 0.03) << quad.measured_mm;
+  const StaticRow catenary = measure_static(catenary_strip_case(), newton, 60);
+  ASSERT_TRUE(catenary.stable) << catenary.message;
+  EXPECT_NEAR(catenary.relative_error, 0.0, 0.02) << catenary.measured_mm;
+}
+
+TEST(SolverAccuracy, CatenaryParameterSolvesTheLengthEquation) {
+  for (double span : {0.3, 0.8, 0.99}) {
+    const double a = catenary_parameter(1.0, span);
+    EXPECT_NEAR(2 * a * std::sinh(span / (2 * a)), 1.0, 1e-9) << span;
+  }
+  EXPECT_THROW(catenary_parameter(1.0, 1.2), std::invalid_argument);
+}
+
+TEST(SolverAccuracy, CostAtErrorInterpolatesAlongTheFront) {
+  const std::vector<AccuracyRow> rows{row_at("cheap", 1.0, 10.0), row_at("mid", 10.0, 0.1),
+                                      row_at("dear", 100.0, 0.01), row_at("dominated", 50.0, 5.0)};
+  // 1 mm lies halfway (in log error) between 10 mm and 0.1 mm: halfway in log cost, 10^0.5.
+  const CostAtError at1 = cost_at_error(rows, "xpbd", 1.0);
+  EXPECT_NEAR(at1.cpu_s_per_sim_s, std::sqrt(10.0), 1e-9);
+  EXPECT_NE(at1.how.find("cheap"), std::string::npos);
+  // Under the cheapest setting's error: at most its cost.
+  EXPECT_DOUBLE_EQ(cost_at_error(rows, "xpbd", 20.0).cpu_s_per_sim_s, 1.0);
+  // Below every setting: not reached.
+  const CostAtError none = cost_at_error(rows, "xpbd", 0.001);
+  EXPECT_TRUE(std::isnan(none.cpu_s_per_sim_s));
+  EXPECT_NE(none.how.find("not reached"), std::string::npos);
+  EXPECT_TRUE(std::isnan(cost_at_error(rows, "newton", 1.0).cpu_s_per_sim_s));
+}
+
+TEST(SolverAccuracy, EnsembleSpreadBoundsItsMembers) {
+  const ClothScene scene = small_falling_grid();
+  const SolverCandidate ref = accuracy_reference(2, 1e-7);
+  std::vector<EnsembleStats> members;
+  for (uint64_t seed = 1; seed <= 3; ++seed) {
+    const Trajectory t = simulate_from(
+        scene, ref, perturbed_state(scene, scene.initial, 1e-6, seed), 0, scene.frames);
+    ASSERT_TRUE(t.stable);
+    members.push_back(ensemble_stats(scene, t));
+  }
+  const EnsembleSpread spread = ensemble_spread(members);
+  EXPECT_EQ(spread.members, 3);
+  EXPECT_GT(spread.mean.sag_mm, 10.0);  // a grid falling from flat sags by decimetres
+  EXPECT_GE(spread.mean.strain_p99, 0.0);
+  EXPECT_LE(spread.min.sag_mm, spread.max.sag_mm);
+  for (const EnsembleStats& m : members) EXPECT_EQ(stats_within_spread(m, spread), 4);
+  EnsembleStats far = spread.mean;
+  far.sag_mm = spread.max.sag_mm + 1e3;
+  EXPECT_EQ(stats_within_spread(far, spread), 3);
+}
+
+TEST(SolverAccuracy, CommandWritesItsTablesAndPlots) {
+  const std::string out = std::string(CLOTHDB_BINARY_DIR) + "/test_bench_solvers_out";
+  std::filesystem::remove_all(out);
+  const std::string cmd = std::string(CLOTHDB_EXE) +
+                          " bench solvers --quick --solvers xpbd --scenes hanging-sheet "
+                          "--resolution 5 --frames 4 --restart-every 2 --static-frames 3 --out " +
+                          out + " > " + out + ".log 2>&1";
+  ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
+  for (const char* f :
+       {"accuracy.json", "rows.csv", "statics.csv", "accuracy.md", "hanging-sheet.svg"})
+    EXPECT_TRUE(std::filesystem::exists(out + "/" + f)) << f;
+  std::ifstream in(out + "/accuracy.json");
+  const nlohmann::json j = nlohmann::json::parse(in);
+  ASSERT_EQ(j["scenes"].size(), 1u);
+  const auto& scene = j["scenes"][0];
+  EXPECT_EQ(scene["chaos_floor_rms_mm"].size(), 5u) << scene["chaos_floor_message"];  // frames 0..4
+  EXPECT_EQ(scene["reference_step_halvings"], 0);
+  EXPECT_EQ(scene["rows"].size(), 2u);  // the two quick XPBD settings
+  for (const auto& row : scene["rows"]) {
+    EXPECT_TRUE(row["short_horizon_rms_mm"].is_number());
+    EXPECT_TRUE(row["self_convergence_rms_mm"].is_number());
+  }
+  EXPECT_EQ(scene["cost_at_target"].size(), 2u);  // xpbd at 1 and 10 mm
+  // Every static case, each XPBD setting with and without tethers.
+  EXPECT_EQ(j["statics"].size(), static_case_names().size() * 4);
+  std::filesystem::remove_all(out);
 }

@@ -1,5 +1,6 @@
-// Speed against error: every solver over a range of settings on the hard-case scenes, each run
-// measured against a reference (the Newton solver at a small step with a tight tolerance).
+// The solver benchmarks' shared pieces: the bench scenes by name, mass-spring's sub-steps from its
+// stability limit, one measured row against a reference run, and the Newton study (`clothdb bench
+// newton`). `clothdb bench solvers` itself is bench/solver_accuracy.hpp (issue 14).
 #pragma once
 
 #include <cmath>
@@ -72,12 +73,6 @@ BenchRow measure_config(const ClothScene& scene, const BenchConfig& config, int 
 // Builds a benchmark scene by name (hard cases, "large-sheet", "seed004-529").
 ClothScene make_bench_scene(const std::string& name, const SolverBenchOptions& options);
 
-// Runs the sweep; `progress` gets one line per finished run, `rows_so_far` (optional) every row
-// finished so far after each one (so a caller can keep a stopped sweep's results on disk).
-std::vector<BenchRow> run_solver_bench(
-    const SolverBenchOptions& options, const std::function<void(const std::string&)>& progress,
-    const std::function<void(const std::vector<BenchRow>&)>& rows_so_far = {});
-
 // The Newton study (`clothdb bench newton`): the same scene under Newton variants, from the
 // original loop (start at x_n, a factorisation every iteration, tight tolerance) through the
 // predicted start, chord iterations, a looser tolerance, CHOLMOD and PCG with warm starts.
@@ -92,8 +87,5 @@ std::string newton_study_markdown(const std::vector<BenchRow>& rows);
 
 std::string bench_rows_csv(const std::vector<BenchRow>& rows);
 std::string bench_rows_json(const std::vector<BenchRow>& rows);
-std::string bench_rows_markdown(const std::vector<BenchRow>& rows);
-// Error (RMS, mm) against ms per frame for one scene, one series per solver, Pareto front marked.
-PlotSpec bench_plot(const std::vector<BenchRow>& rows, const std::string& scene);
 
 }  // namespace clothdb

@@ -420,7 +420,10 @@ class NewtonSolver final : public Solver {
     hinge_hess_proj_.resize(144 * hinges_.size());
     edge_energy_.resize(edges_.size());
     hinge_energy_.resize(hinges_.size());
-    stiffness_start_.resize(a_.nonZeros());
+    // Zero, not left uninitialised: residual() and extra_potential() multiply K_n by x - x_n
+    // before the first start_damping() of a solver (x = x_n, so the product is 0), and garbage
+    // holding a NaN made that product NaN at random (found by `bench solvers`' chaos floor).
+    stiffness_start_.setZero(a_.nonZeros());
   }
 
   // ---- Element evaluation -----------------------------------------------------------------------
