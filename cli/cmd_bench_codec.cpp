@@ -21,6 +21,7 @@
 #include "database/schema.hpp"
 #include "exchange/point_cache.hpp"
 #include "hard_cases/hard_cases.hpp"
+#include "report/cpu_time.hpp"
 
 #ifdef CLOTHDB_HAVE_MESHOPTIMIZER
 #include <meshoptimizer.h>
@@ -34,14 +35,6 @@ using Clock = std::chrono::steady_clock;
 
 double seconds_since(Clock::time_point t) {
   return std::chrono::duration<double>(Clock::now() - t).count();
-}
-
-// Throughput is per core: timed in this thread's CPU time, so other processes sharing the
-// machine's cores do not count against the codec.
-double thread_cpu_seconds() {
-  timespec ts;
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
 }
 
 struct Frames {

@@ -18,17 +18,12 @@
 #include "character_scene/character_space.hpp"
 #include "clothrt.h"
 #include "database/cloth_graph.hpp"
+#include "report/cpu_time.hpp"
 #include "report/svg_plot.hpp"
 
 namespace clothdb {
 
 namespace {
-
-double thread_cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
 
 // A walk: the primary edges in order and the poses of the whole walk, each edge's poses carried
 // rigidly so that its first pose's character frame is the previous edge's last (the character

@@ -10,16 +10,11 @@
 #include <stdexcept>
 
 #include "bench/solver_bench.hpp"
+#include "report/cpu_time.hpp"
 
 namespace clothdb {
 
 namespace {
-
-double process_cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
 
 std::string csv_field(const std::string& s) {
   if (s.find_first_of(",\"\n") == std::string::npos) return s;

@@ -378,7 +378,7 @@ ClothState settle_garment(const CharacterScene& scene, Solver& solver,
 PoseRun simulate_poses(const CharacterScene& scene, Solver& solver,
                        const std::vector<std::vector<JointPose>>& poses, double rate,
                        ClothState& state,
-                       const std::function<void(size_t, ClothState&)>& after_step) {
+                       const std::function<void(size_t, ClothState&)>& before_step) {
   PoseRun run;
   Environment env = scene.env;
   StepInputs inputs;
@@ -387,6 +387,7 @@ PoseRun simulate_poses(const CharacterScene& scene, Solver& solver,
   for (size_t f = 1; f < poses.size(); ++f) {
     env.capsules = body_capsules(scene.body, scene.skeleton, poses[f - 1], poses[f]);
     inputs.kinematic_targets = skin_pins(scene.garment, scene.bind, poses[f]);
+    if (before_step) before_step(f, state);
     const auto start = std::chrono::steady_clock::now();
     const StepReport report = solver.step(state, dt, inputs);
     run.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -396,7 +397,6 @@ PoseRun simulate_poses(const CharacterScene& scene, Solver& solver,
       break;
     }
     run.step_halvings += report.step_halvings;
-    if (after_step) after_step(f, state);
     FrameMetrics m;
     m.max_strain = max_edge_strain(scene.model, state.x);
     m.max_penetration = max_penetration(state.x, scene.model.inv_mass, env);

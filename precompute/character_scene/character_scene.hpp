@@ -127,12 +127,13 @@ struct PoseRun {
 
 // Simulates from `state` (at poses[0]) through poses[1..] at `rate` Hz, one solver step per pose;
 // `state` ends at the last pose. Pins follow by skinning; capsules sweep between poses.
-// after_step (optional): called after each step with the frame index (1 .. poses.size() - 1) and
-// the state, which it may change (steering); the frame is recorded after it.
+// before_step (optional): called before each step with the frame index it steps to (1 ..
+// poses.size() - 1) and the state, which it may change (steering sets velocities here, so that the
+// step's constraints and collisions act on what it did).
 PoseRun simulate_poses(const CharacterScene& scene, Solver& solver,
                        const std::vector<std::vector<JointPose>>& poses, double rate,
                        ClothState& state,
-                       const std::function<void(size_t, ClothState&)>& after_step = {});
+                       const std::function<void(size_t, ClothState&)>& before_step = {});
 
 // Character space (docs/SECONDARY_GRAPH.md), where a clothdb file stores cloth: the root
 // projected to the floor, facing +z (its bind-pose +z carried by its rotation).

@@ -10,16 +10,11 @@
 #include <utility>
 
 #include "explore/explorer.hpp"
+#include "report/cpu_time.hpp"
 
 namespace clothdb {
 
 namespace {
-
-double thread_cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
 
 std::vector<float> flat(const Eigen::Matrix3Xd& m) {
   std::vector<float> out(static_cast<size_t>(m.size()));

@@ -15,16 +15,11 @@
 
 #include "character_scene/character_space.hpp"
 #include "database/cloth_graph.hpp"
+#include "report/cpu_time.hpp"
 
 namespace clothdb {
 
 namespace {
-
-double thread_cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
 
 int frames_of(const ExploreGraph& graph, int edge) {
   return static_cast<int>(graph.edges[static_cast<size_t>(edge)].poses.size()) - 1;

@@ -21,6 +21,7 @@
 #include "explore/primary_graph.hpp"
 #include "graph/motion_graph.hpp"
 #include "quality/clip_quality.hpp"
+#include "report/cpu_time.hpp"
 #include "report/svg_plot.hpp"
 
 namespace clothdb {
@@ -31,12 +32,6 @@ constexpr double kNoNeighbour = 1e9;  // priority of the first state at a node: 
 // Strain a steered tail may add to the unsteered tail's worst edge strain (0.02: 2 % of rest
 // length) before the steering is refused.
 constexpr double kSteerStrainAllowance = 0.02;
-
-double thread_cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
 
 // What a state looks like after a trip through the database (the codec's quantisation), so that
 // every simulation starts from exactly what a resumed run would read back.
@@ -271,12 +266,12 @@ std::string bar(double fraction, int width) {
 
 // Steered clip ends (issue 16; SceneFile::steering). The clip is simulated as usual, keeping the
 // state K frames before its end. If its end is farther than epsilon from the nearest state at the
-// end node, but within max_distance, the last K frames are simulated again from that state with a
-// pull after each step: frame f (1..K) moves every free vertex a fraction s of the way to the
-// unsteered frame shifted by s times the end's offset to the target, s = smoothstep(f / K). At
-// f = K, s = 1: the clip ends on the target state (positions and velocities), so the explorer links
-// it with a blend of only the codec's rounding. The pull is ramped in, and the solver's constraints
-// and collisions act on the pulled cloth in every step but the last.
+// end node, but within max_distance, the last K frames are simulated again with a pull toward
+// that state, ramped in (smoothstep), applied to the velocities before each step so that the
+// solver's constraints, strain limit and collisions still act on the cloth (see `pull` below), and
+// what is left closed after the last step (the clip ends on the target state). The
+// steered tail is kept only if it stretches no edge more than kSteerStrainAllowance beyond the
+// unsteered tail; the explorer then links its end like any other (within epsilon or not).
 PoseRun simulate_with_steering(const CharacterScene& scene, const ExploreGraph& graph,
                                const JobInput& input, ClothState& state, JobResult& result) {
   const ExploreEdge& edge = graph.edges[static_cast<size_t>(input.edge)];
@@ -326,50 +321,58 @@ PoseRun simulate_with_steering(const CharacterScene& scene, const ExploreGraph& 
   // The unsteered tail in character space, and the end's offset to the target.
   const size_t n = end_x.size();
   std::vector<std::vector<float>> unsteered(k + 1);
-  unsteered[0] = to_character_space(before_tail.x, character_frame(scene, tail[0]), false);
   for (size_t f = 1; f <= k; ++f)
-    unsteered[f] =
-        to_character_space(rest.frames[f - 1], character_frame(scene, tail[f]), false);
-  std::vector<float> offset(n), offset_v(n);
-  for (size_t i = 0; i < n; ++i) {
-    offset[i] = target->x[i] - end_x[i];
-    offset_v[i] = target->v[i] - end_v[i];
-  }
+    unsteered[f] = to_character_space(rest.frames[f - 1], character_frame(scene, tail[f]), false);
+  std::vector<float> offset(n);
+  for (size_t i = 0; i < n; ++i) offset[i] = target->x[i] - end_x[i];
   auto ramp = [k](size_t f) {
     const double t = static_cast<double>(f) / static_cast<double>(k);
     return t * t * (3 - 2 * t);
   };
   double largest = 0;
-  // Both positions and velocities track the goal trajectory G_f = U_f + s_f offset (U: the
-  // unsteered frames, character space), with G's velocity (U_f - U_{f-1}) / dt + s_f offset_v +
-  // (s_f - s_{f-1}) / dt offset: corrected positions alone would be undone by the cloth's own
-  // momentum each step and leave the whole gap to the last frame.
+  // Before each step to frame f, every free vertex's velocity is moved a fraction s_f of the way to
+  // the velocity that would carry it to the goal G_f = U_f + s_f offset (U: the unsteered frames,
+  // character space) in one frame. The step's constraints, strain limit and collisions then act on
+  // the pulled cloth, so the pull cannot stretch it beyond what the solver allows. At f = K,
+  // s = 1: the step aims at the target itself, and the velocities are set to the target's after
+  // it (the explorer's state distance counts them).
   auto pull = [&](size_t f, ClothState& st) {
-    const double s = ramp(f), ds = s - ramp(f - 1);
+    const double s = ramp(f);
     const Eigen::Isometry3d frame = character_frame(scene, tail[f]);
-    const std::vector<float> now = to_character_space(st.x, frame, false);
-    const std::vector<float> now_v = to_character_space(st.v, frame, true);
+    const std::vector<float> goal_local = [&] {
+      std::vector<float> g(n);
+      for (size_t i = 0; i < n; ++i) g[i] = static_cast<float>(unsteered[f][i] + s * offset[i]);
+      return g;
+    }();
+    const Eigen::Matrix3Xd goal = from_character_space(goal_local, frame, false);
     for (Eigen::Index v = 0; v < st.x.cols(); ++v) {
       if (scene.model.inv_mass(v) <= 0) continue;  // pins follow the bones
-      Vec3 c, cv;
-      for (int a = 0; a < 3; ++a) {
-        const size_t i = 3 * static_cast<size_t>(v) + static_cast<size_t>(a);
-        const double goal = unsteered[f][i] + s * offset[i];
-        const double goal_v =
-            f == k ? target->v[i]
-                   : (unsteered[f][i] - unsteered[f - 1][i]) * graph.rate + s * offset_v[i] +
-                         ds * graph.rate * offset[i];
-        c[a] = s * (goal - now[i]);
-        cv[a] = s * (goal_v - now_v[i]);
-      }
-      largest = std::max(largest, c.norm());
-      st.x.col(v) += frame.linear() * c;
-      st.v.col(v) += frame.linear() * cv;
+      const Vec3 wanted = (goal.col(v) - st.x.col(v)) * graph.rate;
+      const Vec3 dv = s * (wanted - st.v.col(v));
+      largest = std::max(largest, dv.norm() / graph.rate);
+      st.v.col(v) += dv;
     }
   };
   state = before_tail;
   auto fresh = make_solver(input.solver, scene.model, input.settings);
   PoseRun steered = simulate_poses(scene, *fresh, tail, graph.rate, state, pull);
+  // What the velocity pull left (a few mm RMS on the test scene) is closed after the last step:
+  // the free vertices are put on the target (positions and velocities), so the clip ends on it;
+  // that last move counts as steering displacement too, and the strain guard below sees it.
+  if (steered.stable) {
+    const Eigen::Matrix3Xd target_x = from_character_space(target->x, end_frame, false);
+    for (Eigen::Index v = 0; v < state.v.cols(); ++v)
+      if (scene.model.inv_mass(v) > 0) {
+        const size_t i = 3 * static_cast<size_t>(v);
+        largest = std::max(largest, (target_x.col(v) - state.x.col(v)).norm());
+        state.x.col(v) = target_x.col(v);
+        state.v.col(v) =
+            end_frame.linear() * Vec3(target->v[i], target->v[i + 1], target->v[i + 2]);
+      }
+    steered.frames.back() = state.x;
+    steered.end_velocity = state.v;
+    steered.metrics.back().max_strain = max_edge_strain(scene.model, state.x);
+  }
   // The pull must not tear the cloth: a steered tail that stretches an edge by more than
   // kSteerStrainAllowance beyond the unsteered tail's worst is thrown away, and the clip keeps its
   // unsteered end (a new state). Measured on the demo: unguarded, transitions of 11 frames steered

@@ -7,19 +7,13 @@
 #include <ctime>
 #include <stdexcept>
 
+#include "report/cpu_time.hpp"
+
 namespace clothdb {
 
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
-
-// CPU time of the whole process (all threads): on a machine shared with other jobs, a single-
-// threaded run's CPU time measures the solver, its wall time also the neighbours.
-double process_cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
 
 // What every sheet scene shares: air drag at 2/s of the fabric's mass (c / density), so the
 // swinging modes that stiffness-proportional damping barely touches settle within the scene; the
