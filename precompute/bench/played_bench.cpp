@@ -35,16 +35,6 @@ struct Walk {
   int ways_without_cloth = 0;
 };
 
-std::vector<JointPose> carried(const std::vector<JointPose>& pose, const Eigen::Isometry3d& t) {
-  std::vector<JointPose> out = pose;
-  const Eigen::Quaterniond q(t.linear());
-  for (JointPose& j : out) {
-    j.position = t * j.position;
-    j.rotation = q * j.rotation;
-  }
-  return out;
-}
-
 Walk random_walk(const CharacterScene& scene, const ExploreGraph& graph, int start_edge,
                  const std::vector<bool>& has_cloth, size_t frames, uint64_t seed) {
   std::mt19937_64 rng(seed);

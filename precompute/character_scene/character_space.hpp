@@ -6,6 +6,8 @@
 #include <Eigen/Geometry>
 #include <vector>
 
+#include "character/skeleton.hpp"
+
 namespace clothdb {
 
 inline std::vector<float> to_character_space(const Eigen::Matrix3Xd& x,
@@ -28,6 +30,19 @@ inline Eigen::Matrix3Xd from_character_space(const std::vector<float>& local,
     x.col(i) = vectors ? Eigen::Vector3d(frame.linear() * p) : Eigen::Vector3d(frame * p);
   }
   return x;
+}
+
+// A pose moved rigidly by `t` (every joint's position and rotation): how a walk carries an edge's
+// poses so that its first pose's character frame is where the walk has got to.
+inline std::vector<JointPose> carried(const std::vector<JointPose>& pose,
+                                      const Eigen::Isometry3d& t) {
+  std::vector<JointPose> out = pose;
+  const Eigen::Quaterniond q(t.linear());
+  for (JointPose& j : out) {
+    j.position = t * j.position;
+    j.rotation = q * j.rotation;
+  }
+  return out;
 }
 
 }  // namespace clothdb

@@ -192,16 +192,6 @@ std::vector<std::vector<int>> walk_histories(const ExploreGraph& graph,
   return histories;
 }
 
-std::vector<JointPose> carried(const std::vector<JointPose>& pose, const Eigen::Isometry3d& t) {
-  std::vector<JointPose> out = pose;
-  const Eigen::Quaterniond q(t.linear());
-  for (JointPose& j : out) {
-    j.position = t * j.position;
-    j.rotation = q * j.rotation;
-  }
-  return out;
-}
-
 // Appends edge `e`'s frames after the first, carried rigidly so that its first pose's character
 // frame is the walk's last (the character walks on; docs/SECONDARY_GRAPH.md): what the cloth sees
 // in character space does not depend on where the walk has taken the character.
