@@ -22,7 +22,7 @@ namespace {
 //     u64 checksum of the compressed bytes | then the compressed chunks back to back.
 constexpr size_t kHeaderSize = 88;
 constexpr size_t kChecksumOffset = 80;
-constexpr size_t kEntrySize = 16;
+constexpr size_t kEntrySize = bytes::kChunkEntrySize;
 // Quantised values stay below 2^28 so that 2 q[f-1] - q[f-2] and residuals fit in int32.
 constexpr uint32_t kMaxQ = (1u << 28) - 1;
 // Coordinates and bounds far beyond any garment are refused, so origin + q * step always fits a
@@ -42,10 +42,6 @@ constexpr uint8_t kKeyMask = 0xc0;
 constexpr int kKeyShift = 6;
 
 using namespace bytes;
-
-uint64_t header_checksum(const uint8_t* blob, uint32_t chunk_count) {
-  return xxh64(blob + kHeaderSize, size_t(chunk_count) * kEntrySize, xxh64(blob, kChecksumOffset));
-}
 
 struct Chunk {
   size_t offset;  // of the compressed bytes in the blob
@@ -77,34 +73,12 @@ Status parse(const uint8_t* blob, size_t size, BlobInfo* info, Error* err) {
                 kFormatVersionV2);
   if (version == 0) return fail(err, Status::Corrupt, "frame blob format version 0 is invalid");
   if (version == kFormatVersionV2) return v2::parse(blob, size, info, err);
-  if (size < kHeaderSize)
-    return fail(err, Status::Truncated, "frame blob truncated: %zu bytes, header needs %zu", size,
-                kHeaderSize);
-  const uint32_t chunk_count = get_u32(blob + 20);
-  const uint64_t table_end = kHeaderSize + uint64_t(chunk_count) * kEntrySize;
-  if (size < table_end)
-    return fail(err, Status::Truncated,
-                "frame blob truncated: %zu bytes, header and chunk table need %llu", size,
-                (unsigned long long)table_end);
-  const uint64_t stored = get_u64(blob + kChecksumOffset);
-  const uint64_t actual = header_checksum(blob, chunk_count);
-  if (stored != actual)
-    return fail(err, Status::ChecksumMismatch,
-                "frame blob header checksum mismatch (stored %016llx, computed %016llx)",
-                (unsigned long long)stored, (unsigned long long)actual);
-
   BlobInfo in;
+  if (Status st = parse_common_header(blob, size, kHeaderSize, kChecksumOffset, &in, err);
+      st != Status::Ok)
+    return st;
+  const uint32_t chunk_count = in.chunk_count;
   in.version = version;
-  in.vertex_count = get_u32(blob + 8);
-  in.frame_count = get_u32(blob + 12);
-  in.key_interval = get_u32(blob + 16);
-  in.chunk_count = chunk_count;
-  in.bound = get_f64(blob + 24);
-  in.step = get_f64(blob + 32);
-  for (int a = 0; a < 3; ++a) {
-    in.origin[a] = get_f64(blob + 40 + 8 * a);
-    in.qmax[a] = get_u32(blob + 64 + 4 * a);
-  }
   in.row_stride = get_u32(blob + 76);
   if (get_u16(blob + 6) != kHeaderSize)
     return fail(err, Status::Corrupt, "frame blob header: unknown header size %u",
@@ -137,7 +111,7 @@ Status parse(const uint8_t* blob, size_t size, BlobInfo* info, Error* err) {
       return fail(err, Status::Corrupt, "frame blob header: axis %d origin %g / range %u invalid",
                   a, in.origin[a], in.qmax[a]);
   }
-  uint64_t total = table_end;
+  uint64_t total = kHeaderSize + uint64_t(chunk_count) * kEntrySize;  // the chunk table's end
   for (uint32_t c = 0; c < chunk_count; ++c) {
     const uint8_t* e = blob + kHeaderSize + size_t(c) * kEntrySize;
     const uint32_t csize = get_u32(e);
@@ -716,7 +690,7 @@ std::vector<uint8_t> encode_grid(const float* frames, uint32_t frame_count, uint
     put_u32(h + 64 + 4 * a, qmax[a]);
   }
   put_u32(h + 76, stride);
-  put_u64(h + kChecksumOffset, header_checksum(h, chunk_count));
+  put_u64(h + kChecksumOffset, header_checksum(h, kHeaderSize, kChecksumOffset, chunk_count));
   std::vector<uint8_t> blob = std::move(header);
   blob.insert(blob.end(), body.begin(), body.end());
   if (step_out) *step_out = step;
@@ -789,7 +763,7 @@ void reseal(uint8_t* blob, size_t size) {
     put_u64(e + 8, xxh64(blob + offset, csize));
     offset += csize;
   }
-  put_u64(blob + kChecksumOffset, header_checksum(blob, chunk_count));
+  put_u64(blob + kChecksumOffset, header_checksum(blob, kHeaderSize, kChecksumOffset, chunk_count));
 }
 }  // namespace detail
 

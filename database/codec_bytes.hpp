@@ -6,7 +6,9 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "database/checksum.hpp"
 #include "database/codec.hpp"
+#include "database/status.hpp"
 
 namespace clothdb::codec::bytes {
 
@@ -59,6 +61,51 @@ inline uint32_t zigzag(uint32_t r) {
 }
 inline uint32_t unzigzag(uint32_t u) {
   return (u >> 1) ^ (0u - (u & 1u));
+}
+
+// Both frame blob versions put a chunk table of 16-byte entries right after their header, and
+// the header checksum over the header up to `checksum_offset` and that table at
+// `checksum_offset`.
+constexpr size_t kChunkEntrySize = 16;
+
+inline uint64_t header_checksum(const uint8_t* blob, size_t header_size, size_t checksum_offset,
+                                uint32_t chunk_count) {
+  return xxh64(blob + header_size, size_t(chunk_count) * kChunkEntrySize,
+               xxh64(blob, checksum_offset));
+}
+
+// What both versions' headers share (docs/DATABASE.md "Frame blob format"), checked in the order
+// the messages need: the header and chunk table fit in `size`, the header checksum matches; then
+// the common fields (counts at 8..23, bound and step at 24, origin at 40, qmax at 64) into `in`.
+// The version's own fields and every value check are the caller's.
+inline Status parse_common_header(const uint8_t* blob, size_t size, size_t header_size,
+                                  size_t checksum_offset, BlobInfo* in, Error* err) {
+  if (size < header_size)
+    return fail(err, Status::Truncated, "frame blob truncated: %zu bytes, header needs %zu", size,
+                header_size);
+  const uint32_t chunk_count = get_u32(blob + 20);
+  const uint64_t table_end = header_size + uint64_t(chunk_count) * kChunkEntrySize;
+  if (size < table_end)
+    return fail(err, Status::Truncated,
+                "frame blob truncated: %zu bytes, header and chunk table need %llu", size,
+                (unsigned long long)table_end);
+  const uint64_t stored = get_u64(blob + checksum_offset);
+  const uint64_t actual = header_checksum(blob, header_size, checksum_offset, chunk_count);
+  if (stored != actual)
+    return fail(err, Status::ChecksumMismatch,
+                "frame blob header checksum mismatch (stored %016llx, computed %016llx)",
+                (unsigned long long)stored, (unsigned long long)actual);
+  in->vertex_count = get_u32(blob + 8);
+  in->frame_count = get_u32(blob + 12);
+  in->key_interval = get_u32(blob + 16);
+  in->chunk_count = chunk_count;
+  in->bound = get_f64(blob + 24);
+  in->step = get_f64(blob + 32);
+  for (int a = 0; a < 3; ++a) {
+    in->origin[a] = get_f64(blob + 40 + 8 * a);
+    in->qmax[a] = get_u32(blob + 64 + 4 * a);
+  }
+  return Status::Ok;
 }
 
 }  // namespace clothdb::codec::bytes

@@ -44,7 +44,7 @@ namespace {
 //     to the coefficient planes (planes x frames x M bytes) then the residual planes.
 constexpr size_t kHeaderSize = 112;
 constexpr size_t kChecksumOffset = 104;
-constexpr size_t kEntrySize = 16;
+constexpr size_t kEntrySize = bytes::kChunkEntrySize;
 constexpr uint32_t kMaxQ = (1u << 28) - 1;
 constexpr int32_t kMaxCoefficient = (1 << 28) - 1;
 constexpr double kMaxCoordinate = 1e30;
@@ -56,10 +56,6 @@ constexpr uint8_t kFlagMean = 1;
 
 constexpr uint8_t kBasisMagic[4] = {'C', 'L', 'B', 'S'};
 constexpr size_t kBasisHeader = 24;
-
-uint64_t header_checksum(const uint8_t* blob, uint32_t chunk_count) {
-  return xxh64(blob + kHeaderSize, size_t(chunk_count) * kEntrySize, xxh64(blob, kChecksumOffset));
-}
 
 [[noreturn]] void invalid(const std::string& what) {
   throw ClothdbError(Status::InvalidArgument, "encode_v2: " + what);
@@ -108,33 +104,12 @@ void to_grid(const float* s, size_t n, const double origin[3], double step, cons
 }
 
 Status parse_impl(const uint8_t* blob, size_t size, BlobInfo* info, Error* err) {
-  if (size < kHeaderSize)
-    return fail(err, Status::Truncated, "frame blob truncated: %zu bytes, header needs %zu", size,
-                kHeaderSize);
-  const uint32_t chunk_count = get_u32(blob + 20);
-  const uint64_t table_end = kHeaderSize + uint64_t(chunk_count) * kEntrySize;
-  if (size < table_end)
-    return fail(err, Status::Truncated,
-                "frame blob truncated: %zu bytes, header and chunk table need %llu", size,
-                (unsigned long long)table_end);
-  const uint64_t stored = get_u64(blob + kChecksumOffset);
-  const uint64_t actual = header_checksum(blob, chunk_count);
-  if (stored != actual)
-    return fail(err, Status::ChecksumMismatch,
-                "frame blob header checksum mismatch (stored %016llx, computed %016llx)",
-                (unsigned long long)stored, (unsigned long long)actual);
   BlobInfo in;
+  if (Status st = parse_common_header(blob, size, kHeaderSize, kChecksumOffset, &in, err);
+      st != Status::Ok)
+    return st;
+  const uint32_t chunk_count = in.chunk_count;
   in.version = kFormatVersionV2;
-  in.vertex_count = get_u32(blob + 8);
-  in.frame_count = get_u32(blob + 12);
-  in.key_interval = get_u32(blob + 16);
-  in.chunk_count = chunk_count;
-  in.bound = get_f64(blob + 24);
-  in.step = get_f64(blob + 32);
-  for (int a = 0; a < 3; ++a) {
-    in.origin[a] = get_f64(blob + 40 + 8 * a);
-    in.qmax[a] = get_u32(blob + 64 + 4 * a);
-  }
   in.modes = get_u32(blob + 76);
   in.basis_id = int64_t(get_u64(blob + 80));
   in.coefficient_step = get_f64(blob + 88);
@@ -177,7 +152,7 @@ Status parse_impl(const uint8_t* blob, size_t size, BlobInfo* info, Error* err) 
       return fail(err, Status::Corrupt, "frame blob header: axis %d origin %g / range %u invalid",
                   a, in.origin[a], in.qmax[a]);
   }
-  uint64_t total = table_end;
+  uint64_t total = kHeaderSize + uint64_t(chunk_count) * kEntrySize;  // the chunk table's end
   for (uint32_t c = 0; c < chunk_count; ++c) {
     const uint8_t* e = blob + kHeaderSize + size_t(c) * kEntrySize;
     const uint32_t csize = get_u32(e);
@@ -398,7 +373,7 @@ void reseal(uint8_t* blob, size_t size) {
     put_u64(e + 8, xxh64(blob + offset, csize));
     offset += csize;
   }
-  put_u64(blob + kChecksumOffset, header_checksum(blob, chunk_count));
+  put_u64(blob + kChecksumOffset, header_checksum(blob, kHeaderSize, kChecksumOffset, chunk_count));
 }
 }  // namespace v2
 
@@ -707,7 +682,7 @@ std::vector<uint8_t> encode_grid(const float* frames, uint32_t frame_count, uint
   put_u64(h + 80, uint64_t(basis.id));
   put_f64(h + 88, plan.coefficient_step);
   h[96] = subspace.use_mean ? kFlagMean : 0;
-  put_u64(h + kChecksumOffset, header_checksum(h, chunk_count));
+  put_u64(h + kChecksumOffset, header_checksum(h, kHeaderSize, kChecksumOffset, chunk_count));
   std::vector<uint8_t> blob = std::move(header);
   blob.insert(blob.end(), body.begin(), body.end());
   if (step_out) *step_out = step;
