@@ -108,6 +108,11 @@ struct SolverOptions {
                    "XPBD strain-limit passes per sub-step")
         ->capture_default_str()
         ->check(number_in(1, kMaxIterations));
+    cmd.add_option("--contact-rounds", settings.strain_limit_contact_rounds,
+                   "XPBD: rounds of strain limit and frictionless collision after the collision "
+                   "pass (0: off)")
+        ->capture_default_str()
+        ->check(number_in(0, kMaxIterations));
     cmd.add_option("--velocity-tolerance", settings.newton_velocity_tolerance,
                    "Newton: stop once no velocity changes by more than this, m/s (0: off)")
         ->capture_default_str()

@@ -79,6 +79,9 @@ void register_bench_character(CLI::App& bench) {
                   "XPBD strain limit, e.g. 0.03 for 3 %; 0: off; default: the scene's");
   cmd->add_option("--strain-limit-iterations", args->options.strain_limit_iterations,
                   "XPBD strain-limit passes per sub-step; default: the scene's");
+  cmd->add_option("--contact-rounds", args->options.contact_rounds,
+                  "XPBD rounds of strain limit and frictionless collision after the collision "
+                  "pass; 0: off; default: the scene's");
   cmd->add_option("--threads", args->threads, "Comma-separated OpenMP thread counts, e.g. 1,2")
       ->capture_default_str();
   cmd->add_option(

@@ -60,6 +60,7 @@ void visit_solver_fields(SolverSettings& s, V& v) {
   v.integer("stretch_iterations", s.stretch_iterations, 0, kMaxIterations);
   v.number("strain_limit", s.strain_limit, 0.0, 10.0);
   v.integer("strain_limit_iterations", s.strain_limit_iterations, 1, kMaxIterations);
+  v.integer("strain_limit_contact_rounds", s.strain_limit_contact_rounds, 0, kMaxIterations);
 }
 
 template <class V>

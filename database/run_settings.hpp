@@ -102,6 +102,12 @@ struct SolverSettings {
   // 0: off.
   double strain_limit = 0.0;
   int strain_limit_iterations = 1;
+  // XPBD with the strain limit on: after the collision pass, up to this many rounds of the
+  // strain limit, with a frictionless collision projection between rounds, so edges the body
+  // pushes on are shortened (by sliding along it) rather than left stretched (issue 15). The
+  // last round vertices are kept out of the body but may end inside the collision margin.
+  // 0: off.
+  int strain_limit_contact_rounds = 0;
 };
 
 // Thrown for an invalid setting; what() is "<where>: <field>: <problem>".

@@ -70,17 +70,31 @@ TEST(Garment, SkirtPinsFollowTheHipsExactly) {
   }
 }
 
-// The strain bounds are pinned on the flared skirt (skirt_walk_flared.json: flare 2.0, the demo
-// garment before issue 16), the case issue 15's solver settings were tuned on. The demo skirt is
-// now less flared (flare 1.5, for an error floor below the demo's epsilon); its narrower hem is
-// pressed harder onto the legs and strains up to about 9.5 % in these frames (docs/BENCHMARKS.md).
-TEST(Garment, SkirtOnWalkDoesNotPenetrateOrOverstretch) {
-  const CharacterScene scene =
-      build_character_scene(load_scene_file(kMotions + "skirt_walk_flared.json"));
-  // XPBD at the scene's settings (issue 15: stretch sweeps and the strain limit): no edge beyond
-  // 8 % over the clip's first 90 frames (measured 6.9 %, at the hem where it is pressed onto a
-  // leg: collisions come after the strain limit; before issue 15, 17 % in these frames).
-  expect_clean_run(scene, 90, 0.08);
+// Issue 15's bound on the demo skirt (flare 1.5) over 01_01's first 125 frames, where the legs
+// lift into the hem. Without the contact round the collision pass has the last word: the thigh
+// pushes the hem ring outward and its edges stretch to about 9-11 % (the worst edge lies at the
+// collision margin of a leg). With the scene's round (the strain limit once more after the
+// collision pass) the hem slides and stays within 6 %, with no vertex below the body's surface.
+TEST(Garment, SkirtOnWalkStaysWithinTheStrainBoundWhereTheBodyPushesOnIt) {
+  const SceneFile file = load_scene_file(kMotions + "skirt_walk.json");
+  ASSERT_GE(file.settings.strain_limit_contact_rounds, 1);
+  CharacterBenchOptions options;
+  options.clip = "01_01";
+  options.frames = 125;
+  const auto with_rounds = run_character_bench(file, options);
+  options.contact_rounds = 0;
+  const auto without = run_character_bench(file, options);
+  ASSERT_EQ(with_rounds.size(), 1u);
+  ASSERT_EQ(without.size(), 1u);
+  for (const auto* r : {&with_rounds[0], &without[0]}) {
+    ASSERT_TRUE(r->stable) << r->message;
+    EXPECT_EQ(r->frames, 124);
+    EXPECT_LE(r->max_penetration, file.material.thickness) << r->solver;
+  }
+  EXPECT_GT(without[0].max_strain, 0.08);
+  EXPECT_LE(without[0].worst_edge_gap, file.margin + 1e-3) << without[0].worst_edge_bone;
+  EXPECT_LE(with_rounds[0].max_strain, 0.06) << "frame " << with_rounds[0].worst_frame;
+  EXPECT_LE(with_rounds[0].p99_strain, 0.03);
 }
 
 // Issue 15: settled from 01_01 frames where the legs are apart, the skirt used to be put
@@ -117,7 +131,9 @@ TEST(Garment, CapeOnBoxingDoesNotPenetrateOrOverstretch) {
   // auto_distance selects only the bones near the cape: fewer than all of the skeleton's.
   EXPECT_LT(scene.body.capsules.size(), all_bone_capsules(scene.skeleton).size());
   EXPECT_GT(scene.body.capsules.size(), 0u);
-  expect_clean_run(scene, 45, 0.15);
+  // Issue 15's target for the cape is 8 % (66 % before it; 17 % with the strain limit capped at 16
+  // passes and no contact round).
+  expect_clean_run(scene, 45, 0.08);
 }
 
 TEST(Garment, EverySolverRunsTheSkirtAndTheCape) {
@@ -398,6 +414,10 @@ TEST(Garment, FastLimbsOnBoxingDoNotTunnel) {
   options.clip = "boxing";
   options.frames = 300;
   options.substeps = {1};
+  // The collider motions are compared as they move the cloth; the contact round (the strain
+  // limit after the collision pass) is for the scene's sub-steps: at one sub-step per frame the
+  // limit chases strains of several hundred per cent and can drag a vertex across a limb.
+  options.contact_rounds = 0;
   options.collider_motions = {ColliderMotion::Interpolated, ColliderMotion::Swept};
   const auto one_step = run_character_bench(file, options);
   ASSERT_EQ(one_step.size(), 2u);
@@ -406,7 +426,8 @@ TEST(Garment, FastLimbsOnBoxingDoNotTunnel) {
   // only the swept motion's guarantee is asserted here (the limb speed above shows the case is
   // still hard). `clothdb bench character motions/cape_boxing.json` reports both.
   EXPECT_EQ(one_step[1].tunnelled, 0) << "swept";
-  options.substeps = {0};  // the scene's 15
+  options.substeps = {0};       // the scene's 15
+  options.contact_rounds = -1;  // and its contact round
   options.collider_motions = {ColliderMotion::Interpolated};
   const auto chosen = run_character_bench(file, options);
   ASSERT_EQ(chosen.size(), 1u);

@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <ctime>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 
@@ -35,6 +36,32 @@ int substeps_for(SolverKind kind, int requested, const CharacterScene& scene, do
   if (requested > 0) return requested;
   if (kind == SolverKind::Newton) return 1;
   return scene.file.settings.substeps;
+}
+
+// Fills the row's worst-edge fields for edge `edge` at frame f (see CharacterBenchRow).
+void locate_edge(const CharacterScene& scene, const MotionClip& clip, int f,
+                 const Eigen::Matrix3Xd& x, const std::array<int, 2>& edge,
+                 CharacterBenchRow& row) {
+  const Eigen::Matrix3Xd& rest = scene.model.mesh.rest;
+  const double top = rest.row(1).maxCoeff(), bottom = rest.row(1).minCoeff();
+  const double mid_y = 0.5 * (rest(1, edge[0]) + rest(1, edge[1]));
+  row.worst_edge_depth = top > bottom ? (top - mid_y) / (top - bottom) : 0.0;
+  const auto caps =
+      body_capsules(scene.body, scene.skeleton, clip_pose(clip, f - 1), clip_pose(clip, f));
+  row.worst_edge_gap = std::numeric_limits<double>::infinity();
+  row.worst_edge_bone.clear();
+  for (int end : edge) {
+    const Vec3 p = x.col(end);
+    for (const auto& c : caps) {
+      const Vec3 ab = c.b - c.a;
+      const double t = std::clamp((p - c.a).dot(ab) / std::max(ab.squaredNorm(), 1e-30), 0.0, 1.0);
+      const double gap = (p - (c.a + t * ab)).norm() - c.radius;
+      if (gap < row.worst_edge_gap) {
+        row.worst_edge_gap = gap;
+        row.worst_edge_bone = c.bone >= 0 ? scene.skeleton.names[static_cast<size_t>(c.bone)] : "?";
+      }
+    }
+  }
 }
 
 CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverKind kind,
@@ -69,10 +96,20 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
     const FrameMetrics& m = run.metrics.front();
     row.max_strain = std::max(row.max_strain, m.max_strain);
     const auto& edges = scene.model.mesh.edges;
+    double frame_worst = -1.0;
+    size_t frame_worst_edge = 0;
     for (size_t e = 0; e < edges.size(); ++e) {
       const double l0 = scene.model.edge_rest_length[e];
-      if (l0 > 0.0)
-        strains.push_back((state.x.col(edges[e][0]) - state.x.col(edges[e][1])).norm() / l0 - 1.0);
+      if (l0 <= 0.0) continue;
+      strains.push_back((state.x.col(edges[e][0]) - state.x.col(edges[e][1])).norm() / l0 - 1.0);
+      if (strains.back() > frame_worst) {
+        frame_worst = strains.back();
+        frame_worst_edge = e;
+      }
+    }
+    if (frame_worst >= row.max_strain && frame_worst > 0.0) {
+      row.worst_frame = f;
+      locate_edge(scene, clip, f, state.x, edges[frame_worst_edge], row);
     }
     row.max_penetration = std::max(row.max_penetration, m.max_penetration);
     row.mean_penetration = std::max(row.mean_penetration, m.mean_penetration);
@@ -116,6 +153,12 @@ std::string fixed(double v, int digits) {
   return out.str();
 }
 
+std::string worst_edge_text(const CharacterBenchRow& r) {
+  if (r.worst_frame < 0) return "-";
+  return "frame " + std::to_string(r.worst_frame) + ", " + fixed(100 * r.worst_edge_depth, 0) +
+         " % down, " + fixed(1e3 * r.worst_edge_gap, 1) + " mm from " + r.worst_edge_bone;
+}
+
 }  // namespace
 
 std::vector<CharacterBenchRow> run_character_bench(
@@ -139,6 +182,8 @@ std::vector<CharacterBenchRow> run_character_bench(
       if (options.strain_limit >= 0.0) settings.strain_limit = options.strain_limit;
       if (options.strain_limit_iterations > 0)
         settings.strain_limit_iterations = options.strain_limit_iterations;
+      if (options.contact_rounds >= 0)
+        settings.strain_limit_contact_rounds = options.contact_rounds;
       for (int threads : options.threads) {
         settings.threads = threads;
         std::vector<ColliderMotion> motions = options.collider_motions;
@@ -152,8 +197,8 @@ std::vector<CharacterBenchRow> run_character_bench(
                      " ms/frame (CPU " + fixed(r.cpu_ms_per_frame, 2) + "), strain p99 " +
                      fixed(100 * r.p99_strain, 2) + " % max " + fixed(100 * r.max_strain, 2) +
                      " %, max penetration " + fixed(1e3 * r.max_penetration, 2) +
-                     " mm, tunnelled " + std::to_string(r.tunnelled) +
-                     (r.stable ? "" : ", UNSTABLE: " + r.message));
+                     " mm, tunnelled " + std::to_string(r.tunnelled) + ", worst edge " +
+                     worst_edge_text(r) + (r.stable ? "" : ", UNSTABLE: " + r.message));
         }
       }
     }
@@ -188,8 +233,9 @@ std::string character_rows_markdown(const std::vector<CharacterBenchRow>& rows) 
   std::ostringstream out;
   out << "| solver | threads | colliders | verts | capsules | frames | ms/frame | CPU ms/frame | "
          "p99 strain | max strain "
-         "| max pen. mm | mean pen. mm | tunnelled | deepest path | halvings | stable |\n"
-         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+         "| max pen. mm | mean pen. mm | tunnelled | deepest path | halvings | worst edge | stable "
+         "|\n"
+         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const auto& r : rows) {
     out << "| " << r.solver << " | " << r.threads << " | "
         << collider_motion_name(r.collider_motion) << " | " << r.vertices << " | " << r.capsules
@@ -197,8 +243,8 @@ std::string character_rows_markdown(const std::vector<CharacterBenchRow>& rows) 
         << fixed(r.cpu_ms_per_frame, 2) << " | " << fixed(100 * r.p99_strain, 2) << "% | "
         << fixed(100 * r.max_strain, 2) << "% | " << fixed(1e3 * r.max_penetration, 2) << " | "
         << fixed(1e3 * r.mean_penetration, 2) << " | " << r.tunnelled << " | "
-        << fixed(r.deepest_path, 2) << " | " << r.step_halvings << " | "
-        << (r.stable ? "yes" : "no: " + r.message) << " |\n";
+        << fixed(r.deepest_path, 2) << " | " << r.step_halvings << " | " << worst_edge_text(r)
+        << " | " << (r.stable ? "yes" : "no: " + r.message) << " |\n";
   }
   return out.str();
 }

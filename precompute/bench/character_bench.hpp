@@ -24,6 +24,7 @@ struct CharacterBenchOptions {
   int stretch_iterations = -1;      // XPBD stretch sweeps; -1: the scene's (0: as iterations)
   double strain_limit = -1.0;       // XPBD strain limit; negative: the scene's (0: off)
   int strain_limit_iterations = 0;  // XPBD strain-limit passes; 0: the scene's
+  int contact_rounds = -1;          // XPBD strain_limit_contact_rounds; negative: the scene's
   std::vector<int> threads{1};
   std::vector<ColliderMotion> collider_motions;  // empty: the scene's
 };
@@ -45,6 +46,14 @@ struct CharacterBenchRow {
   // reaches deeper than half the capsule's radius: the vertex passed through the limb.
   int tunnelled = 0;
   double deepest_path = 0;  // largest path_depth_fraction over vertices, capsules and frames
+  // Where the largest strain was, to tell a collision pushing on the cloth from the solver not
+  // converging: the frame, how far down the garment the edge sits at rest (0 at its highest rest
+  // vertex, 1 at its lowest), and the gap from its nearer end to the nearest body capsule's
+  // surface at that frame (at or below the collision margin: the body is pushing on it).
+  int worst_frame = -1;
+  double worst_edge_depth = 0;
+  double worst_edge_gap = 0;  // m
+  std::string worst_edge_bone;
   bool stable = true;
   std::string message;
 };

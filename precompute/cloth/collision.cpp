@@ -41,6 +41,15 @@ SurfacePoint capsule_point(const Vec3& a, const Vec3& b, double radius, const Ve
   return sp;
 }
 
+// Whether p is clearly (by more than rounding) farther than `reach` from the segment ab: the
+// cheap test before capsule_point, with no square root.
+bool far_from_capsule(const Vec3& a, const Vec3& b, double reach, const Vec3& p) {
+  const Vec3 ab = b - a;
+  const double len2 = ab.squaredNorm();
+  const double t = len2 > 1e-24 ? std::clamp((p - a).dot(ab) / len2, 0.0, 1.0) : 0.0;
+  return (p - (a + t * ab)).squaredNorm() > reach * reach * (1.0 + 1e-9);
+}
+
 // Pushes x out to the margin along n and applies Coulomb friction to its tangential motion over
 // the sub-step relative to the surface (surface_motion). Returns true on contact.
 bool respond(Vec3& x, const Vec3& x_start, const SurfacePoint& sp, const Vec3& surface_motion,
@@ -155,13 +164,19 @@ bool resolve_vertex_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_st
   for (const auto& c : env.capsules) {
     const Vec3 a = lerp(c.a_start, c.a, s), b = lerp(c.b_start, c.b, s);
     const Vec3 a0 = lerp(c.a_start, c.a, s_start), b0 = lerp(c.b_start, c.b, s_start);
-    if (swept) p = swept_entry(p0, p, a0, b0, a, b, c.radius);
+    if (swept) {
+      p = swept_entry(p0, p, a0, b0, a, b, c.radius);
+    } else if (far_from_capsule(a, b, c.radius + env.collision_margin, p)) {
+      continue;  // respond would find no depth; skips the square root for most pairs
+    }
     const SurfacePoint sp = capsule_point(a, b, c.radius, p);
     const Vec3 axis_now = a + sp.segment_t * (b - a);
     const Vec3 axis_before = a0 + sp.segment_t * (b0 - a0);
     hit |= respond(p, p0, sp, axis_now - axis_before, env);
   }
-  if (hit) x.col(i) = p;
+  // A swept entry point may sit exactly on the surface, where respond finds no depth (margin 0):
+  // it is still where the vertex must go.
+  if (hit || (swept && p != Vec3(x.col(i)))) x.col(i) = p;
   return hit;
 }
 
