@@ -27,6 +27,7 @@ struct BuildArgs {
   GraphSettings settings;
   std::optional<double> threshold, percentile;
   bool no_prune = false;
+  double position_bound_mm = 0;  // 0: the codec's default
 };
 
 void print_summary(const MotionGraph& g) {
@@ -85,11 +86,10 @@ void write_graph_json(const MotionGraph& g, const std::string& path) {
 // The graph into a database (new, or one that holds no graph yet or this very graph): its edges as
 // primary clips and transitions, the JSON in meta (docs/SECONDARY_GRAPH.md). One transaction.
 void write_graph_db(const MotionGraph& g, const GraphInput& input, const std::string& path,
-                    const std::string& manifest) {
+                    const std::string& manifest, double position_bound) {
   ExploreGraph eg = make_explore_graph(g, input.clips, manifest);
   const std::string json = motion_graph_to_json(g).dump();
-  const bool exists = std::filesystem::exists(path);
-  db::Writer writer = exists ? db::Writer::open(path) : db::Writer::create(path);
+  db::Writer writer = db::Writer::open_or_create(path, position_bound);
   db::Reader reader;
   db::Error err;
   if (reader.open(path, &err) != db::Status::Ok)
@@ -166,6 +166,10 @@ void register_graph_commands(CLI::App& app) {
       "--db", build->db,
       "Database to write the graph into (created if missing; `clothdb precompute SCENE --db "
       "FILE` then explores on this graph)");
+  b->add_option("--position-bound", build->position_bound_mm,
+                "Codec bound per coordinate in mm for a new --db (default 0.5; fixed when the "
+                "file is made)")
+      ->check(number_in(1e-6, 1e3));
   b->add_option("--clips", build->clips, "Comma-separated clip names (default: every clip)");
   b->add_option("--window", build->settings.window, "Frames per window of the distance")
       ->capture_default_str()
@@ -209,7 +213,8 @@ void register_graph_commands(CLI::App& app) {
       write_graph_json(g, build->out);
       std::printf("wrote %s\n", build->out.c_str());
     }
-    if (!build->db.empty()) write_graph_db(g, input, build->db, build->manifest);
+    if (!build->db.empty())
+      write_graph_db(g, input, build->db, build->manifest, 1e-3 * build->position_bound_mm);
   });
 
   struct ShowArgs {

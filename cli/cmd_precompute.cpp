@@ -32,6 +32,7 @@ std::string floor_text(const PrecomputeOutcome& out) {
 void register_precompute(CLI::App& app) {
   auto args = std::make_shared<PrecomputeRequest>();
   auto epsilon_mm = std::make_shared<double>(5.0);
+  auto position_bound_mm = std::make_shared<double>(0.0);  // 0: the codec's default
   args->explore.threads = 0;
   args->explore.batch = 16;
   auto quiet = std::make_shared<bool>(false);
@@ -51,6 +52,10 @@ void register_precompute(CLI::App& app) {
                   "Error bound in mm: RMS over vertices of sqrt(|dx|^2 + (|dv|/rate)^2)")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
+  cmd->add_option("--position-bound", *position_bound_mm,
+                  "Codec bound per coordinate in mm for a new --db (default 0.5; a file's codec is "
+                  "fixed when it is made: an existing file with another bound is refused)")
+      ->check(number_in(1e-6, 1e3));
   cmd->add_option("--frames", args->explore.max_frames,
                   "Budget: cloth frames to simulate in this run (0: none)")
       ->capture_default_str();
@@ -125,9 +130,10 @@ void register_precompute(CLI::App& app) {
   cmd->add_flag("--mpi-verbose", args->mpi_verbose,
                 "Under mpirun: one line per job handed out, lost or late");
 #endif
-  cmd->callback([args, epsilon_mm, quiet, floor_seconds] {
+  cmd->callback([args, epsilon_mm, position_bound_mm, quiet, floor_seconds] {
     PrecomputeRequest request = *args;
     request.explore.epsilon = 1e-3 * *epsilon_mm;
+    request.position_bound = 1e-3 * *position_bound_mm;
     request.floor.continuation_seconds = request.floor.hold_seconds = *floor_seconds;
     request.explore.progress = !*quiet;
     PrecomputeOutcome out;

@@ -6,6 +6,8 @@
 #define SQLITE_ENABLE_PREUPDATE_HOOK 1
 #include <sqlite3.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -420,6 +422,26 @@ static sqlite3* open_connection(const std::string& path, int flags) {
   // Readers and the writer wait for each other's brief locks instead of failing at once.
   sqlite3_busy_timeout(db, 10000);
   return db;
+}
+
+Writer Writer::open_or_create(const std::string& path, double position_bound) {
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) {
+    CodecSettings codec;
+    if (position_bound > 0) codec.position_bound = position_bound;
+    return create(path, codec);
+  }
+  Writer w = open(path);
+  if (position_bound > 0 && std::fabs(w.codec().position_bound - position_bound) >
+                                1e-9 * std::max(position_bound, w.codec().position_bound)) {
+    char buf[160];
+    std::snprintf(buf, sizeof buf,
+                  ": codec.position_bound is %g mm, fixed when the file was made; a bound of %g mm "
+                  "needs a new file",
+                  1e3 * w.codec().position_bound, 1e3 * position_bound);
+    throw ClothdbError(Status::InvalidArgument, path + buf);
+  }
+  return w;
 }
 
 Writer Writer::create(const std::string& path, const CodecSettings& codec) {

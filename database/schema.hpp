@@ -213,6 +213,10 @@ class Writer {
   static Writer create(const std::string& path, const CodecSettings& codec = {});
   // Opens an existing clothdb database for writing (checks it is one and not newer).
   static Writer open(const std::string& path);
+  // Opens `path`, or creates it with the default codec and, when position_bound > 0, that
+  // position bound (m). A file's codec is fixed when it is made: an existing file with another
+  // bound is refused (naming the file, the field and both values) before anything is written.
+  static Writer open_or_create(const std::string& path, double position_bound);
 
   Writer(Writer&& other) noexcept;
   Writer& operator=(Writer&& other) noexcept;

@@ -13,14 +13,21 @@ source scripts/setup.sh
 BUILD_DIR=${CLOTHDB_BUILD_DIR:-build}
 OUT=${CLOTHDB_DEMO_OUT:-out/demo}
 CPU_HOURS=${CLOTHDB_DEMO_CPU_HOURS:-0.2}
+# Codec bound per coordinate in mm for a new database. 0.1 mm, not the codec's default 0.5 mm:
+# on the skirt's 11-26 mm edges 0.5 mm of quantisation adds up to 10 % edge strain to what is
+# played, 0.1 mm about 2 % (docs/BENCHMARKS.md, "Contact rounds"). Empty: the codec's default.
+BOUND=${CLOTHDB_DEMO_POSITION_BOUND-0.1}
+BOUND_ARGS=()
+if [ -n "$BOUND" ]; then BOUND_ARGS=(--position-bound "$BOUND"); fi
 CLOTHDB="$BUILD_DIR/cli/clothdb"
 mkdir -p "$OUT"
 if [ "${CLOTHDB_DEMO_FRESH:-0}" = 1 ]; then rm -f "$OUT"/skirt.db*; fi
 
 # The graph goes into the database (a rerun finds it there already); precompute explores on it.
-"$CLOTHDB" graph build motions/cmu_walk.json --clips 01_01,01_03 --out "$OUT/graph.json" --db "$OUT/skirt.db"
+"$CLOTHDB" graph build motions/cmu_walk.json --clips 01_01,01_03 --out "$OUT/graph.json" --db "$OUT/skirt.db" \
+  "${BOUND_ARGS[@]}"
 "$CLOTHDB" graph show "$OUT/skirt.db" --summary --svg "$OUT/graph.svg"
-"$CLOTHDB" precompute motions/skirt_walk.json --db "$OUT/skirt.db" \
+"$CLOTHDB" precompute motions/skirt_walk.json --db "$OUT/skirt.db" "${BOUND_ARGS[@]}" \
   --epsilon 15 --cpu-hours "$CPU_HOURS" --curve "$OUT/error_curve"
 "$CLOTHDB" db check "$OUT/skirt.db"
 "$CLOTHDB" db info "$OUT/skirt.db"

@@ -225,6 +225,30 @@ TEST(Database, WriterReaderRoundTrip) {
   EXPECT_TRUE(check_database(path).ok());
 }
 
+// The codec's position bound is chosen when a file is made (`--position-bound`) and fixed after:
+// opening an existing file with another bound is refused, naming the file and the field, and
+// the file keeps its own.
+TEST(Database, PositionBoundIsChosenAtCreationAndAnotherIsRefused) {
+  TempDir dir;
+  const std::string path = dir.file("bound.clothdb");
+  { Writer w = Writer::open_or_create(path, 1e-4); }
+  { Writer w = Writer::open_or_create(path, 1e-4); }  // the same bound: accepted
+  { Writer w = Writer::open_or_create(path, 0.0); }   // no bound asked: the file's
+  try {
+    Writer w = Writer::open_or_create(path, 2e-4);
+    FAIL() << "a different bound was accepted";
+  } catch (const ClothdbError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("bound.clothdb"), std::string::npos) << what;
+    EXPECT_NE(what.find("codec.position_bound is 0.1 mm"), std::string::npos) << what;
+    EXPECT_NE(what.find("0.2 mm"), std::string::npos) << what;
+  }
+  Reader r;
+  Error err;
+  ASSERT_EQ(r.open(path, &err), Status::Ok) << err.message;
+  EXPECT_DOUBLE_EQ(r.codec().position_bound, 1e-4);
+}
+
 TEST(Database, UsesWalAndReadersSeeOnlyCommittedData) {
   TempDir dir;
   const std::string path = dir.file("wal.clothdb");

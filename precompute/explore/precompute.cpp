@@ -280,10 +280,13 @@ PrecomputeOutcome run_precompute(const PrecomputeRequest& request, std::FILE* lo
     std::fprintf(log, "--auto: resuming with the setting chosen when %s was made: %s\n",
                  request.db.c_str(),
                  solver_settings_json(scene.file.solver, scene.file.settings).c_str());
+  // A codec bound the existing file does not have is refused before the floor is measured.
+  if (exists && request.position_bound > 0)
+    db::Writer::open_or_create(request.db, request.position_bound);
   const ErrorFloorOptions floor_options = floor_options_for(request, options);
   const std::optional<ErrorFloor> measured = check_error_floor(
       request, scene, eg, chosen.json, options.epsilon, exists, floor_options, out, log);
-  db::Writer writer = exists ? db::Writer::open(request.db) : db::Writer::create(request.db);
+  db::Writer writer = db::Writer::open_or_create(request.db, request.position_bound);
   prepare_database(writer, scene, eg, chosen.json);
   if (!out.auto_table.empty()) db::set_meta_text(writer, db::meta::kAutoSolver, out.auto_table);
   if (measured) {

@@ -33,6 +33,8 @@ struct PrecomputeRequest {
   std::string graph;       // --graph: a motion graph file ("" : the database's, else built)
   std::string curve;       // prefix of the error curve's .csv/.svg ("": beside the database)
   double percentile = -1;  // motion graph transition threshold percentile (<= 0: default)
+  // m; > 0: the codec's position bound for a new database (an existing one must have it)
+  double position_bound = 0;
   ExploreOptions explore;  // epsilon, budgets, threads (<= 0: all cores), batch, progress
   // --auto
   bool automatic = false;
