@@ -373,30 +373,35 @@ void XpbdSolver::solve_stretch(int begin, int end, Eigen::Matrix3Xd& x, double a
 // max_stretch * l0 is shortened to exactly that, split by inverse mass like a PBD distance
 // constraint of stiffness 1. Edges within the limit are left alone, so the material's own
 // (compliant) response decides everything below it.
+// Shortens edge (i, j) to `limit` if it is longer, split by inverse mass; returns whether it did.
+// A relative slack of 1e-9 so an edge a previous pass set to the limit does not count again by
+// rounding.
+bool shorten_edge(Eigen::Matrix3Xd& x, const double* w, int i, int j, double limit) {
+  const double wi = w[i], wj = w[j];
+  const double w_sum = wi + wj;
+  if (w_sum <= 0.0) return false;
+  Vec xi(x.col(i).data()), xj(x.col(j).data());
+  const Vec3 diff = xi - xj;
+  const double len_sq = diff.squaredNorm();
+  if (len_sq <= limit * limit * (1.0 + 1e-9)) return false;
+  const double len = std::sqrt(len_sq);
+  const Vec3 correction = diff * ((len - limit) / (len * w_sum));
+  xi -= wi * correction;
+  xj += wj * correction;
+  return true;
+}
+
 void XpbdSolver::limit_strain(int begin, int end, Eigen::Matrix3Xd& x, double max_stretch) {
   const double* w = model_.inv_mass.data();
 #pragma omp for schedule(static)
   for (int c = begin; c < end; ++c) {
     const std::size_t cu = static_cast<std::size_t>(c);
     const int i = stretch_.vertices[cu][0], j = stretch_.vertices[cu][1];
-    const double wi = w[i], wj = w[j];
-    const double w_sum = wi + wj;
-    if (w_sum <= 0.0) continue;
-    Vec xi(x.col(i).data()), xj(x.col(j).data());
-    const Vec3 diff = xi - xj;
-    const double limit = max_stretch * stretch_.rest[cu];
-    const double len_sq = diff.squaredNorm();
-    // A relative slack of 1e-9 so an edge the last pass set to the limit does not count again
-    // by rounding.
-    if (len_sq <= limit * limit * (1.0 + 1e-9)) continue;
+    if (!shorten_edge(x, w, i, j, max_stretch * stretch_.rest[cu])) continue;
       // Every writer stores the same value: whether a pass corrected anything does not depend on
       // which thread did it.
 #pragma omp atomic write
     limit_corrected_ = 1;
-    const double len = std::sqrt(len_sq);
-    const Vec3 correction = diff * ((len - limit) / (len * w_sum));
-    xi -= wi * correction;
-    xj += wj * correction;
     // One colour's constraints share no vertex, and colours are separated by barriers.
     limit_moved_[static_cast<std::size_t>(i)] = 1;
     limit_moved_[static_cast<std::size_t>(j)] = 1;
@@ -408,7 +413,6 @@ bool XpbdSolver::limit_strain_dirty(Eigen::Matrix3Xd& x, double max_stretch) {
   const std::array<int, 2>* edge = stretch_.vertices.data();
   const double* rest = stretch_.rest.data();
   unsigned char* dirty = edge_dirty_.data();
-  double* px = x.data();
   bool any = false;
   const std::size_t count = stretch_.vertices.size();
   for (std::size_t c = 0; c < count; ++c) {
@@ -424,18 +428,7 @@ bool XpbdSolver::limit_strain_dirty(Eigen::Matrix3Xd& x, double max_stretch) {
     if (dirty[c] == 0) continue;
     dirty[c] = 0;
     const int i = edge[c][0], j = edge[c][1];
-    const double wi = w[i], wj = w[j];
-    const double w_sum = wi + wj;
-    if (w_sum <= 0.0) continue;
-    Vec xi(px + 3 * i), xj(px + 3 * j);
-    const Vec3 diff = xi - xj;
-    const double limit = max_stretch * rest[c];
-    const double len_sq = diff.squaredNorm();
-    if (len_sq <= limit * limit * (1.0 + 1e-9)) continue;  // as in limit_strain
-    const double len = std::sqrt(len_sq);
-    const Vec3 correction = diff * ((len - limit) / (len * w_sum));
-    xi -= wi * correction;
-    xj += wj * correction;
+    if (!shorten_edge(x, w, i, j, max_stretch * rest[c])) continue;
     any = true;
     // Every edge at a moved vertex may now be too long: a later one is seen in this pass, as in
     // a full pass, an earlier one in the next. This edge itself is now at the limit.
