@@ -18,7 +18,7 @@
 //     "solver": {"name": "xpbd", "substeps": 10, "iterations": 1, "tolerance": 1e-6,
 //                "linear_solver": "ldlt", "threads": 1, "tethers": true,
 //                "stretch_iterations": 2, "strain_limit": 0.025,
-//                "strain_limit_iterations": 64},
+//                "strain_limit_iterations": 64, "strain_limit_contact_rounds": 1},
 //        // any field of SolverSettings, read and checked by its one serialiser
 //        // (database/run_settings.hpp: solver_settings_json); defaults as above
 //     "colliders": {"bones": ["Hips", "LeftUpLeg"], "auto_distance": 0.2,
