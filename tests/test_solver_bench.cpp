@@ -82,18 +82,8 @@ namespace {
 // A small equilateral grid laid flat and pinned at the two corners of one edge: it falls and
 // swings, deterministically (a smaller seed004-fall).
 ClothScene small_falling_grid() {
-  ClothMesh mesh = make_equilateral_sheet(7, 7, 1.0 / 6.0);
-  Eigen::Matrix3d lay;
-  lay << 1, 0, 0, 0, 0, 1, 0, -1, 0;
-  transform_mesh(mesh, lay, Vec3(0, 0, 0));
-  std::vector<int> pins{grid_index(mesh, 0, 6), grid_index(mesh, 6, 6)};
-  Material m;
-  ClothScene scene;
+  ClothScene scene = make_seed004_fall(7);
   scene.name = "small-fall";
-  scene.model = make_model(std::move(mesh), m, pins);
-  scene.env.air_drag = 2.0 * m.density;
-  scene.env.collision_margin = m.thickness;
-  scene.initial = rest_state(scene.model);
   scene.frames = 8;
   return scene;
 }

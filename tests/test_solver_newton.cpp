@@ -414,45 +414,26 @@ struct CantileverResult {
 };
 
 CantileverResult cantilever_deflection(int rows) {
-  const double length = 0.1, width = 0.15;
-  const double h = length / (rows - 1);
-  const double edge = h / (std::sqrt(3.0) / 2);
-  const int columns = static_cast<int>(std::lround(width / edge)) + 1;
-  ClothMesh mesh = make_equilateral_sheet(columns, rows, edge);
-  Eigen::Matrix3d lay;  // sheet rows run along z, the plate's length along x, normal along y
-  lay << 0, 1, 0, 0, 0, 1, 1, 0, 0;
-  transform_mesh(mesh, lay, Vec3(0, 0, 0));
-  std::vector<int> clamp;
-  for (int c = 0; c < columns; ++c) {
-    clamp.push_back(grid_index(mesh, c, 0));
-    clamp.push_back(grid_index(mesh, c, 1));
-  }
-  Material m;
-  m.youngs_modulus = 1.0e7;
-  m.thickness = 1.0e-3;
-  m.poisson = 0.0;
-  m.bending_stiffness = -1.0;  // plate value E t^3 / 12
-  m.damping = 0.01;
-  const ClothModel model = make_model(mesh, m, clamp);
-  Environment env;
-  env.gravity *= 0.01;
-  env.air_drag = 20.0 * m.density;
+  const ClothScene scene = make_cantilever_plate(rows);
+  const ClothModel& model = scene.model;
   auto solver = make_newton_solver(model, newton_settings());
-  ClothState state = rest_state(model);
+  ClothState state = scene.initial;
   StepInputs in;
-  in.env = &env;
+  in.env = &scene.env;
   // Backward Euler with 5 s steps is a damped static solve.
   for (int k = 0; k < 8; ++k) {
     const StepReport r = solver->step(state, 5.0, in);
     EXPECT_TRUE(r.stable) << r.message;
   }
-  const int tip_row = rows - 1, mid = columns / 2;
-  const double tip = -0.5 * (state.x(1, grid_index(mesh, mid, tip_row)) +
-                             state.x(1, grid_index(mesh, mid - 1, tip_row)));
+  const int tip_row = rows - 1, mid = model.mesh.grid_columns / 2;
+  const double tip = -0.5 * (state.x(1, grid_index(model.mesh, mid, tip_row)) +
+                             state.x(1, grid_index(model.mesh, mid - 1, tip_row)));
   // The clamp line is the last clamped row.
-  const double free_length = length - h;
-  const double q = m.density * env.gravity.norm();
-  return {tip, q * std::pow(free_length, 4) / (8 * m.bending_rigidity()), h, free_length};
+  const double h = kCantileverLength / (rows - 1);
+  const double free_length = kCantileverLength - h;
+  const double q = model.material.density * scene.env.gravity.norm();
+  return {tip, q * std::pow(free_length, 4) / (8 * model.material.bending_rigidity()), h,
+          free_length};
 }
 
 }  // namespace

@@ -406,46 +406,22 @@ StaticCase membrane_strip_case(bool quad_grid) {
 }
 
 StaticCase cantilever_plate_case(int rows) {
-  // Seed 004's equilateral plate, as tests/test_solver_newton.cpp's cantilever: rows along the
-  // length x, clamped by the first two rows, 1 % of gravity (linear regime).
-  const double length = 0.1, width = 0.15;
-  const double h = length / (rows - 1);
-  const double edge = h / (std::sqrt(3.0) / 2);
-  const int columns = static_cast<int>(std::lround(width / edge)) + 1;
-  ClothMesh mesh = make_equilateral_sheet(columns, rows, edge);
-  Eigen::Matrix3d lay;  // sheet rows run along x (the length), columns along z, normal along y
-  lay << 0, 1, 0, 0, 0, 1, 1, 0, 0;
-  transform_mesh(mesh, lay, Vec3(0, 0, 0));
-  std::vector<int> clamp;
-  for (int c = 0; c < columns; ++c) {
-    clamp.push_back(grid_index(mesh, c, 0));
-    clamp.push_back(grid_index(mesh, c, 1));
-  }
-  Material m;
-  m.youngs_modulus = 1.0e7;
-  m.thickness = 1.0e-3;
-  m.poisson = 0.0;
-  m.bending_stiffness = -1.0;  // plate value D = E t^3 / 12
-  m.damping = 0.01;
   StaticCase out;
   out.name = "cantilever-plate";
   out.quantity = "tip deflection";
   out.formula = "q L^4 / (8 D), L = length - h/2";
-  ClothScene& scene = out.scene;
-  scene.name = out.name;
-  scene.description = "equilateral plate 0.1 m long clamped by two rows, 1 % gravity";
+  out.scene = make_cantilever_plate(rows);
+  const ClothScene& scene = out.scene;
+  const ClothMesh& mesh = scene.model.mesh;
+  const int columns = mesh.grid_columns;
   const std::vector<int> tip{grid_index(mesh, columns / 2, rows - 1),
                              grid_index(mesh, columns / 2 - 1, rows - 1)};
-  scene.model = make_model(std::move(mesh), m, clamp);
-  scene.env.gravity *= 0.01;
-  scene.env.air_drag = 20.0 * m.density;
-  scene.env.collision_margin = m.thickness;
-  scene.initial = rest_state(scene.model);
-  scene.frames = 150;
   // Euler-Bernoulli: tip = q L^4 / (8 D), q = rho g per unit area, L measured from half a row
   // spacing behind the last clamped row (the discrete clamp's effective root, as the Newton
   // test finds).
-  const double free_length = length - 0.5 * h;
+  const double h = kCantileverLength / (rows - 1);
+  const double free_length = kCantileverLength - 0.5 * h;
+  const Material& m = scene.model.material;
   const double q = m.density * scene.env.gravity.norm();
   out.analytic_mm = 1e3 * q * std::pow(free_length, 4) / (8 * m.bending_rigidity());
   out.measure_mm = [tip](const Eigen::Matrix3Xd& x) {

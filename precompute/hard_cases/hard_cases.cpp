@@ -215,18 +215,54 @@ ClothScene make_seed004_grid() {
   return scene;
 }
 
-ClothScene make_seed004_fall() {
-  ClothMesh mesh = make_equilateral_sheet(23, 23, 1.0 / 22.0);
+ClothScene make_cantilever_plate(int rows) {
+  if (rows < 3) throw std::invalid_argument("cantilever plate: at least 3 rows");
+  const double width = 0.15;
+  const double h = kCantileverLength / (rows - 1);
+  const double edge = h / (std::sqrt(3.0) / 2);
+  const int columns = static_cast<int>(std::lround(width / edge)) + 1;
+  ClothMesh mesh = make_equilateral_sheet(columns, rows, edge);
+  Eigen::Matrix3d lay;  // sheet rows run along x (the length), columns along z, normal along y
+  lay << 0, 1, 0, 0, 0, 1, 1, 0, 0;
+  transform_mesh(mesh, lay, Vec3(0, 0, 0));
+  std::vector<int> clamp;
+  for (int c = 0; c < columns; ++c) {
+    clamp.push_back(grid_index(mesh, c, 0));
+    clamp.push_back(grid_index(mesh, c, 1));
+  }
+  Material m;
+  m.youngs_modulus = 1.0e7;
+  m.thickness = 1.0e-3;
+  m.poisson = 0.0;
+  m.bending_stiffness = -1.0;  // plate value D = E t^3 / 12
+  m.damping = 0.01;
+  ClothScene scene;
+  scene.name = "cantilever-plate";
+  scene.description = "equilateral plate 0.1 m long clamped by two rows, 1 % gravity";
+  scene.model = make_model(std::move(mesh), m, clamp);
+  scene.env.gravity *= 0.01;
+  scene.env.air_drag = 20.0 * m.density;
+  scene.env.collision_margin = m.thickness;
+  scene.initial = rest_state(scene.model);
+  scene.frames = 150;
+  return scene;
+}
+
+ClothScene make_seed004_fall(int nodes_per_side) {
+  if (nodes_per_side < 2) throw std::invalid_argument("seed004-fall: at least 2 nodes per side");
+  const int n = nodes_per_side;
+  ClothMesh mesh = make_equilateral_sheet(n, n, 1.0 / (n - 1));
   // Lay the sheet flat: (x, y, 0) -> (x, 0, -y), rows running along -z from the free edge to the
   // pinned one; gravity (-y) then pulls it down and it swings through under its pinned corners.
   Eigen::Matrix3d lay;
   lay << 1, 0, 0, 0, 0, 1, 0, -1, 0;
   transform_mesh(mesh, lay, Vec3(0, 0, 0));
-  std::vector<int> pins{grid_index(mesh, 0, 22), grid_index(mesh, 22, 22)};
+  std::vector<int> pins{grid_index(mesh, 0, n - 1), grid_index(mesh, n - 1, n - 1)};
   Material m;
   ClothScene scene;
   scene.name = "seed004-fall";
-  scene.description = "seed 004's 529-node grid laid flat, pinned at two corners, falling";
+  scene.description = "seed 004's " + std::to_string(n * n) +
+                      "-node grid laid flat, pinned at two corners, falling";
   scene.model = make_model(std::move(mesh), m, pins);
   finish_scene(scene, m);
   scene.frames = 60;

@@ -39,7 +39,16 @@ ClothScene make_seed004_grid();
 // The same grid laid flat (horizontal) and pinned at the two corners of one edge, so that it
 // falls and swings for its first second: the moving case, where Newton needs several iterations
 // per frame (the hanging grid above settles and then costs one gradient per frame).
-ClothScene make_seed004_fall();
+// Seed 004's equilateral plate, kCantileverLength long (x) and 0.15 m wide (z), normal along y,
+// `rows` rows along its length, clamped by the first two rows, under 1 % of gravity (the linear
+// regime); E 1e7 Pa, t 1 mm, Poisson 0, plate bending rigidity D = E t^3 / 12. The cantilever of
+// `bench solvers`' static cases and of the Newton solver's test. The tip is the middle pair of
+// nodes of the last row: grid_index(model.mesh, grid_columns / 2 (- 1), rows - 1).
+constexpr double kCantileverLength = 0.1;
+ClothScene make_cantilever_plate(int rows = 21);
+
+// nodes_per_side: 23 is seed 004's grid; smaller grids of the same 1 m sheet for quick tests.
+ClothScene make_seed004_fall(int nodes_per_side = 23);
 
 // Per-frame diagnostics of a run.
 struct FrameMetrics {

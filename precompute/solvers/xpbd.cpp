@@ -179,6 +179,9 @@ class XpbdSolver final : public Solver {
   std::vector<unsigned char> limit_moved_;  // per vertex: moved by the first (parallel) pass
   std::vector<unsigned char> edge_dirty_;   // per constraint: a vertex moved since its last test
   // The vertices the last run_strain_limit moved (flag and list), for the contact rounds.
+  // The step's environment for the contact rounds: without friction, and also without the
+  // margin after the last round.
+  Environment round_env_, surface_env_;
   std::vector<unsigned char> limit_touched_;
   std::vector<int> limit_touched_list_;
   void touch(int v) {
@@ -538,10 +541,14 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
   const int sweeps = std::max(settings_.iterations, stretch_sweeps);
   const double max_stretch = settings_.strain_limit > 0.0 ? 1.0 + settings_.strain_limit : 0.0;
   const Vec3 g = env.gravity;
-  Environment frictionless = env;
-  frictionless.friction_static = frictionless.friction_kinetic = 0.0;
-  Environment surface_only = frictionless;
-  surface_only.collision_margin = 0.0;
+  if (max_stretch > 0.0 && settings_.strain_limit_contact_rounds > 0) {
+    // Copy-assigned into members, whose collider arrays keep their capacity: no allocation per
+    // step after the first.
+    round_env_ = env;
+    round_env_.friction_static = round_env_.friction_kinetic = 0.0;
+    surface_env_ = round_env_;
+    surface_env_.collision_margin = 0.0;
+  }
   // Linear air drag f = -c A_i v_i, integrated implicitly (v = (v + h g) / (1 + h c A_i / m_i)) so
   // that a large drag on a light vertex cannot make the velocity overshoot and grow.
   Eigen::VectorXd drag_factor(n);
@@ -642,7 +649,7 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
         for (int k = 0; k < touched; ++k)
           resolve_vertex_collisions(state.x, x_prev, model_.inv_mass,
                                     limit_touched_list_[static_cast<std::size_t>(k)],
-                                    last ? surface_only : frictionless, s_end, s_start);
+                                    last ? surface_env_ : round_env_, s_end, s_start);
       }
       // Velocity update (alg. 1 line 16). Kinematic vertices keep place_kinematic's velocity.
 #pragma omp for schedule(static)
