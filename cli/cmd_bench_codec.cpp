@@ -16,6 +16,7 @@
 
 #include "cli_util.hpp"
 #include "commands.hpp"
+#include "compress/predictability.hpp"
 #include "compress/subspace.hpp"
 #include "database/codec.hpp"
 #include "database/schema.hpp"
@@ -41,6 +42,7 @@ struct Frames {
   std::string source;
   uint32_t vertices = 0, frames = 0;
   std::vector<float> x;
+  std::vector<uint32_t> clip_starts;  // with --db: the frame where each clip begins
 };
 
 // Smooth synthetic waves (development aid; the benchmark's figures come from simulations).
@@ -346,6 +348,7 @@ Frames frames_from_db(const std::string& path, uint32_t limit) {
         reader.decode_all(blob, &x, scratch, &err) != Status::Ok)
       throw std::runtime_error(err.message);
     const uint32_t take = std::min<uint32_t>(uint32_t(c.frame_count), limit - f.frames);
+    f.clip_starts.push_back(f.frames);
     f.vertices = uint32_t(x.size() / 3 / uint32_t(c.frame_count));
     f.x.insert(f.x.end(), x.begin(), x.begin() + ptrdiff_t(size_t(take) * f.vertices * 3));
     f.frames += take;
@@ -410,6 +413,34 @@ void compare_codecs(const Frames& f, const std::vector<std::string>& codecs,
       "(Kim et al. 2013: 0.18 bits per vertex per frame, lossy PCA without a hard bound.)\n");
 }
 
+// `--predictability`: the table of analyse_predictability (compress/predictability.hpp).
+void print_predictability(const Frames& f, const std::vector<std::string>& mode_list,
+                          const std::vector<std::string>& bound_list) {
+  std::vector<uint32_t> modes;
+  for (const auto& m : mode_list) modes.push_back(uint32_t(std::stoul(m)));
+  std::vector<double> bounds;
+  for (const auto& b : bound_list) bounds.push_back(std::stod(b) * 1e-3);
+  const double t = thread_cpu_seconds();
+  const PredictabilityReport r =
+      analyse_predictability(f.x, f.vertices, f.frames, f.clip_starts, modes, bounds);
+  std::printf(
+      "body frame: Kabsch fit per frame to the %u vertices that move least (largest rotation "
+      "%.1f degrees); %zu clip starts; %.1f CPU s\n\n",
+      r.anchors, r.max_rotation_deg, f.clip_starts.size(), thread_cpu_seconds() - t);
+  std::printf("| space | modes | RMS left (mm per coordinate) |");
+  for (double b : bounds) std::printf(" within %g mm: as is / - previous / linear |", b * 1e3);
+  std::printf("\n|---|---:|---:|");
+  for (std::size_t i = 0; i < bounds.size(); ++i) std::printf("---|");
+  std::printf("\n");
+  for (const auto& row : r.rows) {
+    std::printf("| %s | %u | %.2f |", row.space.c_str(), row.modes, row.rms_left * 1e3);
+    for (std::size_t i = 0; i < bounds.size(); ++i)
+      std::printf(" %.1f / %.1f / %.1f %% |", 100 * row.within_as_is[i], 100 * row.within_delta[i],
+                  100 * row.within_linear[i]);
+    std::printf("\n");
+  }
+}
+
 }  // namespace
 
 void register_bench_codec(CLI::App& bench) {
@@ -420,7 +451,7 @@ void register_bench_codec(CLI::App& bench) {
     std::string scene = "swung-sheet", input, save, db;
     std::string codecs = "v1,v2,meshopt", modes = "64";
     uint32_t basis_frames = 3000, db_frames = 3000;
-    bool skip_v1_table = false;
+    bool skip_v1_table = false, predictability = false;
     SolverOptions solver;
   };
   auto args = std::make_shared<Args>();
@@ -475,6 +506,12 @@ void register_bench_codec(CLI::App& bench) {
       ->capture_default_str();
   cmd->add_flag("--comparison-only", args->skip_v1_table,
                 "Skip the v1 table (key intervals, random access); print only the comparison");
+  cmd->add_flag("--predictability", args->predictability,
+                "Instead of coding: how much of the frames a subspace of --modes modes leaves, in "
+                "character space and relative to a rigid body frame fitted to the 5 % of vertices "
+                "that move least, and how often that residual is within each of --bounds as is, "
+                "minus the previous frame's, or extrapolated linearly in time (what a subspace "
+                "codec with a hard bound can hope for)");
   args->solver.add_to(*cmd);
   cmd->callback([args] {
     Frames f;
@@ -503,6 +540,10 @@ void register_bench_codec(CLI::App& bench) {
     std::printf("frames: %s\n", f.source.c_str());
     std::printf("raw float32: %.1f MB; CPU: %s; one thread, CPU time\n",
                 double(f.x.size()) * 4 / 1e6, cpu_model().c_str());
+    if (args->predictability) {
+      print_predictability(f, split_list(args->modes), split_list(args->bounds));
+      return;
+    }
     if (!args->skip_v1_table)
       std::printf(
           "\n| bound (mm) | zstd | K | ratio | bits/coord | max error (mm) | encode (MB/s) | "

@@ -12,6 +12,7 @@
 #include <random>
 #include <vector>
 
+#include "compress/predictability.hpp"
 #include "compress/subspace.hpp"
 #include "database/checksum.hpp"
 #include "database/codec.hpp"
@@ -338,3 +339,76 @@ TEST(CodecV2, Version1BlobsStillDecodeBitForBit) {
 
 }  // namespace
 }  // namespace clothdb::codec
+
+// compress/predictability.hpp: what `bench codec --predictability` reports.
+namespace {
+
+// A fixed random shape of V vertices, turned about y by angle[f] and moved by shift[f] per frame.
+std::vector<float> turning_shape(uint32_t vertices, const std::vector<double>& angle,
+                                 const std::vector<double>& shift) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(-0.3, 0.3);
+  std::vector<double> shape(3 * std::size_t(vertices));
+  for (double& s : shape) s = u(rng);
+  std::vector<float> frames;
+  for (std::size_t f = 0; f < angle.size(); ++f) {
+    const double c = std::cos(angle[f]), s = std::sin(angle[f]);
+    for (uint32_t v = 0; v < vertices; ++v) {
+      const double x = shape[3 * v], y = shape[3 * v + 1], z = shape[3 * v + 2];
+      frames.push_back(float(c * x + s * z + shift[f]));
+      frames.push_back(float(y));
+      frames.push_back(float(-s * x + c * z));
+    }
+  }
+  return frames;
+}
+
+}  // namespace
+
+TEST(Predictability, TheBodyFrameRemovesARigidMotionThatCharacterSpaceMustCode) {
+  const uint32_t vertices = 200, frames = 40;
+  std::vector<double> angle, shift;
+  for (uint32_t f = 0; f < frames; ++f) {
+    angle.push_back(0.6 * std::sin(0.3 * f));
+    shift.push_back(0.05 * std::cos(0.2 * f));
+  }
+  const auto x = turning_shape(vertices, angle, shift);
+  const auto r = clothdb::analyse_predictability(x, vertices, frames, {}, {0}, {1e-3});
+  ASSERT_EQ(r.rows.size(), 2u);
+  EXPECT_EQ(r.rows[0].space, "character");
+  EXPECT_EQ(r.rows[1].space, "body");
+  // A rigid shape: the fit is exact up to float rounding, and turns by up to the 0.6 rad swing
+  // from the anchors' mean pose (about the middle of the swing).
+  EXPECT_NEAR(r.max_rotation_deg, 0.6 * 180 / 3.14159265358979, 2.0);
+  EXPECT_LT(r.rows[1].rms_left, 1e-5);
+  EXPECT_DOUBLE_EQ(r.rows[1].within_as_is[0], 1.0);
+  // In character space only y (a third of the coordinates, never moved) stays within 1 mm.
+  EXPECT_GT(r.rows[0].rms_left, 0.03);
+  EXPECT_LT(r.rows[0].within_as_is[0], 0.4);
+}
+
+TEST(Predictability, TemporalColumnsSkipFramesThatReachBackAcrossAClipStart) {
+  // Without modes the residual is x - mean. Each clip moves its shape at a constant 3 mm per
+  // frame: the previous frame's residual misses by 3 mm (never within 1 mm), linear extrapolation
+  // is exact, and the jump between clips would break both if it were not skipped.
+  const uint32_t vertices = 50, frames = 30;
+  std::vector<double> angle(frames, 0.0), shift;
+  for (uint32_t f = 0; f < frames; ++f) shift.push_back(f < 15 ? 0.003 * f : 0.5 + 0.003 * f);
+  const auto x = turning_shape(vertices, angle, shift);
+  const auto r = clothdb::analyse_predictability(x, vertices, frames, {0, 15}, {0}, {1e-3});
+  const auto& character = r.rows[0];
+  EXPECT_DOUBLE_EQ(character.within_linear[0], 1.0);
+  // Only x moves; y and z are constant, so two thirds of the coordinates are exact.
+  EXPECT_NEAR(character.within_delta[0], 2.0 / 3.0, 1e-9);
+  // Told nothing of the second clip, the two frames after the jump miss in x.
+  const auto blind = clothdb::analyse_predictability(x, vertices, frames, {}, {0}, {1e-3});
+  EXPECT_LT(blind.rows[0].within_linear[0], 1.0);
+}
+
+TEST(Predictability, BadInputIsRefused) {
+  std::vector<float> x(3 * 10 * 5, 0.0f);
+  EXPECT_THROW(clothdb::analyse_predictability(x, 10, 4, {}, {0}, {1e-3}), std::invalid_argument);
+  EXPECT_THROW(clothdb::analyse_predictability(x, 10, 5, {}, {}, {1e-3}), std::invalid_argument);
+  x[7] = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_THROW(clothdb::analyse_predictability(x, 10, 5, {}, {0}, {1e-3}), std::invalid_argument);
+}
