@@ -1,0 +1,96 @@
+// clothdb_bench_bender: our XPBD against Bender's PositionBasedDynamics XPBD kernels on the same
+// hanging sheet at equal sub-steps (issue 15), one thread, CPU time. Prints a Markdown table.
+#include <CLI/CLI.hpp>
+#include <cstdio>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "bender_sheet.hpp"
+#include "hard_cases/hard_cases.hpp"
+#include "solvers/solver.hpp"
+
+using namespace clothdb;
+
+namespace {
+
+std::vector<int> parse_list(const std::string& text) {
+  std::vector<int> out;
+  std::stringstream in(text);
+  std::string item;
+  while (std::getline(in, item, ',')) {
+    const int value = std::stoi(item);
+    if (value < 1) throw std::invalid_argument("--substeps: every value must be at least 1");
+    out.push_back(value);
+  }
+  return out;
+}
+
+void print_row(const char* solver, int substeps, double cpu_seconds, int frames, double max_strain,
+               double last_strain, bool finite, double ours_cpu) {
+  const double ms = 1e3 * cpu_seconds / std::max(frames, 1);
+  std::printf("| %s | %d | %.1f | %.2fx | %.2f %% | %.2f %% |%s\n", solver, substeps, ms,
+              ours_cpu > 0 ? cpu_seconds / ours_cpu : 0.0, 100 * max_strain, 100 * last_strain,
+              finite ? "" : " (blew up)");
+  std::fflush(stdout);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "Our XPBD against Jan Bender's PositionBasedDynamics (its XPBD distance and isometric "
+      "bending kernels and its integrator, in a loop like its TimeStepController) on the same "
+      "hanging sheet, mesh, masses and pins, at equal sub-steps of one sweep, on one thread. "
+      "CPU time of the sub-step loops; strain = max (l - l0) / l0 over edges."};
+  int vertices = 10000, frames = 30;
+  std::string substeps_text = "100,200";
+  app.add_option("--vertices", vertices, "Approximate vertex count of the hanging sheet")
+      ->capture_default_str()
+      ->check(CLI::Range(16, 1000000));
+  app.add_option("--frames", frames, "Frames at 30 fps")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  app.add_option("--substeps", substeps_text, "Comma-separated sub-step counts")
+      ->capture_default_str();
+  CLI11_PARSE(app, argc, argv);
+  std::vector<int> substep_list;
+  try {
+    substep_list = parse_list(substeps_text);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "clothdb_bench_bender: --substeps '%s': %s\n", substeps_text.c_str(),
+                 e.what());
+    return 2;
+  }
+  const ClothScene scene = make_large_sheet(vertices);
+  std::printf("scene: %s, %d frames at 30 fps, one thread\n\n", scene.description.c_str(), frames);
+  std::printf(
+      "| solver | sub-steps | CPU ms/frame | CPU vs ours (tethers off) | max strain over the run | "
+      "at the last frame |\n|---|---:|---:|---:|---:|---:|\n");
+  for (int substeps : substep_list) {
+    double ours_cpu = 0;
+    for (bool tethers : {false, true}) {
+      SolverSettings settings;
+      settings.substeps = substeps;
+      settings.iterations = 1;
+      settings.threads = 1;
+      settings.tethers = tethers;
+      auto solver = make_solver(SolverKind::Xpbd, scene.model, settings);
+      const RunResult run = run_scene(scene, *solver, frames, false);
+      double max_strain = 0;
+      for (std::size_t f = 1; f < run.metrics.size(); ++f)
+        max_strain = std::max(max_strain, run.metrics[f].max_strain);
+      if (!tethers) ours_cpu = run.cpu_seconds;
+      print_row(tethers ? "clothdb XPBD, tethers on" : "clothdb XPBD, tethers off", substeps,
+                run.cpu_seconds, frames, max_strain, run.metrics.back().max_strain, run.stable,
+                ours_cpu);
+    }
+    const BenderSheetRun single = bender_sheet_float(scene, frames, substeps);
+    print_row("Bender PBD, float (as shipped)", substeps, single.cpu_seconds, single.frames,
+              single.max_strain, single.last_strain, single.finite, ours_cpu);
+    const BenderSheetRun twice = bender_sheet_double(scene, frames, substeps);
+    print_row("Bender PBD, double (USE_DOUBLE)", substeps, twice.cpu_seconds, twice.frames,
+              twice.max_strain, twice.last_strain, twice.finite, ours_cpu);
+  }
+  return 0;
+}
