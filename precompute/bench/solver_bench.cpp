@@ -106,13 +106,20 @@ std::vector<BenchConfig> newton_study_configs() {
   };
   // Issue 15's loop: stop on the update (no velocity change above `vtol`), keep a non-converged
   // iterate that lowered Phi, projected Hessian first, Eisenstat-Walker PCG tolerance.
-  auto update_stop = [](L linear, double vtol, bool exact) {
+  auto update_stop = [](L linear, double vtol, bool exact, double contraction = 0.0,
+                        G guess = G::Start) {
     BenchConfig c = candidate(SolverKind::Newton, 1, 0, 1e-6, linear);
     c.settings.newton_velocity_tolerance = vtol;
     c.settings.newton_exact_hessian = exact;
-    char buf[160];
-    std::snprintf(buf, sizeof buf, "%s tol=1e-06 vtol=%.0e keep-descent hessian=%s",
-                  linear_solver_name(linear), vtol, exact ? "projected-then-exact" : "projected");
+    c.settings.newton_reuse_contraction = contraction;
+    c.settings.newton_guess = guess;
+    char buf[200];
+    std::snprintf(buf, sizeof buf, "%s tol=1e-06 vtol=%.0e keep-descent hessian=%s%s%s",
+                  linear_solver_name(linear), vtol, exact ? "projected-then-exact" : "projected",
+                  contraction > 0 ? " chord=yes" : "",
+                  guess == G::Extrapolate ? " start=x+hv+h2a"
+                  : guess == G::Inertial  ? " start=x+hv"
+                                          : "");
     c.label = buf;
     return c;
   };
@@ -120,6 +127,10 @@ std::vector<BenchConfig> newton_study_configs() {
       update_stop(L::SimplicialLDLT, 1e-3, true),
       update_stop(L::SimplicialLDLT, 1e-3, false),
       update_stop(L::SimplicialLDLT, 1e-4, true),
+      update_stop(L::SimplicialLDLT, 1e-3, true, 0.5),
+      update_stop(L::SimplicialLDLT, 1e-3, true, 0.0, G::Extrapolate),
+      update_stop(L::SimplicialLDLT, 1e-3, true, 0.5, G::Extrapolate),
+      update_stop(L::SimplicialLDLT, 1e-3, false, 0.5, G::Extrapolate),
       update_stop(L::Cholmod, 1e-3, true),
       update_stop(L::ConjugateGradient, 1e-3, true),
       update_stop(L::ConjugateGradientIC, 1e-3, true),
