@@ -17,10 +17,6 @@ namespace clothdb {
 
 namespace {
 
-double triangle_area(const Eigen::Matrix3Xd& x, int a, int b, int c) {
-  return 0.5 * (x.col(b) - x.col(a)).cross(x.col(c) - x.col(a)).norm();
-}
-
 Vector3r to_real(const Eigen::Vector3d& v) {
   return v.cast<Real>();
 }
@@ -47,23 +43,6 @@ BenderSheetRun BENDER_SHEET_FUNCTION(const ClothScene& scene, int frames, int su
   }
 
   // Stretch: one distance constraint per edge with our stiffness k = k_s / l0 (xpbd.cpp).
-  std::vector<double> edge_area(mesh.edges.size(), 0.0);
-  {
-    std::vector<std::pair<std::array<int, 2>, int>> index;
-    for (std::size_t e = 0; e < mesh.edges.size(); ++e)
-      index.push_back({mesh.edges[e], static_cast<int>(e)});
-    std::sort(index.begin(), index.end());
-    for (const auto& t : mesh.triangles) {
-      const double area = triangle_area(rest, t[0], t[1], t[2]);
-      for (std::size_t k = 0; k < 3; ++k) {
-        const std::array<int, 2> key{std::min(t[k], t[(k + 1) % 3]),
-                                     std::max(t[k], t[(k + 1) % 3])};
-        const auto it = std::lower_bound(index.begin(), index.end(), std::make_pair(key, -1));
-        if (it != index.end() && it->first == key)
-          edge_area[static_cast<std::size_t>(it->second)] += area;
-      }
-    }
-  }
   struct Distance {
     int i, j;
     Real rest, stiffness, lambda;
@@ -73,7 +52,7 @@ BenderSheetRun BENDER_SHEET_FUNCTION(const ClothScene& scene, int frames, int su
   const double et = model.material.stretch_stiffness();
   for (std::size_t e = 0; e < mesh.edges.size(); ++e) {
     const double l0 = model.edge_rest_length[e];
-    const double k_s = stretch_coefficient(et, edge_area[e], l0);
+    const double k_s = stretch_coefficient(et, model.edge_area[e], l0);
     if (!(l0 > 0.0) || !(k_s > 0.0)) continue;
     distance.push_back({mesh.edges[e][0], mesh.edges[e][1], static_cast<Real>(l0),
                         static_cast<Real>(k_s / l0), Real(0)});

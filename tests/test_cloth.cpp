@@ -91,6 +91,24 @@ TEST(Model, MassesFromAreaDensity) {
   EXPECT_THROW(make_model(make_quad_grid(3, 3, 1, 1), mat, {1, 1}), MeshError);
 }
 
+TEST(Model, EdgeAreaIsTheRestAreaOfTheEdgesTriangles) {
+  // A 2 m x 1 m grid of 10 x 5 cells, two triangles each: every triangle counts towards its
+  // three edges, an interior edge has two triangles and a border edge one.
+  const ClothModel model = make_model(make_quad_grid(11, 6, 2.0, 1.0), Material{}, {});
+  ASSERT_EQ(model.edge_area.size(), model.mesh.edges.size());
+  double sum = 0.0;
+  const double triangle = 0.5 * 0.2 * 0.2;
+  for (std::size_t e = 0; e < model.mesh.edges.size(); ++e) {
+    const auto [i, j] = model.mesh.edges[e];
+    const bool border_x = (i % 11 == j % 11) && (i % 11 == 0 || i % 11 == 10);
+    const bool border_y = (i / 11 == j / 11) && (i / 11 == 0 || i / 11 == 5);
+    EXPECT_NEAR(model.edge_area[e], (border_x || border_y ? 1.0 : 2.0) * triangle, 1e-12)
+        << "edge " << i << "-" << j;
+    sum += model.edge_area[e];
+  }
+  EXPECT_NEAR(sum, 3.0 * 2.0 * 1.0, 1e-9);
+}
+
 TEST(Collision, ProjectsOutOfSphereToMargin) {
   Environment env;
   env.collision_margin = 0.002;

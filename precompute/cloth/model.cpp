@@ -1,6 +1,9 @@
 #include "cloth/model.hpp"
 
 #include <algorithm>
+#include <array>
+#include <utility>
+#include <vector>
 
 namespace clothdb {
 
@@ -25,7 +28,8 @@ ClothModel make_model(ClothMesh mesh, const Material& material, std::vector<int>
   std::vector<int> seen = kinematic;
   std::sort(seen.begin(), seen.end());
   if (std::adjacent_find(seen.begin(), seen.end()) != seen.end()) {
-    throw MeshError("pinned vertex " + std::to_string(*std::adjacent_find(seen.begin(), seen.end())) +
+    throw MeshError("pinned vertex " +
+                    std::to_string(*std::adjacent_find(seen.begin(), seen.end())) +
                     " is listed twice");
   }
   for (int k : kinematic) {
@@ -38,7 +42,25 @@ ClothModel make_model(ClothMesh mesh, const Material& material, std::vector<int>
   model.kinematic = std::move(kinematic);
   model.edge_rest_length.resize(mesh.edges.size());
   for (size_t e = 0; e < mesh.edges.size(); ++e)
-    model.edge_rest_length[e] = (mesh.rest.col(mesh.edges[e][0]) - mesh.rest.col(mesh.edges[e][1])).norm();
+    model.edge_rest_length[e] =
+        (mesh.rest.col(mesh.edges[e][0]) - mesh.rest.col(mesh.edges[e][1])).norm();
+  // Adjacent areas, matched to mesh.edges by binary search over their sorted (i < j) keys.
+  model.edge_area.assign(mesh.edges.size(), 0.0);
+  std::vector<std::pair<std::array<int, 2>, int>> index;
+  index.reserve(mesh.edges.size());
+  for (std::size_t e = 0; e < mesh.edges.size(); ++e)
+    index.push_back({mesh.edges[e], static_cast<int>(e)});
+  std::sort(index.begin(), index.end());
+  for (const auto& t : mesh.triangles) {
+    const double area = triangle_area(mesh.rest, t);
+    for (std::size_t k = 0; k < 3; ++k) {
+      const int i = t[k], j = t[(k + 1) % 3];
+      const std::array<int, 2> key{std::min(i, j), std::max(i, j)};
+      const auto it = std::lower_bound(index.begin(), index.end(), std::make_pair(key, -1));
+      if (it != index.end() && it->first == key)
+        model.edge_area[static_cast<std::size_t>(it->second)] += area;
+    }
+  }
   model.mesh = std::move(mesh);
   return model;
 }

@@ -12,12 +12,12 @@ namespace clothdb {
 // Material in physical units. Every solver maps this same material to its own parameters
 // (spring constants, compliances, constraint stiffness) so that all four simulate the same cloth.
 struct Material {
-  double density = 0.15;          // area density, kg/m^2 (light fabric ~0.1-0.3)
+  double density = 0.15;  // area density, kg/m^2 (light fabric ~0.1-0.3)
   // Pa; stretch stiffness per unit width is E * thickness = 5e4 N/m by default (woven cotton is
   // of the order of 1e4-1e5 N/m).
   double youngs_modulus = 1.0e8;
-  double poisson = 0.3;           // Poisson ratio (used by the bending rigidity D)
-  double thickness = 0.5e-3;      // m; also the default collision margin
+  double poisson = 0.3;       // Poisson ratio (used by the bending rigidity D)
+  double thickness = 0.5e-3;  // m; also the default collision margin
   // Bending rigidity D in N*m. Negative means derive the plate value D = E t^3 / (12 (1 - nu^2)),
   // right for plates (the cantilever case) but far too stiff for woven cloth, whose fibres slide:
   // measured fabric rigidities are 1e-6 to 1e-4 N*m, hence the default.
@@ -46,6 +46,9 @@ struct ClothModel {
   // Their inverse mass is 0. Order matters: StepInputs::kinematic_targets uses it.
   std::vector<int> kinematic;
   std::vector<double> edge_rest_length;  // per mesh edge, m (from mesh.rest)
+  // Per mesh edge, m^2: the rest area of its one or two triangles, summed in triangle order (the
+  // A_adj of every solver's stretch stiffness, shell_energy.hpp stretch_coefficient).
+  std::vector<double> edge_area;
 
   int vertex_count() const { return mesh.vertex_count(); }
 };

@@ -34,7 +34,6 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
-#include <map>
 #include <set>
 #include <stdexcept>
 #include <utility>
@@ -113,19 +112,14 @@ struct SpringNetwork {
     const Eigen::Matrix3Xd& rest = mesh.rest;
     std::set<std::pair<int, int>> used;
 
-    // Structural: A_e = sum of the adjacent triangles' rest areas.
-    std::map<std::pair<int, int>, double> edge_area;
-    for (const auto& t : mesh.triangles) {
-      const double area = triangle_area(rest, t);
-      for (int c = 0; c < 3; ++c) edge_area[ordered(t[c], t[(c + 1) % 3])] += area;
-    }
+    // Structural: A_e = sum of the adjacent triangles' rest areas (ClothModel::edge_area).
     const double stretch = mat.stretch_stiffness();
     for (size_t e = 0; e < mesh.edges.size(); ++e) {
       const auto [a, b] = mesh.edges[e];
       const double l0 = model.edge_rest_length[e];
       if (l0 < kMinRestLength) continue;
-      add_spring(model, a, b, stretch * edge_area[ordered(a, b)] / (l0 * l0),
-                 SpringType::Structural, used);
+      add_spring(model, a, b, stretch * model.edge_area[e] / (l0 * l0), SpringType::Structural,
+                 used);
     }
 
     // Shear: G t A_q / l^2 over the quad the diagonal spans.

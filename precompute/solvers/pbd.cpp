@@ -40,7 +40,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <map>
 #include <stdexcept>
 #include <utility>
 #include <vector>
@@ -209,19 +208,12 @@ class PbdSolver final : public Solver {
     const ClothMesh& mesh = model_.mesh;
     const Eigen::Matrix3Xd& rest = mesh.rest;
     const Eigen::VectorXd& w = model_.inv_mass;
-    std::map<std::pair<int, int>, double> edge_area;
-    for (const auto& t : mesh.triangles) {
-      const double area = triangle_area(rest, t);
-      for (int c = 0; c < 3; ++c) {
-        edge_area[{std::min(t[c], t[(c + 1) % 3]), std::max(t[c], t[(c + 1) % 3])}] += area;
-      }
-    }
     const double stretch = model_.material.stretch_stiffness();
     for (size_t e = 0; e < mesh.edges.size(); ++e) {
       const auto [i, j] = mesh.edges[e];
       const double l0 = model_.edge_rest_length[e];
       if (w[i] + w[j] <= 0.0 || l0 <= 0.0) continue;  // both pinned: nothing to project
-      distance_.push_back({i, j, l0, stretch * edge_area[{i, j}] / (l0 * l0)});
+      distance_.push_back({i, j, l0, stretch * model_.edge_area[e] / (l0 * l0)});
     }
     // Gauss-Seidel leaves each sweep's last constraints exactly satisfied and the earlier ones with
     // a residual of similar absolute size. The same residual is the largest relative strain on the

@@ -277,26 +277,7 @@ void XpbdSolver::build_constraints() {
   const Material& mat = model_.material;
   const Eigen::Matrix3Xd& rest = mesh.rest;
 
-  // Rest area of the one or two triangles adjacent to each edge (A_adj), matched to mesh.edges by
-  // binary search over its sorted (i < j) keys.
-  std::vector<double> edge_area(mesh.edges.size(), 0.0);
-  {
-    std::vector<std::pair<std::array<int, 2>, int>> index;
-    index.reserve(mesh.edges.size());
-    for (std::size_t e = 0; e < mesh.edges.size(); ++e)
-      index.push_back({mesh.edges[e], static_cast<int>(e)});
-    std::sort(index.begin(), index.end());
-    for (const auto& t : mesh.triangles) {
-      const double area = triangle_area(rest, t);
-      for (std::size_t k = 0; k < 3; ++k) {
-        const int i = t[k], j = t[(k + 1) % 3];
-        const std::array<int, 2> key{std::min(i, j), std::max(i, j)};
-        const auto it = std::lower_bound(index.begin(), index.end(), std::make_pair(key, -1));
-        if (it != index.end() && it->first == key)
-          edge_area[static_cast<std::size_t>(it->second)] += area;
-      }
-    }
-  }
+  const std::vector<double>& edge_area = model_.edge_area;  // A_adj per edge
 
   // Stretch: the same edge springs as the Newton, mass-spring and PBD solvers (shell_energy.hpp,
   // stretch_coefficient): U = 1/2 k (l - l0)^2 with k = k_s / l0 = (E t) A_adj / l0^2. On an
