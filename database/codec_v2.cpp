@@ -66,6 +66,16 @@ constexpr size_t kBasisHeader = 24;
 // Each element sees the same sequence of roundings (the mean, then mode 0, 1, ...) however the
 // loops are blocked or vectorised; blocks of coordinates keep the frames' predictions in cache
 // while each mode block is read once for all of them.
+// Built for AVX2 as well as the x86-64 baseline, picked at load time (as the runtime's
+// playback kernels): the mode loop is a multiply and an add per coordinate, which AVX2 does twice
+// as wide. Without FMA (and with -ffp-contract=off) both versions round every operation alike,
+// so the predictions are bit-identical whichever runs.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define CLOTHDB_MULTIVERSION __attribute__((target_clones("avx2", "default")))
+#else
+#define CLOTHDB_MULTIVERSION
+#endif
+CLOTHDB_MULTIVERSION
 void predict(const Basis& basis, uint32_t modes, bool use_mean, const int32_t* c, uint32_t frames,
              double coefficient_step, float* s, size_t n) {
   constexpr size_t kBlock = 1024;
