@@ -7,6 +7,7 @@
 #include <cstdlib>
 #include <fstream>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -51,6 +52,25 @@ inline std::vector<std::string> split_list(const std::string& s) {
   std::string item;
   while (std::getline(in, item, ','))
     if (!item.empty()) out.push_back(item);
+  return out;
+}
+
+// A comma-separated option of numbers in [low, high] (whole numbers if `whole`), or an error that
+// names the option and the item, thrown before anything runs.
+inline std::vector<double> number_list(const std::string& option, const std::string& text,
+                                       double low, double high, bool whole) {
+  std::vector<double> out;
+  for (const auto& item : split_list(text)) {
+    char* end = nullptr;
+    const double value = std::strtod(item.c_str(), &end);
+    if (end == item.c_str() || *end != '\0' || !(value >= low && value <= high) ||
+        (whole && value != std::floor(value)))
+      throw std::invalid_argument(option + ": '" + item + "' is not " +
+                                  (whole ? "a whole number" : "a number") + " in [" + fmt_g(low) +
+                                  ", " + fmt_g(high) + "]");
+    out.push_back(value);
+  }
+  if (out.empty()) throw std::invalid_argument(option + ": no value given");
   return out;
 }
 

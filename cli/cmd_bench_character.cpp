@@ -16,17 +16,7 @@ namespace {
 
 std::vector<int> int_list(const std::string& text, const std::string& option) {
   std::vector<int> out;
-  for (const auto& item : split_list(text)) {
-    try {
-      size_t used = 0;
-      out.push_back(std::stoi(item, &used));
-      if (used != item.size() || out.back() < 0) throw std::invalid_argument(item);
-    } catch (const std::exception&) {
-      throw std::invalid_argument(
-          option + ": expected a comma-separated list of integers >= 0, got '" + item + "'");
-    }
-  }
-  if (out.empty()) throw std::invalid_argument(option + ": empty list");
+  for (double v : number_list(option, text, 0, 1e9, true)) out.push_back(static_cast<int>(v));
   return out;
 }
 

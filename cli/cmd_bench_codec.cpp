@@ -7,12 +7,10 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
 #include <ctime>
 #include <fstream>
 #include <memory>
 #include <random>
-#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -415,25 +413,6 @@ void compare_codecs(const Frames& f, const std::vector<std::string>& codecs,
       "(Kim et al. 2013: 0.18 bits per vertex per frame, lossy PCA without a hard bound.)\n");
 }
 
-// Refuses a comma-separated option whose items are not numbers in [low, high] (whole numbers if
-// `whole`), naming the option and the item, before anything is simulated or read.
-void check_number_list(const char* option, const std::string& text, double low, double high,
-                       bool whole) {
-  const auto items = split_list(text);
-  if (items.empty()) throw std::runtime_error(std::string(option) + ": no value given");
-  for (const auto& item : items) {
-    char* end = nullptr;
-    const double value = std::strtod(item.c_str(), &end);
-    if (end == item.c_str() || *end != '\0' || !(value >= low && value <= high) ||
-        (whole && value != std::floor(value))) {
-      char range[96];
-      std::snprintf(range, sizeof range, "%s in [%.10g, %.10g]",
-                    whole ? "a whole number" : "a number", low, high);
-      throw std::runtime_error(std::string(option) + ": '" + item + "' is not " + range);
-    }
-  }
-}
-
 // `--predictability`: the table of analyse_predictability (compress/predictability.hpp).
 void print_predictability(const Frames& f, const std::vector<std::string>& mode_list,
                           const std::vector<std::string>& bound_list) {
@@ -535,10 +514,11 @@ void register_bench_codec(CLI::App& bench) {
                 "codec with a hard bound can hope for)");
   args->solver.add_to(*cmd);
   cmd->callback([args] {
-    check_number_list("--bounds", args->bounds, 1e-6, 1e6, false);
-    check_number_list("--modes", args->modes, 0, 1024, true);
-    check_number_list("--key-intervals", args->key_intervals, 0, 1 << 20, true);
-    check_number_list("--levels", args->levels, 1, 22, true);
+    // Every list is checked before anything is simulated or read.
+    number_list("--bounds", args->bounds, 1e-6, 1e6, false);
+    number_list("--modes", args->modes, 0, 1024, true);
+    number_list("--key-intervals", args->key_intervals, 0, 1 << 20, true);
+    number_list("--levels", args->levels, 1, 22, true);
     Frames f;
     if (!args->db.empty()) {
       f = frames_from_db(args->db, args->db_frames);
