@@ -733,6 +733,14 @@ TEST(DatabaseCheck, StartClipNamingNothing) {
   expect_refused("INSERT INTO meta VALUES('start_clip', '4242');", "start_clip '4242'", "");
 }
 
+// Issue 17: the bound a clip was coded within is checked on every blob. A blob coded on a grid
+// coarser than its row's recorded bound, or a measured encode error above it, fails the check
+// (the runtime still plays such a file: the bound is a promise to the artist, not to the decoder).
+TEST(DatabaseCheck, ClipCodedBeyondItsRecordedBound) {
+  expect_refused("UPDATE cloth_clip SET error_bound = error_bound / 4;", "blob bound", "");
+  expect_refused("UPDATE cloth_clip SET max_error = 2 * error_bound;", "measured error", "");
+}
+
 TEST(DatabaseCheck, MissingTransitionAtANodeAndUnexploredStates) {
   TempDir dir;
   const std::string path = dir.file("demo.clothdb");
