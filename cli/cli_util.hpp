@@ -141,7 +141,7 @@ struct SolverOptions {
                    "Newton force tolerance (relative to max m g)")
         ->capture_default_str();
     cmd.add_option("--linear-solver", linear_solver,
-                   "Newton's linear solver: ldlt | cholmod | pcg | pcg-ic")
+                   "Newton's linear solver: ldlt | cholmod | cholmod-supernodal | pcg | pcg-ic")
         ->capture_default_str();
     cmd.add_option("--threads", settings.threads, "OpenMP threads")
         ->capture_default_str()

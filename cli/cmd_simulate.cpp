@@ -53,8 +53,9 @@ void register_simulate(CLI::App& app) {
       ->check(number_in(0, kMaxSubsteps));
   cmd->add_option("--iterations", args->iterations, "Override the scene's iterations")
       ->check(number_in(0, kMaxIterations));
-  cmd->add_option("--linear-solver", args->linear_solver,
-                  "Override Newton's linear solver: ldlt | cholmod | pcg | pcg-ic");
+  cmd->add_option(
+      "--linear-solver", args->linear_solver,
+      "Override Newton's linear solver: ldlt | cholmod | cholmod-supernodal | pcg | pcg-ic");
   cmd->add_option("--threads", args->threads, "Override the scene's OpenMP threads")
       ->check(number_in(0, max_solver_threads()));
   cmd->add_option("--width", args->width, "Preview width")

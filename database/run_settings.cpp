@@ -54,7 +54,8 @@ void visit_solver_fields(SolverSettings& s, V& v) {
            {{"ldlt", LinearSolverKind::SimplicialLDLT},
             {"cholmod", LinearSolverKind::Cholmod},
             {"pcg", LinearSolverKind::ConjugateGradient},
-            {"pcg-ic", LinearSolverKind::ConjugateGradientIC}});
+            {"pcg-ic", LinearSolverKind::ConjugateGradientIC},
+            {"cholmod-supernodal", LinearSolverKind::CholmodSupernodal}});
   v.integer("threads", s.threads, 1, kMaxThreads);
   v.boolean("tethers", s.tethers);
   v.integer("stretch_iterations", s.stretch_iterations, 0, kMaxIterations);
@@ -272,6 +273,8 @@ const char* linear_solver_name(LinearSolverKind kind) {
       return "pcg";
     case LinearSolverKind::ConjugateGradientIC:
       return "pcg-ic";
+    case LinearSolverKind::CholmodSupernodal:
+      return "cholmod-supernodal";
   }
   return "unknown";
 }
@@ -279,10 +282,11 @@ const char* linear_solver_name(LinearSolverKind kind) {
 LinearSolverKind parse_linear_solver_kind(const std::string& name) {
   for (LinearSolverKind k :
        {LinearSolverKind::SimplicialLDLT, LinearSolverKind::Cholmod,
-        LinearSolverKind::ConjugateGradient, LinearSolverKind::ConjugateGradientIC})
+        LinearSolverKind::ConjugateGradient, LinearSolverKind::ConjugateGradientIC,
+        LinearSolverKind::CholmodSupernodal})
     if (name == linear_solver_name(k)) return k;
   throw std::invalid_argument("unknown linear solver '" + name +
-                              "' (expected ldlt, cholmod, pcg or pcg-ic)");
+                              "' (expected ldlt, cholmod, cholmod-supernodal, pcg or pcg-ic)");
 }
 
 std::string solver_settings_json(SolverKind kind, const SolverSettings& settings,

@@ -27,9 +27,18 @@ const char* solver_name(SolverKind kind);  // "mass-spring", "pbd", "xpbd", "new
 // Parses a name as above; throws std::invalid_argument naming the accepted values.
 SolverKind parse_solver_kind(const std::string& name);
 
-// ConjugateGradient: Jacobi (diagonal) preconditioner; ConjugateGradientIC: incomplete Cholesky.
-enum class LinearSolverKind { SimplicialLDLT, Cholmod, ConjugateGradient, ConjugateGradientIC };
-const char* linear_solver_name(LinearSolverKind kind);  // "ldlt", "cholmod", "pcg", "pcg-ic"
+// Cholmod: CHOLMOD's simplicial LL^T; CholmodSupernodal: its supernodal LL^T, whose dense blocks
+// go to whatever BLAS libblas.so.3 is. ConjugateGradient: Jacobi (diagonal) preconditioner;
+// ConjugateGradientIC: incomplete Cholesky.
+enum class LinearSolverKind {
+  SimplicialLDLT,
+  Cholmod,
+  ConjugateGradient,
+  ConjugateGradientIC,
+  CholmodSupernodal
+};
+// "ldlt", "cholmod", "pcg", "pcg-ic", "cholmod-supernodal"
+const char* linear_solver_name(LinearSolverKind kind);
 LinearSolverKind parse_linear_solver_kind(const std::string& name);
 
 // Sub-steps and iterations per frame above this are refused: well past what any solver asks

@@ -77,6 +77,7 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
   row.capsules = static_cast<int>(scene.body.capsules.size());
   ClothState state = settle_garment(scene, *solver, clip_pose(clip, 0));
   double wall = 0, cpu = 0;
+  long iterations = 0, factorizations = 0;
   std::vector<double> strains;  // every edge at every frame, for the percentile
   const auto start = std::chrono::steady_clock::now();
   for (int f = 1; f < frames; ++f) {
@@ -94,6 +95,8 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
     ++row.frames;
     row.step_halvings += run.step_halvings;
     const FrameMetrics& m = run.metrics.front();
+    iterations += m.iterations;
+    factorizations += m.factorizations;
     row.max_strain = std::max(row.max_strain, m.max_strain);
     const auto& edges = scene.model.mesh.edges;
     double frame_worst = -1.0;
@@ -141,6 +144,8 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
   if (row.frames > 0) {
     row.ms_per_frame = 1e3 * wall / row.frames;
     row.cpu_ms_per_frame = 1e3 * cpu / row.frames;
+    row.iterations_per_frame = static_cast<double>(iterations) / row.frames;
+    row.factorizations_per_frame = static_cast<double>(factorizations) / row.frames;
   }
   return row;
 }
@@ -233,9 +238,9 @@ std::string character_rows_markdown(const std::vector<CharacterBenchRow>& rows) 
   std::ostringstream out;
   out << "| solver | threads | colliders | verts | capsules | frames | ms/frame | CPU ms/frame | "
          "p99 strain | max strain "
-         "| max pen. mm | mean pen. mm | tunnelled | deepest path | halvings | worst edge | stable "
-         "|\n"
-         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+         "| max pen. mm | mean pen. mm | tunnelled | deepest path | it./frame | fact./frame "
+         "| halvings | worst edge | stable |\n"
+         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const auto& r : rows) {
     out << "| " << r.solver << " | " << r.threads << " | "
         << collider_motion_name(r.collider_motion) << " | " << r.vertices << " | " << r.capsules
@@ -243,8 +248,9 @@ std::string character_rows_markdown(const std::vector<CharacterBenchRow>& rows) 
         << fixed(r.cpu_ms_per_frame, 2) << " | " << fixed(100 * r.p99_strain, 2) << "% | "
         << fixed(100 * r.max_strain, 2) << "% | " << fixed(1e3 * r.max_penetration, 2) << " | "
         << fixed(1e3 * r.mean_penetration, 2) << " | " << r.tunnelled << " | "
-        << fixed(r.deepest_path, 2) << " | " << r.step_halvings << " | " << worst_edge_text(r)
-        << " | " << (r.stable ? "yes" : "no: " + r.message) << " |\n";
+        << fixed(r.deepest_path, 2) << " | " << fixed(r.iterations_per_frame, 2) << " | "
+        << fixed(r.factorizations_per_frame, 2) << " | " << r.step_halvings << " | "
+        << worst_edge_text(r) << " | " << (r.stable ? "yes" : "no: " + r.message) << " |\n";
   }
   return out.str();
 }

@@ -39,7 +39,10 @@ struct CharacterBenchRow {
   double max_strain = 0;        // largest edge strain over all frames
   // 99th percentile of (l - l0) / l0 over every edge at every frame's end (issue 15's p99).
   double p99_strain = 0;
-  int step_halvings = 0;        // Newton: sub-step halvings over the run
+  int step_halvings = 0;  // Newton: sub-step halvings over the run
+  // Per frame: the solver's iterations (Newton's, or constraint iterations) and Newton's
+  // factorisations, which tell a cheaper factorisation from fewer of them.
+  double iterations_per_frame = 0, factorizations_per_frame = 0;
   double max_penetration = 0;   // deepest vertex below a capsule surface at a frame's end, m
   double mean_penetration = 0;  // largest per-frame mean over penetrating vertices, m
   // Vertex-frames whose straight path over the frame, relative to a capsule moving with the body,

@@ -132,6 +132,8 @@ std::vector<BenchConfig> newton_study_configs() {
       update_stop(L::SimplicialLDLT, 1e-3, true, 0.5, G::Extrapolate),
       update_stop(L::SimplicialLDLT, 1e-3, false, 0.5, G::Extrapolate),
       update_stop(L::Cholmod, 1e-3, true),
+      update_stop(L::CholmodSupernodal, 1e-3, true),
+      update_stop(L::CholmodSupernodal, 1e-3, true, 0.0, G::Extrapolate),
       update_stop(L::ConjugateGradient, 1e-3, true),
       update_stop(L::ConjugateGradientIC, 1e-3, true),
       variant(L::SimplicialLDLT, 1e-6, G::Start, 0),  // the loop before this study

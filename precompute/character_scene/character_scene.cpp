@@ -403,6 +403,8 @@ PoseRun simulate_poses(const CharacterScene& scene, Solver& solver,
     m.mean_penetration = mean_penetration(state.x, scene.model.inv_mass, env);
     m.kinetic_energy = kinetic_energy(scene.model, state.v);
     m.step_halvings = report.step_halvings;
+    m.iterations = report.iterations;
+    m.factorizations = report.factorizations;
     run.metrics.push_back(m);
     run.frames.push_back(state.x);
   }

@@ -25,6 +25,8 @@
 // is kept if it lowered Phi (newton_accept_decrease); otherwise, and on NaN or a system that is
 // indefinite even when projected, it is halved recursively (seed 004's remedy for degeneracies)
 // up to newton_max_halvings.
+#include <omp.h>
+
 #include <Eigen/IterativeLinearSolvers>
 #include <Eigen/Sparse>
 #include <Eigen/SparseCholesky>
@@ -104,6 +106,28 @@ std::string compact_number(double v) {
   return mantissa + "e" + sign + exponent;
 }
 
+// CHOLMOD 3 (SuiteSparse 5, Debian 12) runs loops of its factorisation in OpenMP regions with a
+// fixed num_threads(4) clause, whatever OMP_NUM_THREADS says, so a one-thread solver factorised on
+// four threads: on the 3k skirt the fork-joins around every supernode cost more than the
+// supernodal factorisation itself (docs/BENCHMARKS.md, "Newton on seed 004's grids"). While
+// alive and `active`, this makes the calling thread's parallel regions inactive (one thread
+// each). max-active-levels is a per-thread ICV since OpenMP 5.0 (libgomp 11 and later), so other
+// threads' parallel regions are not affected.
+class SerialOpenMpScope {
+ public:
+  explicit SerialOpenMpScope(bool active) : saved_(active ? omp_get_max_active_levels() : -1) {
+    if (active) omp_set_max_active_levels(0);
+  }
+  ~SerialOpenMpScope() {
+    if (saved_ >= 0) omp_set_max_active_levels(saved_);
+  }
+  SerialOpenMpScope(const SerialOpenMpScope&) = delete;
+  SerialOpenMpScope& operator=(const SerialOpenMpScope&) = delete;
+
+ private:
+  int saved_;
+};
+
 // The linear solvers behind one interface. `factorize` factorises the matrix (direct solvers) or
 // builds the preconditioner (PCG); `solve` then solves with it, and may be called again after
 // later Newton iterations without a new factorisation (chord iterations: the direct solvers keep
@@ -111,7 +135,12 @@ std::string compact_number(double v) {
 // the matrix is not positive definite or the solve failed; `why` then says which.
 class LinearSolver {
  public:
-  LinearSolver(LinearSolverKind kind, const SpMat& pattern) : kind_(kind) {
+  // `threads`: the solver's thread count; with one, CHOLMOD runs on the calling thread only.
+  LinearSolver(LinearSolverKind kind, const SpMat& pattern, int threads)
+      : kind_(kind),
+        serial_(threads <= 1 && (kind == LinearSolverKind::Cholmod ||
+                                 kind == LinearSolverKind::CholmodSupernodal)) {
+    const SerialOpenMpScope serial(serial_);
     switch (kind_) {
       case LinearSolverKind::SimplicialLDLT:
         // The fill-reducing ordering and the elimination tree depend only on the pattern, which
@@ -119,18 +148,26 @@ class LinearSolver {
         ldlt_.analyzePattern(pattern);
         break;
       case LinearSolverKind::Cholmod:
+      case LinearSolverKind::CholmodSupernodal:
 #ifdef CLOTHDB_HAVE_CHOLMOD
         // LL^T (not LDL^T) so that an indefinite matrix is reported rather than factorised.
-        // Simplicial: measured within a few percent of SimplicialLDLT at 1,587 unknowns
-        // (docs/BENCHMARKS.md); the supernodal mode was not measured.
-        cholmod_.setMode(Eigen::CholmodSimplicialLLt);
+        // Simplicial: as fast as SimplicialLDLT at 1,587 unknowns, 1.4x faster at 8,900.
+        // Supernodal: factorises dense column blocks with the BLAS behind libblas.so.3; on
+        // OpenBLAS 2x faster than SimplicialLDLT at 1,587 unknowns and 5x at 8,900, on the
+        // reference BLAS no faster and 1.3x (docs/BENCHMARKS.md, "Newton on seed 004's grids").
+        // A failed (indefinite) supernodal factorisation leaves the factor supernodal, so the
+        // projected retry that follows it is supernodal too.
+        cholmod_.setMode(kind_ == LinearSolverKind::CholmodSupernodal
+                             ? Eigen::CholmodSupernodalLLt
+                             : Eigen::CholmodSimplicialLLt);
         // Indefinite systems are expected (and handled): no warnings on stderr.
         cholmod_.cholmod().print = 0;
         cholmod_.analyzePattern(pattern);
         break;
 #else
-        throw std::invalid_argument(
-            "newton: linear solver 'cholmod' requested but clothdb was built without CHOLMOD");
+        throw std::invalid_argument(std::string("newton: linear solver '") +
+                                    linear_solver_name(kind_) +
+                                    "' requested but clothdb was built without CHOLMOD");
 #endif
       case LinearSolverKind::ConjugateGradient:
         cg_.analyzePattern(pattern);
@@ -142,6 +179,7 @@ class LinearSolver {
   }
 
   bool factorize(const SpMat& a, std::string& why) {
+    const SerialOpenMpScope serial(serial_);
     switch (kind_) {
       case LinearSolverKind::SimplicialLDLT:
         ldlt_.factorize(a);
@@ -157,6 +195,7 @@ class LinearSolver {
         }
         return true;
       case LinearSolverKind::Cholmod:
+      case LinearSolverKind::CholmodSupernodal:
 #ifdef CLOTHDB_HAVE_CHOLMOD
         cholmod_.factorize(a);
         if (cholmod_.info() != Eigen::Success) {
@@ -183,11 +222,13 @@ class LinearSolver {
   // `relative_tolerance` is PCG's |A d - b| / |b| target.
   bool solve(const Eigen::VectorXd& b, const Eigen::VectorXd& guess, double relative_tolerance,
              Eigen::VectorXd& d, std::string& why) {
+    const SerialOpenMpScope serial(serial_);
     switch (kind_) {
       case LinearSolverKind::SimplicialLDLT:
         d = ldlt_.solve(b);
         break;
       case LinearSolverKind::Cholmod:
+      case LinearSolverKind::CholmodSupernodal:
 #ifdef CLOTHDB_HAVE_CHOLMOD
         d = cholmod_.solve(b);
 #endif
@@ -227,6 +268,7 @@ class LinearSolver {
   }
 
   LinearSolverKind kind_;
+  bool serial_;  // CHOLMOD on one thread: its OpenMP regions stay on the caller (SerialOpenMpScope)
   Eigen::SimplicialLDLT<SpMat, Eigen::Lower> ldlt_;
 #ifdef CLOTHDB_HAVE_CHOLMOD
   Eigen::CholmodDecomposition<SpMat, Eigen::Lower> cholmod_;
@@ -251,7 +293,7 @@ class NewtonSolver final : public Solver {
     build_elements();
     build_free_index();
     build_pattern();
-    linear_ = std::make_unique<LinearSolver>(settings_.linear_solver, a_);
+    linear_ = std::make_unique<LinearSolver>(settings_.linear_solver, a_, settings_.threads);
   }
 
   std::string describe() const override {
