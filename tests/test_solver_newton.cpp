@@ -335,16 +335,25 @@ TEST(NewtonSolver, HangingSheetConvergesEveryStepWithSmallStrain) {
   EXPECT_TRUE(state_is_sane(state));
 }
 
-TEST(NewtonSolver, FallingEquilateralSheetConvergesEveryStep) {
-  // Seed 004's equilateral grid laid horizontally and pinned at the two corners of one edge: it
-  // falls, folds and swings, compressing many edges (the projected-Hessian path).
-  const int n = 13;
+namespace {
+
+// Seed 004's equilateral grid, n x n, laid horizontally and pinned at the two corners of one edge.
+ClothModel make_falling_equilateral_sheet(int n) {
   ClothMesh mesh = make_equilateral_sheet(n, n, 1.0 / (n - 1));
   Eigen::Matrix3d lay;
   lay << 1, 0, 0, 0, 0, 1, 0, -1, 0;
   transform_mesh(mesh, lay, Vec3(0, 1, 0));
-  const ClothModel model =
-      make_model(mesh, Material{}, {grid_index(mesh, 0, 0), grid_index(mesh, n - 1, 0)});
+  return make_model(mesh, Material{}, {grid_index(mesh, 0, 0), grid_index(mesh, n - 1, 0)});
+}
+
+}  // namespace
+
+TEST(NewtonSolver, FallingEquilateralSheetConvergesEveryStep) {
+  // Seed 004's equilateral grid laid horizontally and pinned at the two corners of one edge: it
+  // falls, folds and swings, compressing many edges (the projected-Hessian path).
+  const int n = 13;
+  const ClothModel model = make_falling_equilateral_sheet(n);
+  const ClothMesh& mesh = model.mesh;
   Environment env;
   env.air_drag = 2.0 * model.material.density;
   const SolverSettings s = newton_settings();
@@ -502,12 +511,7 @@ TEST(NewtonSolver, CholmodSupernodalReachesTheLdltEndState) {
   // (projected Hessian first, then exact): the exact Hessian of the folding sheet is sometimes
   // indefinite, so the supernodal factor is also refactorised after a failed factorisation.
   const int n = 13;
-  ClothMesh mesh = make_equilateral_sheet(n, n, 1.0 / (n - 1));
-  Eigen::Matrix3d lay;
-  lay << 1, 0, 0, 0, 0, 1, 0, -1, 0;
-  transform_mesh(mesh, lay, Vec3(0, 1, 0));
-  const ClothModel model =
-      make_model(mesh, Material{}, {grid_index(mesh, 0, 0), grid_index(mesh, n - 1, 0)});
+  const ClothModel model = make_falling_equilateral_sheet(n);
   Environment env;
   env.air_drag = 2.0 * model.material.density;
   StepInputs in;
