@@ -178,6 +178,9 @@ void register_db_commands(CLI::App& app) {
   recode->add_option("--batch", rargs->options.batch, "Rows per transaction")
       ->capture_default_str()
       ->check(CLI::Range(1u, 100000u));
+  recode->add_flag("--body-frame", rargs->options.body_frame,
+                   "v2: code the cloth relative to a rigid body frame fitted to the garment's "
+                   "highest 5 % (its pinned band) in every frame, and build the basis in it");
   recode->add_flag("--always", rargs->options.always,
                    "Replace every blob even where the new encoding is larger (for measuring)");
   recode->add_flag("!--no-vacuum", rargs->options.vacuum,

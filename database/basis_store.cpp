@@ -55,6 +55,16 @@ int64_t store_basis(Writer& writer, const codec::Basis& basis, const std::string
   return id;
 }
 
+bool compact_file(Writer& writer, std::string* why) {
+  sqlite3* db = writer.handle();
+  if (sqlite3_exec(db, "VACUUM", nullptr, nullptr, nullptr) != SQLITE_OK ||
+      sqlite3_exec(db, "PRAGMA wal_checkpoint(TRUNCATE)", nullptr, nullptr, nullptr) != SQLITE_OK) {
+    if (why) *why = sqlite3_errmsg(db);
+    return false;
+  }
+  return true;
+}
+
 void remove_basis(Writer& writer, int64_t id) {
   sqlite3* db = writer.handle();
   sqlite3_stmt* s = nullptr;

@@ -19,6 +19,11 @@ int64_t store_basis(Writer& writer, const codec::Basis& basis, const std::string
 // Removes a basis no blob names (the caller's promise). Throws ClothdbError.
 void remove_basis(Writer& writer, int64_t id);
 
+// Gives the pages freed by removed bases or replaced blobs back to the file system (VACUUM, then
+// a WAL checkpoint). Outside any transaction. false (and why) when SQLite refuses, e.g. while a
+// reader holds the file: the file is unchanged and still valid.
+bool compact_file(Writer& writer, std::string* why);
+
 // Loads basis `id` (NotFound if the file has no such basis or no basis table).
 Status load_basis(sqlite3* db, const std::string& path, int64_t id, codec::Basis* out, Error* err);
 

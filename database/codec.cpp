@@ -374,6 +374,7 @@ DecodeScratch::DecodeScratch(DecodeScratch&& other) noexcept
       bytes_(std::move(other.bytes_)),
       subspace_(std::move(other.subspace_)),
       coefficients_(std::move(other.coefficients_)),
+      body_(std::move(other.body_)),
       frames_reconstructed_(other.frames_reconstructed_) {
   for (int i = 0; i < 4; ++i) q_[i] = std::move(other.q_[i]);
   other.dctx_ = ZSTD_createDCtx();
@@ -385,6 +386,7 @@ DecodeScratch& DecodeScratch::operator=(DecodeScratch&& other) noexcept {
     for (int i = 0; i < 4; ++i) std::swap(q_[i], other.q_[i]);
     std::swap(subspace_, other.subspace_);
     std::swap(coefficients_, other.coefficients_);
+    std::swap(body_, other.body_);
     frames_reconstructed_ = other.frames_reconstructed_;
   }
   return *this;
@@ -392,7 +394,8 @@ DecodeScratch& DecodeScratch::operator=(DecodeScratch&& other) noexcept {
 
 void DecodeScratch::reserve(uint32_t vertex_count, uint32_t key_interval, uint32_t modes) {
   const size_t n = size_t(vertex_count) * 3;
-  const size_t bytes = 4 * (n + modes) * key_interval;
+  // Version 2 chunks also carry 12 floats of body transform per frame.
+  const size_t bytes = 4 * (n + modes + (modes > 0 ? 12 : 0)) * key_interval;
   if (bytes_.size() < bytes) bytes_.resize(bytes);
   for (auto& q : q_)
     if (q.size() < n) q.resize(n);
@@ -400,6 +403,7 @@ void DecodeScratch::reserve(uint32_t vertex_count, uint32_t key_interval, uint32
     if (subspace_.size() < n * key_interval) subspace_.resize(n * key_interval);
     if (coefficients_.size() < size_t(modes) * key_interval)
       coefficients_.resize(size_t(modes) * key_interval);
+    if (body_.size() < size_t(12) * key_interval) body_.resize(size_t(12) * key_interval);
   }
 }
 

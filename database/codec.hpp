@@ -115,6 +115,7 @@ struct BlobInfo {
   uint32_t modes = 0;
   double coefficient_step = 0;
   bool uses_mean = false;
+  bool body_frame = false;  // per-frame rigid transforms stored (SubspaceSettings::body_frames)
 };
 
 // A garment subspace (issue 17): x ~ mean + sum_k c_k modes[k], over 3V coordinates (x, y, z per
@@ -151,6 +152,13 @@ struct SubspaceSettings {
   uint32_t modes = 0;      // modes of the basis to use (0: all)
   bool use_mean = true;    // false for velocities
   int grid_divisions = 0;  // grid step just under 2 x bound / divisions (1 or 2, 0: try both)
+  // Cloth relative to the body (issue 17): per frame a rigid transform, 12 floats (the rotation R
+  // row by row, then the translation t), from the basis's body frame to the frames' space. The
+  // subspace then predicts R^T (x - t) and each frame's prediction is R s + t, so what the body
+  // carries (the pinned band's bob and tilt) is not paid for in coefficients. The transforms are
+  // stored in the blob (48 bytes a frame before zstd); the residual stays on the frames' grid, so
+  // the bound holds as without. Positions only (use_mean). Null: no body frame.
+  const float* body_frames = nullptr;
 };
 
 // Encodes like encode() (same bound, key interval, zstd level, verification) as a version 2 blob
@@ -189,6 +197,7 @@ class DecodeScratch {
   // Version 2: the subspace prediction of one frame and the coefficients of the last three.
   std::vector<float> subspace_;
   std::vector<int32_t> coefficients_;
+  std::vector<float> body_;  // version 2: one chunk's body transforms
   uint64_t frames_reconstructed_ = 0;
 };
 

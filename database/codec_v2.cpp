@@ -53,6 +53,10 @@ constexpr uint8_t kCarry = 1;    // the previous frame's correction predicts thi
 constexpr uint8_t kLinear = 2;   // coefficients extrapolated linearly (else delta)
 constexpr uint8_t kSpatial = 4;  // what is left is predicted again from the previous vertex
 constexpr uint8_t kFlagMean = 1;
+constexpr uint8_t kFlagBody = 2;    // each chunk starts with its frames' body transforms
+constexpr size_t kBodyFloats = 12;  // R row by row, then t
+// A stored rotation entry beyond this (or a translation beyond kMaxCoordinate) is corrupt.
+constexpr float kMaxRotationEntry = 1.01f;
 
 constexpr uint8_t kBasisMagic[4] = {'C', 'L', 'B', 'S'};
 constexpr size_t kBasisHeader = 24;
@@ -100,6 +104,17 @@ void predict(const Basis& basis, uint32_t modes, bool use_mean, const int32_t* c
   }
 }
 
+// Cloth relative to the body: s = R s + t for one frame (T: R row by row, then t), in float32 with
+// one fixed order of correctly rounded operations (no fusing), shared by the encoder and decoder.
+void to_world(const float* T, float* s, size_t n) {
+  for (size_t i = 0; i < n; i += 3) {
+    const float x = s[i], y = s[i + 1], z = s[i + 2];
+    s[i] = ((T[0] * x + T[1] * y) + T[2] * z) + T[9];
+    s[i + 1] = ((T[3] * x + T[4] * y) + T[5] * z) + T[10];
+    s[i + 2] = ((T[6] * x + T[7] * y) + T[8] * z) + T[11];
+  }
+}
+
 // The prediction on the grid. NaN or infinite predictions (only from tampered blobs) clamp too.
 void to_grid(const float* s, size_t n, const double origin[3], double step, const uint32_t qmax[3],
              uint32_t* p) {
@@ -125,10 +140,11 @@ Status parse_impl(const uint8_t* blob, size_t size, BlobInfo* info, Error* err) 
   in.coefficient_step = get_f64(blob + 88);
   const uint8_t flags = blob[96];
   in.uses_mean = (flags & kFlagMean) != 0;
+  in.body_frame = (flags & kFlagBody) != 0;
   if (get_u16(blob + 6) != kHeaderSize)
     return fail(err, Status::Corrupt, "frame blob header: unknown header size %u",
                 get_u16(blob + 6));
-  bool reserved_zero = (flags & ~kFlagMean) == 0;
+  bool reserved_zero = (flags & ~(kFlagMean | kFlagBody)) == 0;
   for (size_t i = 97; i < kChecksumOffset; ++i) reserved_zero = reserved_zero && blob[i] == 0;
   if (!reserved_zero) return fail(err, Status::Corrupt, "frame blob header: reserved bytes set");
   if (in.vertex_count == 0 || in.vertex_count > kMaxVertices)
@@ -153,6 +169,8 @@ Status parse_impl(const uint8_t* blob, size_t size, BlobInfo* info, Error* err) 
   if (in.basis_id <= 0)
     return fail(err, Status::Corrupt, "frame blob header: basis id %lld is invalid",
                 (long long)in.basis_id);
+  if (in.body_frame && !in.uses_mean)
+    return fail(err, Status::Corrupt, "frame blob header: a body frame without the basis mean");
   if (!(in.coefficient_step > 0 && in.coefficient_step * kMaxCoefficient <= kMaxCoordinate))
     return fail(err, Status::Corrupt, "frame blob header: coefficient step %g is invalid",
                 in.coefficient_step);
@@ -301,8 +319,9 @@ struct DecoderV2Access {
         return fail(err, Status::ChecksumMismatch, "frame blob chunk %u checksum mismatch", c);
       const uint32_t f0 = c * K;
       const uint32_t nf = std::min(K, info.frame_count - f0);
+      const size_t tbytes = info.body_frame ? size_t(nf) * kBodyFloats * 4 : 0;
       const size_t cbytes = size_t(cplanes) * nf * M;
-      const size_t expected = cbytes + size_t(rplanes) * nf * n;
+      const size_t expected = tbytes + cbytes + size_t(rplanes) * nf * n;
       const unsigned long long declared = ZSTD_getFrameContentSize(src, csize);
       if (declared != expected)
         return fail(err, Status::Corrupt,
@@ -316,8 +335,18 @@ struct DecoderV2Access {
       if (got != expected)
         return fail(err, Status::Corrupt, "frame blob chunk %u: %zu bytes decompressed of %zu", c,
                     got, expected);
-      const uint8_t* cb = s.bytes_.data();
+      const uint8_t* tb = s.bytes_.data();
+      const uint8_t* cb = tb + tbytes;
       const uint8_t* rb = cb + cbytes;
+      float* body = s.body_.data();  // this chunk's transforms, checked before use
+      if (info.body_frame)
+        for (size_t i = 0; i < size_t(nf) * kBodyFloats; ++i) {
+          body[i] = get_f32(tb + 4 * i);
+          const bool rotation = i % kBodyFloats < 9;
+          if (!(std::fabs(body[i]) <= (rotation ? kMaxRotationEntry : float(kMaxCoordinate))))
+            return fail(err, Status::Corrupt, "frame blob chunk %u: body transform out of range",
+                        c);
+        }
       const size_t cplane = size_t(nf) * M, rplane = size_t(nf) * n;
       const uint32_t chunk_last = std::min(last, f0 + nf - 1) - f0;
       const uint32_t write_from = first > f0 ? first - f0 : 0;
@@ -342,6 +371,8 @@ struct DecoderV2Access {
               info.coefficient_step, sub, n);
       std::fill(corr, corr + n, 0u);
       for (uint32_t j = from; j <= chunk_last; ++j) {
+        if (info.body_frame)
+          to_world(body + size_t(j) * kBodyFloats, sub + size_t(j - from) * n, n);
         to_grid(sub + size_t(j - from) * n, n, info.origin, info.step, info.qmax, p);
         if (!add_residuals_mode(mode, rplanes, rb + size_t(j) * n, rplane, n, info.qmax, p, corr,
                                 q))
@@ -578,8 +609,13 @@ std::vector<uint8_t> encode_grid(const float* frames, uint32_t frame_count, uint
       const uint32_t nf = std::min(K, frame_count - f0);
       const int32_t* cc = coefficients.data() + size_t(f0) * M;
       predict(basis, M, subspace.use_mean, cc, nf, plan.coefficient_step, sub.data(), n);
-      for (uint32_t j = 0; j < nf; ++j)
+      const float* transforms =
+          subspace.body_frames ? subspace.body_frames + size_t(f0) * kBodyFloats : nullptr;
+      for (uint32_t j = 0; j < nf; ++j) {
+        if (transforms)
+          to_world(transforms + size_t(j) * kBodyFloats, sub.data() + size_t(j) * n, n);
         to_grid(sub.data() + size_t(j) * n, n, lo, step, qmax, pq.data() + size_t(j) * n);
+      }
       auto bits = [](const uint32_t* z, size_t count) {
         uint64_t b = 0;
         for (size_t i = 0; i < count; ++i) b += std::bit_width(z[i]);
@@ -645,11 +681,14 @@ std::vector<uint8_t> encode_grid(const float* frames, uint32_t frame_count, uint
       const size_t ccount = size_t(nf) * M, rcount = size_t(nf) * n;
       const int cplanes = M ? planes_of(zc_best.data(), ccount) : 0;
       const int rplanes = planes_of(best.data(), rcount);
-      raw.assign(size_t(cplanes) * ccount + size_t(rplanes) * rcount, 0);
+      const size_t tbytes = transforms ? size_t(nf) * kBodyFloats * 4 : 0;
+      raw.assign(tbytes + size_t(cplanes) * ccount + size_t(rplanes) * rcount, 0);
+      for (size_t i = 0; i < tbytes / 4; ++i) put_f32(raw.data() + 4 * i, transforms[i]);
+      uint8_t* cr = raw.data() + tbytes;
       for (int b = 0; b < cplanes; ++b)
         for (size_t i = 0; i < ccount; ++i)
-          raw[size_t(b) * ccount + i] = uint8_t(zc_best[i] >> (8 * b));
-      uint8_t* rr = raw.data() + size_t(cplanes) * ccount;
+          cr[size_t(b) * ccount + i] = uint8_t(zc_best[i] >> (8 * b));
+      uint8_t* rr = cr + size_t(cplanes) * ccount;
       for (int b = 0; b < rplanes; ++b)
         for (size_t i = 0; i < rcount; ++i)
           rr[size_t(b) * rcount + i] = uint8_t(best[i] >> (8 * b));
@@ -691,7 +730,7 @@ std::vector<uint8_t> encode_grid(const float* frames, uint32_t frame_count, uint
   put_u32(h + 76, M);
   put_u64(h + 80, uint64_t(basis.id));
   put_f64(h + 88, plan.coefficient_step);
-  h[96] = subspace.use_mean ? kFlagMean : 0;
+  h[96] = uint8_t((subspace.use_mean ? kFlagMean : 0) | (subspace.body_frames ? kFlagBody : 0));
   put_u64(h + kChecksumOffset, header_checksum(h, kHeaderSize, kChecksumOffset, chunk_count));
   std::vector<uint8_t> blob = std::move(header);
   blob.insert(blob.end(), body.begin(), body.end());
@@ -727,6 +766,16 @@ std::vector<uint8_t> encode_v2(const float* frames, uint32_t frame_count, uint32
     invalid("coefficient step factor must be in (0, 1e6]");
   if (subspace.grid_divisions < 0 || subspace.grid_divisions > 2)
     invalid("grid divisions must be 0 (try both), 1 or 2");
+  if (subspace.body_frames && !subspace.use_mean)
+    invalid("a body frame is for positions (use_mean), not velocities");
+  if (subspace.body_frames)
+    for (size_t i = 0; i < size_t(frame_count) * kBodyFloats; ++i) {
+      const float t = subspace.body_frames[i];
+      const bool rotation = i % kBodyFloats < 9;
+      if (!(std::fabs(t) <= (rotation ? kMaxRotationEntry : float(kMaxCoordinate))))
+        invalid("body transform " + std::to_string(i % kBodyFloats) + " of frame " +
+                std::to_string(i / kBodyFloats) + " is not finite or out of range");
+    }
   Plan plan;
   plan.M = subspace.modes ? subspace.modes : basis.mode_count;
   plan.K = settings.key_interval == 0 ? frame_count : std::min(settings.key_interval, frame_count);
@@ -752,8 +801,18 @@ std::vector<uint8_t> encode_v2(const float* frames, uint32_t frame_count, uint32
   std::vector<double> d(n);
   for (uint32_t f = 0; f < frame_count; ++f) {
     const float* x = frames + size_t(f) * n;
-    for (size_t i = 0; i < n; ++i)
-      d[i] = double(x[i]) - (subspace.use_mean ? double(basis.mean[i]) : 0.0);
+    for (size_t i = 0; i < n; ++i) d[i] = double(x[i]);
+    if (subspace.body_frames) {
+      // Into the body frame: R^T (x - t), with the transform as stored.
+      const float* T = subspace.body_frames + size_t(f) * kBodyFloats;
+      for (size_t i = 0; i < n; i += 3) {
+        const double px = d[i] - T[9], py = d[i + 1] - T[10], pz = d[i + 2] - T[11];
+        d[i] = double(T[0]) * px + double(T[3]) * py + double(T[6]) * pz;
+        d[i + 1] = double(T[1]) * px + double(T[4]) * py + double(T[7]) * pz;
+        d[i + 2] = double(T[2]) * px + double(T[5]) * py + double(T[8]) * pz;
+      }
+    }
+    for (size_t i = 0; i < n; ++i) d[i] -= subspace.use_mean ? double(basis.mean[i]) : 0.0;
     for (uint32_t k = 0; k < plan.M; ++k) {
       const float* u = basis.modes.data() + size_t(k) * n;
       double dot = 0;

@@ -12,6 +12,7 @@
 #include <random>
 #include <vector>
 
+#include "compress/body_frame.hpp"
 #include "compress/predictability.hpp"
 #include "compress/subspace.hpp"
 #include "database/checksum.hpp"
@@ -245,37 +246,53 @@ TEST(CodecV2, DamagedBlobsFailWithAStatusNeverACrash) {
   const Basis basis = basis_of(x, V, 6);
   EncodeSettings s;
   s.key_interval = 4;
-  const auto blob = encode_v2(x.data(), F, V, basis, s);
-  DecodeScratch scratch;
-  std::vector<float> y;
-  Error err;
-  // Every single-byte change is caught by a checksum or a field check.
-  for (size_t i = 0; i < blob.size(); ++i) {
-    auto b = blob;
-    b[i] ^= 0x5a;
-    EXPECT_NE(decode_all(b.data(), b.size(), y, scratch, &err, &basis), Status::Ok) << "byte " << i;
-    EXPECT_NE(err.message[0], '\0');
+  // With and without body transforms (whose stored values the decoder range-checks).
+  std::vector<float> turn(size_t(F) * 12, 0.0f);
+  for (uint32_t f = 0; f < F; ++f) {
+    float* t = turn.data() + size_t(f) * 12;
+    t[0] = t[8] = float(std::cos(0.05 * f));
+    t[2] = float(std::sin(0.05 * f));
+    t[6] = -t[2];
+    t[4] = 1.0f;
+    t[9] = 0.002f * float(f);
   }
-  for (size_t cut : {size_t(0), size_t(5), size_t(50), size_t(111), blob.size() - 1}) {
-    std::vector<uint8_t> b(blob.begin(), blob.begin() + ptrdiff_t(cut));
-    const Status st = decode_all(b.data(), b.size(), y, scratch, &err, &basis);
-    EXPECT_TRUE(st == Status::Truncated || st == Status::NotClothdb) << cut << ": " << err.message;
-  }
-  auto longer = blob;
-  longer.push_back(0);
-  EXPECT_EQ(decode_all(longer.data(), longer.size(), y, scratch, &err, &basis), Status::Corrupt);
-  // Past the checksums (resealed): random damage must still give a status or in-range values.
-  std::mt19937 rng(5);
-  for (int trial = 0; trial < 300; ++trial) {
-    auto b = blob;
-    for (int k = 0; k < 3; ++k) b[rng() % b.size()] = uint8_t(rng());
-    detail::reseal(b.data(), b.size());
-    BlobInfo info;
-    if (read_info(b.data(), b.size(), &info, &err) != Status::Ok) continue;
-    if (decode_all(b.data(), b.size(), y, scratch, &err, &basis) != Status::Ok) continue;
-    for (size_t i = 0; i < y.size(); ++i) {
-      const double lo = info.origin[i % 3], hi = lo + info.qmax[i % 3] * info.step;
-      ASSERT_TRUE(std::isfinite(y[i]) && y[i] >= float(lo) - 1e-6f && y[i] <= float(hi) + 1e-6f);
+  SubspaceSettings body;
+  body.body_frames = turn.data();
+  for (const auto& blob :
+       {encode_v2(x.data(), F, V, basis, s), encode_v2(x.data(), F, V, basis, s, body)}) {
+    DecodeScratch scratch;
+    std::vector<float> y;
+    Error err;
+    // Every single-byte change is caught by a checksum or a field check.
+    for (size_t i = 0; i < blob.size(); ++i) {
+      auto b = blob;
+      b[i] ^= 0x5a;
+      EXPECT_NE(decode_all(b.data(), b.size(), y, scratch, &err, &basis), Status::Ok)
+          << "byte " << i;
+      EXPECT_NE(err.message[0], '\0');
+    }
+    for (size_t cut : {size_t(0), size_t(5), size_t(50), size_t(111), blob.size() - 1}) {
+      std::vector<uint8_t> b(blob.begin(), blob.begin() + ptrdiff_t(cut));
+      const Status st = decode_all(b.data(), b.size(), y, scratch, &err, &basis);
+      EXPECT_TRUE(st == Status::Truncated || st == Status::NotClothdb)
+          << cut << ": " << err.message;
+    }
+    auto longer = blob;
+    longer.push_back(0);
+    EXPECT_EQ(decode_all(longer.data(), longer.size(), y, scratch, &err, &basis), Status::Corrupt);
+    // Past the checksums (resealed): random damage must still give a status or in-range values.
+    std::mt19937 rng(5);
+    for (int trial = 0; trial < 300; ++trial) {
+      auto b = blob;
+      for (int k = 0; k < 3; ++k) b[rng() % b.size()] = uint8_t(rng());
+      detail::reseal(b.data(), b.size());
+      BlobInfo info;
+      if (read_info(b.data(), b.size(), &info, &err) != Status::Ok) continue;
+      if (decode_all(b.data(), b.size(), y, scratch, &err, &basis) != Status::Ok) continue;
+      for (size_t i = 0; i < y.size(); ++i) {
+        const double lo = info.origin[i % 3], hi = lo + info.qmax[i % 3] * info.step;
+        ASSERT_TRUE(std::isfinite(y[i]) && y[i] >= float(lo) - 1e-6f && y[i] <= float(hi) + 1e-6f);
+      }
     }
   }
 }
@@ -364,6 +381,80 @@ std::vector<float> turning_shape(uint32_t vertices, const std::vector<double>& a
 }
 
 }  // namespace
+
+namespace clothdb::codec {
+
+// Cloth relative to the body (issue 17): a garment carried rigidly by the body (the turning
+// shape) is, in the body frame of its anchors, one shape: version 2 with a body frame codes it as
+// the basis mean plus 12 floats a frame, where without one the subspace must code the turn. The
+// bound holds either way, on every coordinate.
+TEST(CodecV2, BodyFrameKeepsTheBoundAndCodesWhatTheBodyCarriesInItsTransforms) {
+  const uint32_t vertices = 400, frames = 48;
+  std::vector<double> angle, shift;
+  for (uint32_t f = 0; f < frames; ++f) {
+    angle.push_back(0.6 * std::sin(0.3 * f));
+    shift.push_back(0.05 * std::cos(0.2 * f));
+  }
+  std::vector<float> x = turning_shape(vertices, angle, shift);
+  // A little noise that no subspace predicts, so the residual layer has work on both sides.
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> noise(-0.0003f, 0.0003f);
+  for (float& v : x) v += noise(rng);
+  const std::vector<float> rest = turning_shape(vertices, {0.0}, {0.0});
+  const clothdb::BodyAnchors anchors = clothdb::body_anchors(rest);
+  EXPECT_EQ(anchors.vertices.size(), 20u);  // 5 % of 400
+  const std::vector<float> transforms =
+      clothdb::fit_body_frames(x.data(), frames, vertices, anchors);
+  std::vector<float> in_body = x;
+  clothdb::to_body_frame(in_body.data(), frames, vertices, transforms);
+  const Basis body_basis = basis_of(in_body, vertices, 2, 11);
+  const Basis plain_basis = basis_of(x, vertices, 2, 12);
+  for (double bound : {0.0005, 0.002}) {
+    EncodeSettings s;
+    s.bound = bound;
+    s.key_interval = 8;
+    SubspaceSettings body;
+    body.body_frames = transforms.data();
+    expect_bound(x, frames, vertices, body_basis, s, body);
+    expect_bound(x, frames, vertices, plain_basis, s);
+    const auto with = encode_v2(x.data(), frames, vertices, body_basis, s, body);
+    const auto without = encode_v2(x.data(), frames, vertices, plain_basis, s);
+    BlobInfo info;
+    Error err;
+    ASSERT_EQ(read_info(with.data(), with.size(), &info, &err), Status::Ok);
+    EXPECT_TRUE(info.body_frame);
+    ASSERT_EQ(read_info(without.data(), without.size(), &info, &err), Status::Ok);
+    EXPECT_FALSE(info.body_frame);
+    EXPECT_LT(3 * with.size(), without.size()) << "bound " << bound;
+  }
+}
+
+TEST(CodecV2, BadBodyTransformsAreRefusedAtEncode) {
+  const uint32_t side = 6, V = side * side, F = 5;
+  const auto x = waves(F, side);
+  const Basis basis = basis_of(x, V, 3);
+  std::vector<float> t(size_t(F) * 12, 0.0f);
+  for (uint32_t f = 0; f < F; ++f) t[12 * f] = t[12 * f + 4] = t[12 * f + 8] = 1.0f;
+  SubspaceSettings sub;
+  sub.body_frames = t.data();
+  EXPECT_NO_THROW(encode_v2(x.data(), F, V, basis, EncodeSettings{}, sub));
+  for (float bad : {std::numeric_limits<float>::quiet_NaN(), 1.5f}) {
+    auto u = t;
+    u[12 * 3 + 4] = bad;  // a rotation entry of frame 3
+    sub.body_frames = u.data();
+    EXPECT_THROW(encode_v2(x.data(), F, V, basis, EncodeSettings{}, sub), ClothdbError) << bad;
+  }
+  auto u = t;
+  u[12 * 2 + 10] = std::numeric_limits<float>::infinity();  // a translation
+  sub.body_frames = u.data();
+  EXPECT_THROW(encode_v2(x.data(), F, V, basis, EncodeSettings{}, sub), ClothdbError);
+  // Velocities have no body frame (the derivative of R s + t is not R ds/dt).
+  sub.body_frames = t.data();
+  sub.use_mean = false;
+  EXPECT_THROW(encode_v2(x.data(), F, V, basis, EncodeSettings{}, sub), ClothdbError);
+}
+
+}  // namespace clothdb::codec
 
 TEST(Predictability, TheBodyFrameRemovesARigidMotionThatCharacterSpaceMustCode) {
   const uint32_t vertices = 200, frames = 40;

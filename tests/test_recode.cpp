@@ -7,11 +7,14 @@
 #include <unistd.h>
 
 #include <Eigen/Core>
+#include <chrono>
 #include <cmath>
+#include <csignal>
 #include <filesystem>
 #include <map>
 #include <random>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "clothrt.h"
@@ -207,6 +210,103 @@ TEST(Recode, KilledAtAnyBatchLeavesAFileThatChecksAndPlays) {
     expect_checks(path);
     expect_plays(path, 60);
   }
+}
+
+// The same with a real SIGKILL at moments spread over a whole recode (within a batch's
+// statements, during a commit, during the final VACUUM): SQLite's journal must leave each file
+// with every blob either the old or the new one. One row per transaction, so most moments fall
+// inside one. Where a kill lands depends on the machine's speed; the property must hold wherever.
+TEST(Recode, SigkillAtAnyMomentLeavesAFileThatChecksAndPlays) {
+  TempDir dir;
+  const std::string original = dir.file("original.db");
+  synthetic::build(original, spec());
+  const Contents before = read_all(original);
+  // Forks a recode of `path`; kills it after `delay` seconds (< 0: lets it finish). Returns the
+  // wall time it ran and whether the kill ended it.
+  auto recode_in_child = [](const std::string& path, double delay, bool* killed) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const pid_t child = fork();
+    if (child == 0) {
+      Eigen::setNbThreads(1);  // OpenMP's thread pool does not survive fork()
+      RecodeOptions o = options(0.0005);
+      o.batch = 1;
+      try {
+        recode_database(path, o);
+      } catch (...) {
+        _exit(2);
+      }
+      _exit(0);
+    }
+    if (child < 0) return -1.0;
+    if (delay >= 0) {
+      std::this_thread::sleep_for(std::chrono::duration<double>(delay));
+      kill(child, SIGKILL);
+    }
+    int status = 0;
+    waitpid(child, &status, 0);
+    *killed = WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL;
+    if (!*killed) {
+      EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+    }
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  };
+  bool killed = false;
+  const std::string whole = dir.file("whole.db");
+  fs::copy_file(original, whole);
+  const double seconds = recode_in_child(whole, -1, &killed);
+  ASSERT_GT(seconds, 0);
+  int kills = 0;
+  for (int k = 1; k <= 9; ++k) {
+    const double delay = seconds * k / 10;
+    SCOPED_TRACE("SIGKILL after " + std::to_string(delay) + " s of " + std::to_string(seconds));
+    const std::string path = dir.file("sigkill" + std::to_string(k) + ".db");
+    fs::copy_file(original, path);
+    recode_in_child(path, delay, &killed);
+    kills += killed;
+    expect_checks(path);
+    expect_plays(path, 60);
+    const Contents partial = read_all(path);
+    EXPECT_LE(max_difference(before.clips, partial.clips), 0.0005);
+    EXPECT_LE(max_difference(before.positions, partial.positions), 0.0005);
+    EXPECT_LE(max_difference(before.velocities, partial.velocities), 0.002);
+  }
+  EXPECT_GT(kills, 0) << "every recode finished before its kill: nothing was tested";
+}
+
+// The runtime loads a database's basis once, at open, and counts it in the memory it reports
+// (issue 17: one player's memory includes the basis); players share it.
+TEST(Recode, RuntimeCountsTheBasisOnceInItsMemory) {
+  TempDir dir;
+  const std::string v1 = dir.file("v1.db"), v2 = dir.file("v2.db");
+  synthetic::build(v1, spec());
+  fs::copy_file(v1, v2);
+  RecodeOptions o = options(0.0005);
+  o.always = true;
+  recode_database(v2, o);
+  const db::DatabaseInfo info = db::read_database_info(v2);
+  ASSERT_EQ(info.bases.size(), 1u);
+  const size_t coordinates = size_t(info.garment_vertices) * 3;
+  const size_t basis_floats =
+      coordinates + info.bases[0].mode_count + size_t(info.bases[0].mode_count) * coordinates;
+  auto metadata = [](const std::string& path, int players) {
+    clothrt_db* db = nullptr;
+    EXPECT_EQ(clothrt_db_open(path.c_str(), nullptr, &db), CLOTHRT_OK);
+    std::vector<clothrt_player*> p(size_t(players), nullptr);
+    for (auto& player : p) {
+      EXPECT_EQ(clothrt_player_create(db, &player), CLOTHRT_OK);
+      EXPECT_EQ(clothrt_player_start(player, clothrt_db_start_clip(db)), CLOTHRT_OK);
+      EXPECT_EQ(clothrt_player_advance(player, 0.5), CLOTHRT_OK) << clothrt_player_errmsg(player);
+    }
+    clothrt_stats s{};
+    EXPECT_EQ(clothrt_db_stats(db, &s), CLOTHRT_OK);
+    for (auto* player : p) clothrt_player_destroy(player);
+    clothrt_db_close(db);
+    return s.metadata_bytes;
+  };
+  const size_t without = metadata(v1, 1), with = metadata(v2, 1);
+  EXPECT_GE(with, without + basis_floats * sizeof(float));
+  EXPECT_LT(with, without + basis_floats * sizeof(float) + 4096);
+  EXPECT_EQ(metadata(v2, 3), with);  // three players, one basis
 }
 
 TEST(Recode, V1AtALargerBoundAlsoWorks) {

@@ -6,6 +6,7 @@
 #include <numeric>
 #include <stdexcept>
 
+#include "compress/body_frame.hpp"
 #include "compress/subspace.hpp"
 
 namespace clothdb {
@@ -13,25 +14,6 @@ namespace clothdb {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
-
-struct RigidFrame {
-  Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();
-  Eigen::Vector3d translation = Eigen::Vector3d::Zero();
-};
-
-// Kabsch (1976): the rotation R and translation t with R p + t closest to q in least squares,
-// reflections excluded.
-RigidFrame fit_rigid(const Eigen::Matrix3Xd& p, const Eigen::Matrix3Xd& q) {
-  const Eigen::Vector3d pc = p.rowwise().mean(), qc = q.rowwise().mean();
-  const Eigen::Matrix3d h = (p.colwise() - pc) * (q.colwise() - qc).transpose();
-  Eigen::JacobiSVD<Eigen::Matrix3d> svd(h, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  Eigen::Matrix3d d = Eigen::Matrix3d::Identity();
-  if ((svd.matrixV() * svd.matrixU().transpose()).determinant() < 0) d(2, 2) = -1;
-  RigidFrame f;
-  f.rotation = svd.matrixV() * d * svd.matrixU().transpose();
-  f.translation = qc - f.rotation * pc;
-  return f;
-}
 
 }  // namespace
 

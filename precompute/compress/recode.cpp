@@ -1,7 +1,5 @@
 #include "compress/recode.hpp"
 
-#include <sqlite3.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -37,6 +35,57 @@ std::string text(double v) {
 
 }  // namespace
 
+BuiltBasis build_basis_from_clips(db::Reader& reader, const std::vector<db::ClothClip>& clips,
+                                  uint32_t vertex_count, uint32_t modes, uint32_t sample_frames,
+                                  const BodyAnchors* anchors) {
+  const size_t n = size_t(vertex_count) * 3;
+  db::Error err;
+  codec::DecodeScratch scratch;
+  std::vector<uint8_t> blob;
+  std::vector<float> frames, sample;
+  uint64_t total = 0;
+  for (const auto& c : clips) total += uint64_t(c.frame_count);
+  const uint64_t stride = std::max<uint64_t>(1, total / std::max<uint32_t>(1, sample_frames));
+  uint64_t index = 0;
+  for (const auto& c : clips) {
+    check(reader.clip_blob(c.id, &blob, &err), err);
+    check(reader.decode_all(blob, &frames, scratch, &err), err);
+    if (frames.size() != size_t(c.frame_count) * n)
+      throw ClothdbError(db::Status::Corrupt, "clip " + std::to_string(c.id) + " decodes to " +
+                                                  std::to_string(frames.size() / n) +
+                                                  " frames, its row says " +
+                                                  std::to_string(c.frame_count));
+    for (int32_t f = 0; f < c.frame_count; ++f, ++index)
+      if (index % stride == 0)
+        sample.insert(sample.end(), frames.begin() + ptrdiff_t(size_t(f) * n),
+                      frames.begin() + ptrdiff_t(size_t(f + 1) * n));
+  }
+  if (sample.empty()) throw std::invalid_argument("the database has no cloth frames");
+  const uint32_t sampled = uint32_t(sample.size() / n);
+  if (anchors)
+    to_body_frame(sample.data(), sampled, vertex_count,
+                  fit_body_frames(sample.data(), sampled, vertex_count, *anchors));
+  const Subspace s = build_subspace(sample, uint32_t(n), modes);
+  BuiltBasis out;
+  out.basis = codec::make_basis(0, vertex_count, s.mean.data(), s.basis.data(), s.modes);
+  out.frames = total;
+  out.sampled = sample.size() / n;
+  out.sample_rms = s.sample_rms;
+  out.residual_rms = s.residual_rms;
+  char source[256];
+  std::snprintf(
+      source, sizeof source,
+      "PCA of %llu of %llu frames (every %llu-th)%s, %u modes, sample RMS %.3g m, "
+      "residual RMS %.3g m",
+      (unsigned long long)out.sampled, (unsigned long long)total, (unsigned long long)stride,
+      anchors ? (" in the body frame of " + std::to_string(anchors->vertices.size()) + " anchors")
+                    .c_str()
+              : "",
+      s.modes, s.sample_rms, s.residual_rms);
+  out.source = source;
+  return out;
+}
+
 RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
@@ -58,7 +107,6 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
   db::Garment garment;
   check(reader.garment(&garment, &err), err);
   const uint32_t V = garment.vertex_count();
-  const size_t n = size_t(V) * 3;
   std::vector<db::ClothClip> clips;
   std::vector<db::StoredState> states;
   check(reader.cloth_clips(&clips, &err), err);
@@ -71,39 +119,22 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
 
   // The basis: principal components of frames sampled evenly over every clip.
   codec::Basis basis;
+  const bool body = o.codec == 2 && o.body_frame;
+  const BodyAnchors anchors = body ? body_anchors(garment.rest_positions) : BodyAnchors{};
   if (o.codec == 2) {
     const auto t0 = Clock::now();
-    uint64_t total = 0;
-    for (const auto& c : clips) total += uint64_t(c.frame_count);
-    const uint64_t stride = std::max<uint64_t>(1, total / std::max<uint32_t>(1, o.basis_frames));
-    std::vector<float> sample;
-    uint64_t index = 0;
-    for (const auto& c : clips) {
-      check(reader.clip_blob(c.id, &blob, &err), err);
-      check(reader.decode_all(blob, &frames, scratch, &err), err);
-      for (int32_t f = 0; f < c.frame_count; ++f, ++index)
-        if (index % stride == 0)
-          sample.insert(sample.end(), frames.begin() + ptrdiff_t(size_t(f) * n),
-                        frames.begin() + ptrdiff_t(size_t(f + 1) * n));
-    }
-    if (sample.empty()) throw std::invalid_argument("recode: the database has no cloth frames");
-    say("basis: " + std::to_string(sample.size() / n) + " frames of " + std::to_string(total) +
-        " sampled, " + std::to_string(o.modes) + " modes ...");
-    const Subspace s = build_subspace(sample, uint32_t(n), o.modes);
-    basis = codec::make_basis(0, V, s.mean.data(), s.basis.data(), s.modes);
-    char source[256];
-    std::snprintf(source, sizeof source,
-                  "PCA of %zu of %llu frames (every %llu-th), %u modes, sample RMS %.3g m, "
-                  "residual RMS %.3g m",
-                  sample.size() / n, (unsigned long long)total, (unsigned long long)stride, s.modes,
-                  s.sample_rms, s.residual_rms);
-    basis.id = db::store_basis(writer, basis, source);  // committed before any blob names it
+    say("basis: sampling up to " + std::to_string(o.basis_frames) + " frames, " +
+        std::to_string(o.modes) + " modes ...");
+    BuiltBasis built = build_basis_from_clips(reader, clips, V, o.modes, o.basis_frames,
+                                              body ? &anchors : nullptr);
+    basis = std::move(built.basis);
+    basis.id = db::store_basis(writer, basis, built.source);  // committed before any blob names it
     report.basis_id = basis.id;
-    report.basis_modes = s.modes;
-    report.sample_rms = s.sample_rms;
-    report.residual_rms = s.residual_rms;
+    report.basis_modes = basis.mode_count;
+    report.sample_rms = built.sample_rms;
+    report.residual_rms = built.residual_rms;
     report.basis_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
-    say(std::string("basis ") + std::to_string(basis.id) + ": " + source);
+    say(std::string("basis ") + std::to_string(basis.id) + ": " + built.source);
   }
 
   const codec::EncodeSettings position_settings = db::encode_settings(file_codec, bound);
@@ -116,6 +147,11 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
     if (o.codec == 1) return codec::encode(data.data(), count, V, settings, stats);
     codec::SubspaceSettings s = sub;
     s.use_mean = !velocities;
+    std::vector<float> transforms;
+    if (body && !velocities) {
+      transforms = fit_body_frames(data.data(), count, V, anchors);
+      s.body_frames = transforms.data();
+    }
     return codec::encode_v2(data.data(), count, V, basis, settings, s, stats);
   };
 
@@ -187,10 +223,8 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
   }
   reader.close();
   if (o.vacuum) {
-    sqlite3* db = writer.handle();
-    if (sqlite3_exec(db, "VACUUM", nullptr, nullptr, nullptr) != SQLITE_OK ||
-        sqlite3_exec(db, "PRAGMA wal_checkpoint(TRUNCATE)", nullptr, nullptr, nullptr) != SQLITE_OK)
-      say(std::string("vacuum skipped: ") + sqlite3_errmsg(db));
+    std::string why;
+    if (!db::compact_file(writer, &why)) say("vacuum skipped: " + why);
   }
   report.file_bytes_after = file_bytes(path);
   report.seconds = std::chrono::duration<double>(Clock::now() - start).count();

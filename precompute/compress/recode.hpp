@@ -8,7 +8,28 @@
 #include <functional>
 #include <string>
 
+#include "compress/body_frame.hpp"
+#include "database/codec.hpp"
+#include "database/schema.hpp"
+
 namespace clothdb {
+
+// A garment subspace (codec version 2) from a database's own clip frames: up to sample_frames
+// frames taken evenly over every clip (in id order, each decoded as stored), their principal
+// components (compress/subspace.hpp), quantised as stored (codec::make_basis; id 0 until stored).
+// Shared by `db recode` and the explorer (ExploreOptions::subspace_modes), so both build a basis
+// the same way. Throws std::invalid_argument when there is no frame, ClothdbError on a bad blob.
+struct BuiltBasis {
+  codec::Basis basis;
+  std::string source;  // what it was built from, for codec_basis.source
+  uint64_t frames = 0, sampled = 0;
+  double sample_rms = 0, residual_rms = 0;  // m
+};
+// With anchors, the sampled frames are first taken into the body frame (compress/body_frame.hpp),
+// as codec version 2 with a body frame predicts them.
+BuiltBasis build_basis_from_clips(db::Reader& reader, const std::vector<db::ClothClip>& clips,
+                                  uint32_t vertex_count, uint32_t modes, uint32_t sample_frames,
+                                  const BodyAnchors* anchors = nullptr);
 
 struct RecodeOptions {
   int codec = 2;                 // frame format to write: 1 or 2
@@ -17,6 +38,9 @@ struct RecodeOptions {
   uint32_t modes = 64;           // basis modes (codec 2)
   uint32_t basis_frames = 3000;  // frames sampled evenly from all clips to build the basis
   double coefficient_step_factor = 2.0;
+  // Codec 2: cloth relative to the body (a rigid frame fitted to the garment's highest 5 %, its
+  // pinned band; compress/body_frame.hpp), for the basis and every position blob.
+  bool body_frame = false;
   uint32_t batch = 32;  // rows per transaction
   bool always = false;  // replace every blob, even where the new encoding is larger
   bool vacuum = true;   // give the freed pages back to the file system at the end

@@ -6,7 +6,8 @@
 //   2: build frames from the bytes, encode them, decode, and check the error bound;
 //   3, 4: modes 0 and 1 for codec version 2 blobs, decoded with a made-up basis that fits the
 //      blob's header (so mutations reach the subspace reconstruction);
-//   5: mode 2 with codec version 2 and a made-up basis.
+//   5: mode 2 with codec version 2 and a made-up basis, with or without body frames (issue 17:
+//      cloth relative to the body) as the bytes say.
 // Any crash, sanitizer report, bound violation or non-finite decoded value is a bug.
 #include <algorithm>
 #include <cmath>
@@ -75,6 +76,23 @@ void decode_blob(const uint8_t* blob, size_t size) {
   codec::verify(blob, size, scratch, &err, b);
 }
 
+// Body transforms (codec::SubspaceSettings::body_frames): a turn about y and a drift per frame.
+std::vector<float> turning(uint32_t frames, uint8_t seed) {
+  std::vector<float> t(size_t(frames) * 12, 0.0f);
+  for (uint32_t f = 0; f < frames; ++f) {
+    const double a = 0.01 * double((f * (seed | 1u)) % 17);
+    float* m = t.data() + size_t(f) * 12;
+    m[0] = float(std::cos(a));
+    m[2] = float(std::sin(a));
+    m[4] = 1.0f;
+    m[6] = float(-std::sin(a));
+    m[8] = float(std::cos(a));
+    m[9] = float(0.001 * f);
+    m[11] = float(0.0005 * (seed % 7));
+  }
+  return t;
+}
+
 void roundtrip(const uint8_t* data, size_t size, bool v2) {
   if (size < 4) return;
   const double bounds[] = {1e-5, 1e-4, 5e-4, 2e-3, 0.05};
@@ -84,6 +102,8 @@ void roundtrip(const uint8_t* data, size_t size, bool v2) {
   s.zstd_level = 1 + data[2] % 5;
   s.predictor = codec::Predictor(data[3] % 4);
   const uint32_t vertices = 1 + data[3] / 4 % 40;
+  const bool with_body = v2 && (data[2] / 5) % 2 == 1;
+  const uint8_t body_seed = data[3];
   data += 4;
   size -= 4;
   const uint32_t frames = uint32_t(size / (vertices * 3 * 2));
@@ -96,8 +116,12 @@ void roundtrip(const uint8_t* data, size_t size, bool v2) {
   }
   std::vector<uint8_t> blob;
   const codec::Basis basis = made_up_basis(3, vertices, 1 + vertices % 5);
+  codec::SubspaceSettings sub;
+  std::vector<float> body;
+  if (with_body) body = turning(frames, body_seed);
+  sub.body_frames = body.empty() ? nullptr : body.data();
   try {
-    blob = v2 ? codec::encode_v2(x.data(), frames, vertices, basis, s)
+    blob = v2 ? codec::encode_v2(x.data(), frames, vertices, basis, s, sub)
               : codec::encode(x.data(), frames, vertices, s);
   } catch (const ClothdbError& e) {
     check(false, e.what());  // valid input must always encode
@@ -150,8 +174,14 @@ int main(int argc, char** argv) {
       const auto blob = codec::encode(x.data(), frames, side * side, s);
       const auto blob2 =
           codec::encode_v2(x.data(), frames, side * side, made_up_basis(1, side * side, 4), s);
-      for (uint8_t mode : {uint8_t(0), uint8_t(1), uint8_t(3), uint8_t(4)}) {
-        const auto& b = mode < 3 ? blob : blob2;
+      codec::SubspaceSettings sub;
+      const auto body = turning(frames, uint8_t(k + 3));
+      sub.body_frames = body.data();
+      const auto blob3 =
+          codec::encode_v2(x.data(), frames, side * side, made_up_basis(1, side * side, 4), s, sub);
+      for (int which = 0; which < 6; ++which) {
+        const uint8_t mode = which < 2 ? uint8_t(which) : uint8_t(3 + which % 2);
+        const auto& b = which < 2 ? blob : which < 4 ? blob2 : blob3;
         char path[4096];
         std::snprintf(path, sizeof path, "%s/seed_%d", argv[1], count++);
         FILE* f = std::fopen(path, "wb");
