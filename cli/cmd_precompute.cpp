@@ -56,6 +56,22 @@ void register_precompute(CLI::App& app) {
                   "Codec bound per coordinate in mm for a new --db (default 0.5; a file's codec is "
                   "fixed when it is made: an existing file with another bound is refused)")
       ->check(number_in(1e-6, 1e3));
+  auto codec_name = std::make_shared<std::string>("v1");
+  cmd->add_option("--codec", *codec_name,
+                  "Frame codec of the clips this run stores: v1, or v2 (issue 17: a garment "
+                  "subspace built from the clips stored so far, from --basis-first-frames on and "
+                  "again each time the frames double; each clip keeps the smaller of v1 and v2)")
+      ->check(CLI::IsMember({"v1", "v2"}))
+      ->capture_default_str();
+  cmd->add_option("--modes", args->explore.subspace_modes, "--codec v2: modes of each basis")
+      ->check(number_in(1, 1024));
+  cmd->add_flag("--body-frame", args->explore.subspace_body_frame,
+                "--codec v2: code the cloth relative to a rigid body frame fitted to the "
+                "garment's highest 5 % (its pinned band) in every frame");
+  cmd->add_option("--basis-first-frames", args->explore.subspace_first_frames,
+                  "--codec v2: stored clip frames before the first basis is built")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   cmd->add_option("--frames", args->explore.max_frames,
                   "Budget: cloth frames to simulate in this run (0: none)")
       ->capture_default_str();
@@ -130,8 +146,13 @@ void register_precompute(CLI::App& app) {
   cmd->add_flag("--mpi-verbose", args->mpi_verbose,
                 "Under mpirun: one line per job handed out, lost or late");
 #endif
-  cmd->callback([args, epsilon_mm, position_bound_mm, quiet, floor_seconds] {
+  cmd->callback([args, epsilon_mm, position_bound_mm, quiet, floor_seconds, codec_name] {
     PrecomputeRequest request = *args;
+    if (*codec_name == "v2") {
+      if (request.explore.subspace_modes == 0) request.explore.subspace_modes = 64;
+    } else if (request.explore.subspace_modes != 0 || request.explore.subspace_body_frame) {
+      throw std::runtime_error("--modes, --body-frame: only with --codec v2");
+    }
     request.explore.epsilon = 1e-3 * *epsilon_mm;
     request.position_bound = 1e-3 * *position_bound_mm;
     request.floor.continuation_seconds = request.floor.hold_seconds = *floor_seconds;
@@ -177,6 +198,12 @@ void register_precompute(CLI::App& app) {
         *epsilon_mm, 100 * report.linked_fraction, report.links, 1e3 * report.mean_link_error,
         1e3 * report.worst_link_error, report.steered, 1e3 * report.worst_steering,
         floor_text(out).c_str(), out.curve_prefix.c_str(), out.curve_prefix.c_str());
+    if (request.explore.subspace_modes > 0)
+      std::printf(
+          "codec        v2 (%u modes): %d bases built this run, %d removed (no clip chose "
+          "them), %d of this run's clips stored as v2\n",
+          request.explore.subspace_modes, report.bases_built, report.bases_removed,
+          report.clips_v2);
   });
 }
 

@@ -88,6 +88,10 @@ void visit_run_fields(db::RunSettings& r, V& v) {
   long clip = r.resim_clip;
   v.integer64("resim_clip", clip, 0, std::numeric_limits<long>::max());
   r.resim_clip = clip;
+  int modes = static_cast<int>(r.subspace_modes);
+  v.integer("subspace_modes", modes, 0, static_cast<int>(codec::kMaxBasisModes));
+  r.subspace_modes = static_cast<uint32_t>(modes);
+  v.boolean("subspace_body_frame", r.subspace_body_frame);
 }
 
 void check_range(const std::string& where, const std::string& field, double d, double lo,

@@ -174,6 +174,11 @@ struct RunSettings {
   int batch = 8;             // dead ends per batch (fixed: the result does not depend on threads)
   bool auto_solver = false;  // the solver setting was chosen by `precompute --auto`
   long resim_clip = 0;       // > 0: a `clip resim` of this clip carried forward (not a precompute)
+  // Codec version 2 during the run (issue 17): modes of the garment subspace the explorer builds
+  // from the clips stored so far (0: version 1 only).
+  uint32_t subspace_modes = 0;
+  bool subspace_body_frame =
+      false;  // ... relative to a body frame (precompute/compress/body_frame)
 };
 
 // One serialiser: JSON text with every field ({"epsilon_m": ..., "solver": {...}, "codec": {...},

@@ -13,6 +13,7 @@
 #include "clothrt.h"
 #include "database/check.hpp"
 #include "database/checksum.hpp"
+#include "database/codec.hpp"
 #include "database/schema.hpp"
 #include "explore/explorer.hpp"
 #include "explore/job_wire.hpp"
@@ -170,6 +171,112 @@ std::vector<bool> hold_first(const std::vector<std::pair<int64_t, int64_t>>& ord
   for (const auto& [state, primaries] : by_state)
     if (primaries.size() == 2) out.push_back(primaries[0] == 1);
   return out;
+}
+
+// The clips of two runs that made the same graph, one stored with codec version 1 only: the same
+// clip ids, each within twice the bound of the other's (both are within the bound of the same
+// simulation), every version 2 clip naming a stored basis, the newest when its batch was chosen.
+// Returns how many clips of the second file are version 2.
+static int expect_same_clips_within_twice_the_bound(const std::string& v1_path,
+                                                    const std::string& v2_path) {
+  const db::DatabaseInfo info = db::read_database_info(v2_path);
+  db::Reader r1, r2;
+  db::Error err;
+  EXPECT_EQ(r1.open(v1_path, &err), db::Status::Ok);
+  EXPECT_EQ(r2.open(v2_path, &err), db::Status::Ok);
+  std::vector<db::ClothClip> clips1, clips2;
+  r1.cloth_clips(&clips1, &err);
+  r2.cloth_clips(&clips2, &err);
+  EXPECT_EQ(clips1.size(), clips2.size());
+  const double bound = r2.codec().position_bound;
+  codec::DecodeScratch scratch;
+  std::vector<uint8_t> blob1, blob2;
+  std::vector<float> f1, f2;
+  int64_t previous_basis = 0;
+  int v2 = 0;
+  for (size_t k = 0; k < std::min(clips1.size(), clips2.size()); ++k) {
+    EXPECT_EQ(clips1[k].id, clips2[k].id);
+    EXPECT_EQ(r1.clip_blob(clips1[k].id, &blob1, &err), db::Status::Ok);
+    EXPECT_EQ(r2.clip_blob(clips2[k].id, &blob2, &err), db::Status::Ok);
+    codec::BlobInfo b;
+    EXPECT_EQ(codec::read_info(blob2.data(), blob2.size(), &b, &err), db::Status::Ok);
+    if (b.version == codec::kFormatVersionV2) {
+      ++v2;
+      EXPECT_GE(b.basis_id, previous_basis) << "clip " << clips2[k].id;
+      previous_basis = b.basis_id;
+      bool stored = false;
+      for (const auto& row : info.bases) stored |= row.id == b.basis_id;
+      EXPECT_TRUE(stored) << "clip " << clips2[k].id << " names basis " << b.basis_id;
+    }
+    EXPECT_EQ(r1.decode_all(blob1, &f1, scratch, &err), db::Status::Ok) << err.message;
+    EXPECT_EQ(r2.decode_all(blob2, &f2, scratch, &err), db::Status::Ok) << err.message;
+    EXPECT_EQ(f1.size(), f2.size());
+    double worst = 0;
+    for (size_t i = 0; i < std::min(f1.size(), f2.size()); ++i)
+      worst = std::max(worst, std::fabs(static_cast<double>(f1[i]) - f2[i]));
+    EXPECT_LE(worst, 2 * bound * (1 + 1e-6)) << "clip " << clips2[k].id;
+  }
+  const db::CheckReport check = db::check_database(v2_path);
+  for (const auto& problem : check.problems) ADD_FAILURE() << problem;
+  return v2;
+}
+
+// Codec version 2 during the run (issue 17): the explorer builds a basis from the clips stored so
+// far and new ones as the frames grow; the simulations (which start from version 1 states) are
+// the same as a version 1 run's, so the files hold the same graph. With a body frame as without.
+// Keeping the smaller of the two encodings, no basis stays that no clip chose.
+TEST(Explore, CodecV2BasesFromTheStoredClipsKeepTheGraphAndTheBound) {
+  const CharacterScene scene = small_scene();
+  ExploreOptions options;
+  options.epsilon = 0.02;
+  const std::string v1_path = temp_db("codec_v1");
+  const ExploreReport v1 = run(scene, v1_path, options);
+  ASSERT_GE(v1.frames, 160);  // so the bases are due at 40, 80 and 160 frames
+  options.subspace_modes = 8;
+  options.subspace_first_frames = 40;
+  options.subspace_always = true;  // every later clip as version 2, whatever its size
+  for (bool body : {false, true}) {
+    SCOPED_TRACE(body ? "body frame" : "character space");
+    options.subspace_body_frame = body;
+    const std::string v2_path = temp_db(body ? "codec_v2_body" : "codec_v2");
+    const ExploreReport v2 = run(scene, v2_path, options);
+    EXPECT_EQ(v2.states, v1.states);
+    EXPECT_EQ(v2.clips, v1.clips);
+    EXPECT_GE(v2.bases_built, 3);
+    EXPECT_EQ(v2.bases_removed, 0);
+    const db::DatabaseInfo info = db::read_database_info(v2_path);
+    EXPECT_EQ(info.bases.size(), static_cast<size_t>(v2.bases_built));
+    EXPECT_GT(info.clips_v1, 0u);  // those stored before the first basis
+    EXPECT_EQ(info.clips_v2, static_cast<uint64_t>(v2.clips_v2));
+    EXPECT_EQ(info.clips_v1 + info.clips_v2, info.cloth_clips);
+    EXPECT_EQ(info.states_v2, 0u);
+    EXPECT_EQ(expect_same_clips_within_twice_the_bound(v1_path, v2_path), v2.clips_v2);
+    EXPECT_GT(v2.clips_v2, 0);
+  }
+
+  options.subspace_always = false;
+  options.subspace_body_frame = false;
+  const std::string smaller_path = temp_db("codec_v2_smaller");
+  const ExploreReport smaller = run(scene, smaller_path, options);
+  const db::DatabaseInfo kept = db::read_database_info(smaller_path);
+  EXPECT_EQ(kept.bases.size(), static_cast<size_t>(smaller.bases_built - smaller.bases_removed));
+  EXPECT_LE(kept.clip_blob_bytes, db::read_database_info(v1_path).clip_blob_bytes);
+  db::Reader r3;
+  db::Error err;
+  ASSERT_EQ(r3.open(smaller_path, &err), db::Status::Ok);
+  std::vector<db::ClothClip> clips3;
+  r3.cloth_clips(&clips3, &err);
+  std::vector<uint8_t> blob;
+  for (const auto& row : kept.bases) {
+    bool named = false;
+    for (const auto& c : clips3) {
+      ASSERT_EQ(r3.clip_blob(c.id, &blob, &err), db::Status::Ok);
+      codec::BlobInfo b;
+      ASSERT_EQ(codec::read_info(blob.data(), blob.size(), &b, &err), db::Status::Ok);
+      named |= b.basis_id == row.id;
+    }
+    EXPECT_TRUE(named) << "basis " << row.id << " is named by no clip";
+  }
 }
 
 TEST(Explore, RarelyTakenEdgesAreExpandedLater) {

@@ -15,6 +15,8 @@
 #include <sstream>
 
 #include "character_scene/character_space.hpp"
+#include "compress/recode.hpp"
+#include "database/basis_store.hpp"
 #include "database/checksum.hpp"
 #include "database/codec.hpp"
 #include "explore/auto_solver.hpp"
@@ -64,13 +66,30 @@ struct Job {
   double priority = 0;
 };
 
+// Encodes as the writer would store it (the file's key interval and zstd level). With a basis,
+// also as codec version 2 and keeps the smaller blob (version 2 whenever `always`).
 std::vector<uint8_t> encode_with(const std::vector<float>& frames, uint32_t frame_count,
                                  uint32_t vertices, double bound, const db::CodecSettings& codec,
-                                 double* max_error) {
-  // The writer's own settings, so the blob is what it would store.
+                                 double* max_error, const codec::Basis* basis = nullptr,
+                                 const BodyAnchors* body = nullptr, bool always = false) {
+  const codec::EncodeSettings settings = db::encode_settings(codec, bound);
   codec::EncodeStats stats;
-  std::vector<uint8_t> blob = codec::encode(frames.data(), frame_count, vertices,
-                                            db::encode_settings(codec, bound), &stats);
+  std::vector<uint8_t> blob = codec::encode(frames.data(), frame_count, vertices, settings, &stats);
+  if (basis) {
+    codec::EncodeStats v2_stats;
+    codec::SubspaceSettings subspace;
+    std::vector<float> transforms;
+    if (body) {
+      transforms = fit_body_frames(frames.data(), frame_count, vertices, *body);
+      subspace.body_frames = transforms.data();
+    }
+    std::vector<uint8_t> v2 = codec::encode_v2(frames.data(), frame_count, vertices, *basis,
+                                               settings, subspace, &v2_stats);
+    if (always || v2.size() < blob.size()) {
+      blob.swap(v2);
+      stats = v2_stats;
+    }
+  }
   if (max_error) *max_error = stats.max_error;
   return blob;
 }
@@ -90,6 +109,11 @@ struct Exploration {
   std::set<std::pair<int64_t, int>> done;              // (state id, edge) with a clip
   std::map<std::pair<int64_t, int>, int64_t> clip_of;  // (state id, edge) -> its cloth clip id
   std::set<std::pair<int64_t, int>> failed;            // unstable in this run: not retried
+  // Codec version 2 (ExploreOptions::subspace_modes): the newest basis (null until one is built
+  // or loaded), the bases in the file, and how many of this run's clips name each basis it built.
+  std::shared_ptr<const codec::Basis> basis;
+  int bases_in_file = 0;
+  std::map<int64_t, long> clips_naming;  // basis id -> clips of this run encoded with it
 };
 
 // Kim et al. expand the dead end whose unresolved error matters most: its error times how often
@@ -159,6 +183,16 @@ void integrate_batch(Exploration& ex, db::Writer& writer, const std::vector<Job>
     clip.first_frame = 0;
     clip.run = run_id;
     const int64_t clip_id = writer.add_cloth_clip_blob(clip, r.clip_blob, r.clip_max_error);
+    {
+      codec::BlobInfo info;
+      db::Error info_err;
+      if (codec::read_info(r.clip_blob.data(), r.clip_blob.size(), &info, &info_err) ==
+              db::Status::Ok &&
+          info.version == codec::kFormatVersionV2) {
+        ++ex.clips_naming[info.basis_id];
+        ++report.clips_v2;
+      }
+    }
     if (r.steer_target != 0) {
       writer.set_clip_steering(
           {clip_id, r.steer_target, r.steer_distance, r.steer_displacement, r.steer_acceleration});
@@ -446,8 +480,9 @@ JobResult run_job(const CharacterScene& scene, const ExploreGraph& graph, const 
   try {
     r.quality = measure_clip(scene, edge.poses, frames);
     r.quality.halved_steps = run.step_halvings;
-    r.clip_blob = encode_with(frames, r.frame_count, r.vertex_count, input.codec.position_bound,
-                              input.codec, &r.clip_max_error);
+    r.clip_blob =
+        encode_with(frames, r.frame_count, r.vertex_count, input.codec.position_bound, input.codec,
+                    &r.clip_max_error, input.basis.get(), input.body.get(), input.subspace_always);
     r.end_x_blob =
         encode_with(end_x, 1, r.vertex_count, input.codec.position_bound, input.codec, nullptr);
     r.end_v_blob =
@@ -457,7 +492,8 @@ JobResult run_job(const CharacterScene& scene, const ExploreGraph& graph, const 
     codec::DecodeScratch scratch;
     db::Error err;
     if (codec::decode_frames(r.clip_blob.data(), r.clip_blob.size(), r.frame_count - 1, 1,
-                             r.last.data(), r.last.size(), scratch, &err) != db::Status::Ok)
+                             r.last.data(), r.last.size(), scratch, &err,
+                             input.basis.get()) != db::Status::Ok)
       throw std::runtime_error(std::string("decoding a clip just encoded: ") + err.message);
   } catch (const std::exception& e) {
     JobResult failed;
@@ -636,6 +672,8 @@ db::RunSettings make_run_settings(const CharacterScene& scene, const ExploreOpti
   run.batch = options.batch;
   run.auto_solver = options.auto_solver;
   run.resim_clip = options.resim_clip;
+  run.subspace_modes = options.subspace_modes;
+  run.subspace_body_frame = options.subspace_body_frame;
   db::validate_run_settings(run, "run settings");
   return run;
 }
@@ -643,6 +681,12 @@ db::RunSettings make_run_settings(const CharacterScene& scene, const ExploreOpti
 ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db::Writer& writer,
                       const ExploreOptions& options, const BatchRunner& given_runner) {
   const db::RunSettings run = make_run_settings(scene, options, writer.codec());
+  if (options.subspace_modes > 0 &&
+      (options.subspace_first_frames < 1 || !(options.subspace_growth > 1.0) ||
+       options.subspace_sample_frames < 2))
+    throw std::invalid_argument(
+        "explore: codec v2 needs subspace_first_frames >= 1, subspace_growth > 1 and "
+        "subspace_sample_frames >= 2");
   const BatchRunner runner =
       given_runner ? given_runner : openmp_runner(scene, graph, options.threads);
   ExploreReport report;
@@ -715,6 +759,54 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
     ex.clips = static_cast<long>(stored_edges.size());
     for (const auto& e : stored_edges) ex.linked += made_by[e.to_state] != e.from_clip;
   }
+  const uint32_t vertex_count = static_cast<uint32_t>(scene.model.vertex_count());
+  std::shared_ptr<const BodyAnchors> body;
+  if (options.subspace_modes > 0 && options.subspace_body_frame) {
+    // From the file's garment row, as `db recode` takes them.
+    db::Garment garment;
+    if (reader.garment(&garment, &err) != db::Status::Ok)
+      throw std::runtime_error(writer.path() + ": " + std::string(err.message));
+    body = std::make_shared<const BodyAnchors>(body_anchors(garment.rest_positions));
+  }
+  if (options.subspace_modes > 0) {
+    // A resumed run continues from the file's newest basis.
+    std::vector<db::BasisRow> bases;
+    if (db::list_bases(reader.handle(), writer.path(), &bases, &err) != db::Status::Ok)
+      throw std::runtime_error(writer.path() + ": " + std::string(err.message));
+    ex.bases_in_file = static_cast<int>(bases.size());
+    if (!bases.empty()) {
+      auto newest = std::make_shared<codec::Basis>();
+      if (db::load_basis(reader.handle(), writer.path(), bases.back().id, newest.get(), &err) !=
+          db::Status::Ok)
+        throw std::runtime_error(writer.path() + ": " + std::string(err.message));
+      if (newest->vertex_count == vertex_count) ex.basis = std::move(newest);
+    }
+  }
+  // Codec version 2: after a batch, a new basis when the stored frames have reached
+  // first_frames x growth^(bases in the file) (ExploreOptions::subspace_modes).
+  auto maybe_build_basis = [&]() {
+    if (options.subspace_modes == 0) return;
+    const double due = static_cast<double>(options.subspace_first_frames) *
+                       std::pow(options.subspace_growth, ex.bases_in_file);
+    if (static_cast<double>(report.frames) < due) return;
+    const auto t0 = std::chrono::steady_clock::now();
+    std::vector<db::ClothClip> clips;
+    if (reader.cloth_clips(&clips, &err) != db::Status::Ok)
+      throw std::runtime_error(writer.path() + ": " + std::string(err.message));
+    BuiltBasis built = build_basis_from_clips(reader, clips, vertex_count, options.subspace_modes,
+                                              options.subspace_sample_frames, body.get());
+    built.basis.id = db::store_basis(writer, built.basis, "explore: " + built.source);
+    ex.clips_naming[built.basis.id] = 0;
+    ++ex.bases_in_file;
+    ++report.bases_built;
+    if (options.progress)
+      std::fprintf(stderr, "\nexplore: basis %lld of %u modes from %llu stored frames in %.1f s\n",
+                   static_cast<long long>(built.basis.id), built.basis.mode_count,
+                   static_cast<unsigned long long>(built.frames),
+                   std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    ex.basis = std::make_shared<const codec::Basis>(std::move(built.basis));
+  };
+
   const int64_t run_id = writer.begin_run(db::run_settings_json(run));
   if (states.empty()) {
     SolverSettings settings = scene.file.settings;
@@ -779,6 +871,9 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
       inputs[b].settings.threads =
           1;  // parallel across jobs, not inside one (a runner may change it)
       inputs[b].codec = codec_settings;
+      inputs[b].basis = ex.basis;
+      inputs[b].body = ex.basis ? body : nullptr;
+      inputs[b].subspace_always = options.subspace_always;
       inputs[b].epsilon = options.epsilon;
       if (scene.file.steering.frames > 0)
         for (int t : ex.states_at_node[static_cast<size_t>(graph.edges[batch[b].edge].to_node)])
@@ -789,6 +884,7 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
     std::vector<JobResult> results(batch.size());
     runner(inputs, results);
     integrate_batch(ex, writer, batch, results, run_id, options, report);
+    maybe_build_basis();
 
     queue = dead_ends(ex);
     report.curve.push_back(curve_point(queue));
@@ -821,6 +917,13 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
   const std::vector<db::ClothLink> links = link_dead_ends(ex, run_id);
   writer.replace_cloth_links(links);
   db::set_meta_text(writer, db::meta::kDeadEndsLinked, "1");
+  // A basis this run built that no clip chose (version 1 was smaller every time) costs bytes and
+  // the runtime's memory for nothing.
+  for (const auto& [basis_id, count] : ex.clips_naming)
+    if (count == 0) {
+      db::remove_basis(writer, basis_id);
+      ++report.bases_removed;
+    }
   report.links = static_cast<int>(links.size());
   for (const db::ClothLink& l : links) {
     report.worst_link_error = std::max(report.worst_link_error, l.blend_error);
@@ -837,6 +940,14 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
       1e3 * last.worst_error, 1e3 * last.weighted_worst_error, 100 * last.linked_fraction,
       report.links, 1e3 * report.mean_link_error, 1e3 * report.worst_link_error);
   writer.finish_run(run_id, report.cpu_seconds, notes);
+  if (report.bases_removed > 0) {
+    // The removed bases' pages (a few MB each) would otherwise stay in the file as free pages.
+    reader.close();
+    std::string why;
+    if (!db::compact_file(writer, &why))
+      std::fprintf(stderr, "explore: %s: not compacted after removing unused bases: %s\n",
+                   writer.path().c_str(), why.c_str());
+  }
   report.states = static_cast<int>(states.size());
   report.clips = static_cast<int>(ex.done.size());
   report.dead_ends = static_cast<int>(queue.size());

@@ -21,10 +21,12 @@
 #pragma once
 
 #include <functional>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "character_scene/character_scene.hpp"
+#include "compress/body_frame.hpp"
 #include "database/cloth_graph.hpp"
 #include "database/run_settings.hpp"
 #include "database/schema.hpp"
@@ -73,6 +75,12 @@ struct JobInput {
   SolverKind solver = SolverKind::Xpbd;
   SolverSettings settings;  // settings.threads: OpenMP threads inside this one simulation
   db::CodecSettings codec;  // the database's: the worker encodes exactly what the writer would
+  // Codec version 2 (ExploreOptions::subspace_modes): the newest basis stored when the batch was
+  // chosen. The clip is encoded with both versions and the smaller blob kept (version 2 always,
+  // with subspace_always). Null: version 1. In-process runners only (job_wire refuses it).
+  std::shared_ptr<const codec::Basis> basis;
+  std::shared_ptr<const BodyAnchors> body;  // with a basis: cloth relative to the body frame
+  bool subspace_always = false;
 };
 
 // What a job sends back: the clip already encoded (so the owner of the database only inserts it)
@@ -121,6 +129,20 @@ struct ExploreOptions {
   // explores from the states its edit made and leaves the rest of the database as it is.
   int64_t min_state_id = 0;
   long resim_clip = 0;  // recorded in the run: a `clip resim` of this clip carried forward
+  // Codec version 2 (issue 17): the explorer builds a garment subspace of this many modes from
+  // the clips stored so far, once the file holds subspace_first_frames clip frames, and a new one
+  // each time the frames have grown by subspace_growth since the file's newest basis (with B
+  // bases stored, the next is due at first_frames x growth^B frames, so a resumed run decides as
+  // an uninterrupted one did). Later clips are encoded with version 1 and with version 2 on the
+  // newest basis, and the smaller blob is kept; each version 2 blob names its basis. A basis that
+  // no blob uses when the run ends is removed. 0: version 1 only. States stay version 1.
+  uint32_t subspace_modes = 0;
+  long subspace_first_frames = 300;
+  double subspace_growth = 2.0;
+  uint32_t subspace_sample_frames = 3000;  // frames sampled evenly from the clips for the PCA
+  bool subspace_always = false;            // keep version 2 even where it is larger (measuring)
+  // Cloth relative to the body (compress/body_frame.hpp) for the bases and the version 2 blobs.
+  bool subspace_body_frame = false;
 };
 
 // The run's typed record (database/run_settings.hpp): the scene's solver and settings, the
@@ -160,7 +182,11 @@ struct ExploreReport {
   double worst_link_error = 0, mean_link_error = 0;
   bool converged = false;  // no dead end left above epsilon
   bool resumed = false;
-  long jobs_this_run = 0;         // simulations integrated (stable or not)
+  long jobs_this_run = 0;  // simulations integrated (stable or not)
+  // Codec version 2 (ExploreOptions::subspace_modes): bases built in this run and kept (used by
+  // some blob) or removed at its end, and this run's clips stored as version 2.
+  int bases_built = 0, bases_removed = 0;
+  int clips_v2 = 0;
   double integrate_seconds = 0;   // wall time spent integrating them into the database
   std::vector<CurvePoint> curve;  // one point per batch (this run)
 };

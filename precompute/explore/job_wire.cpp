@@ -16,7 +16,9 @@ static_assert(std::endian::native == std::endian::little, "the wire format is li
 // a new solver option needs nothing here.
 #if defined(__x86_64__) && defined(__GLIBCXX__)
 // (The settings inside JobInput travel as JSON: their own size does not matter here.)
-static_assert(sizeof(JobInput) - sizeof(SolverSettings) - sizeof(db::CodecSettings) == 96,
+// (The codec v2 basis, body anchors and flag, 40 bytes, do not travel: encode_job refuses a job
+// with a basis.)
+static_assert(sizeof(JobInput) - sizeof(SolverSettings) - sizeof(db::CodecSettings) == 96 + 40,
               "JobInput changed: update encode_job/decode_job");
 static_assert(sizeof(ClipQuality) == 40, "ClipQuality changed: update encode_result/decode_result");
 static_assert(sizeof(JobResult) == 232, "JobResult changed: update encode_result/decode_result");
@@ -170,6 +172,11 @@ WorkerHello decode_hello(const uint8_t* data, size_t size) {
 }
 
 std::vector<uint8_t> encode_job(uint64_t seq, const JobInput& job) {
+  // A basis is a few MB; MPI workers would need it sent once per basis, not once per job.
+  if (job.basis)
+    throw std::invalid_argument(
+        "job_wire: codec v2 during precompute (--codec v2) runs in one process only; precompute "
+        "with MPI writes codec v1 (convert afterwards with `clothdb db recode --codec v2`)");
   Out o("CDBJ");
   o.u64(seq);
   o.i32(job.edge);
