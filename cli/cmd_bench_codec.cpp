@@ -16,6 +16,7 @@
 
 #include "cli_util.hpp"
 #include "commands.hpp"
+#include "compress/body_frame.hpp"
 #include "compress/predictability.hpp"
 #include "compress/subspace.hpp"
 #include "database/codec.hpp"
@@ -43,6 +44,7 @@ struct Frames {
   uint32_t vertices = 0, frames = 0;
   std::vector<float> x;
   std::vector<uint32_t> clip_starts;  // with --db: the frame where each clip begins
+  std::vector<float> rest;            // with --db: the garment's rest shape (else frame 0)
 };
 
 // Smooth synthetic waves (development aid; the benchmark's figures come from simulations).
@@ -224,13 +226,17 @@ Compared compare_v1(const Frames& f, double bound_mm, uint32_t key_interval, int
   return finish(f, "v1", bound_mm, blob.size(), out, t);
 }
 
+// transforms: per-frame body frames (v2 with a body frame), or empty.
 Compared compare_v2(const Frames& f, const codec::Basis& basis, double bound_mm,
-                    uint32_t key_interval, int level, int repeat) {
+                    uint32_t key_interval, int level, int repeat,
+                    const std::vector<float>& transforms) {
   codec::EncodeSettings s;
   s.bound = bound_mm * 1e-3;
   s.key_interval = key_interval;
   s.zstd_level = level;
-  const auto blob = codec::encode_v2(f.x.data(), f.frames, f.vertices, basis, s);
+  codec::SubspaceSettings sub;
+  if (!transforms.empty()) sub.body_frames = transforms.data();
+  const auto blob = codec::encode_v2(f.x.data(), f.frames, f.vertices, basis, s, sub);
   codec::DecodeScratch scratch;
   std::vector<float> out(f.x.size());
   Error err;
@@ -239,8 +245,10 @@ Compared compare_v2(const Frames& f, const codec::Basis& basis, double bound_mm,
                              &err, &basis) != Status::Ok)
       throw std::runtime_error(err.message);
   });
-  return finish(f, "v2, " + std::to_string(basis.mode_count) + " modes", bound_mm, blob.size(), out,
-                t);
+  return finish(f,
+                "v2, " + std::to_string(basis.mode_count) + " modes" +
+                    (transforms.empty() ? "" : ", body frame"),
+                bound_mm, blob.size(), out, t);
 }
 
 #ifdef CLOTHDB_HAVE_MESHOPTIMIZER
@@ -355,6 +363,9 @@ Frames frames_from_db(const std::string& path, uint32_t limit) {
     ++used;
   }
   if (f.frames == 0) throw std::runtime_error(path + ": no cloth frames");
+  db::Garment garment;
+  if (reader.garment(&garment, &err) == Status::Ok && garment.vertex_count() == f.vertices)
+    f.rest = garment.rest_positions;
   f.source = path + ": the first " + std::to_string(f.frames) + " frames of " +
              std::to_string(used) + " clips, " + std::to_string(f.vertices) +
              " vertices (as stored, decoded)";
@@ -368,23 +379,38 @@ void compare_codecs(const Frames& f, const std::vector<std::string>& codecs,
   auto wants = [&](const char* name) {
     return std::find(codecs.begin(), codecs.end(), name) != codecs.end();
   };
-  std::vector<codec::Basis> bases;
-  if (wants("v2")) {
+  // v2 bases, each with the body frames it is used with (empty: character space).
+  std::vector<std::pair<codec::Basis, std::vector<float>>> bases;
+  for (const bool body : {false, true}) {
+    if (!wants(body ? "v2-body" : "v2")) continue;
     const size_t n = size_t(f.vertices) * 3;
     const size_t stride = std::max<size_t>(1, f.frames / std::max<uint32_t>(1, basis_frames));
+    std::vector<float> transforms;
     std::vector<float> sample;
-    for (size_t k = 0; k < f.frames; k += stride)
+    if (body) {
+      // The garment's highest 5 % at rest (frame 0 without a database) carry the body frame.
+      const BodyAnchors anchors = body_anchors(
+          f.rest.empty() ? std::vector<float>(f.x.begin(), f.x.begin() + ptrdiff_t(n)) : f.rest);
+      transforms = fit_body_frames(f.x.data(), f.frames, f.vertices, anchors);
+    }
+    for (size_t k = 0; k < f.frames; k += stride) {
       sample.insert(sample.end(), f.x.begin() + ptrdiff_t(k * n),
                     f.x.begin() + ptrdiff_t((k + 1) * n));
+      if (body)
+        to_body_frame(sample.data() + sample.size() - n, 1, f.vertices,
+                      std::vector<float>(transforms.begin() + ptrdiff_t(12 * k),
+                                         transforms.begin() + ptrdiff_t(12 * k + 12)));
+    }
     for (const auto& m : modes) {
       const double t = thread_cpu_seconds();
       const Subspace s = build_subspace(sample, uint32_t(n), uint32_t(std::stoul(m)));
-      bases.push_back(codec::make_basis(1, f.vertices, s.mean.data(), s.basis.data(), s.modes));
+      bases.emplace_back(codec::make_basis(1, f.vertices, s.mean.data(), s.basis.data(), s.modes),
+                         transforms);
       std::printf(
-          "v2 basis: %u modes from %zu frames in %.1f CPU s, %.2f MB stored as int16; "
+          "v2 basis%s: %u modes from %zu frames in %.1f CPU s, %.2f MB stored as int16; "
           "sample RMS %.2f mm, RMS left by the modes %.2f mm\n",
-          s.modes, sample.size() / n, thread_cpu_seconds() - t,
-          double(codec::serialize_basis(bases.back()).size()) / 1e6, s.sample_rms * 1e3,
+          body ? " (body frame)" : "", s.modes, sample.size() / n, thread_cpu_seconds() - t,
+          double(codec::serialize_basis(bases.back().first).size()) / 1e6, s.sample_rms * 1e3,
           s.residual_rms * 1e3);
     }
   }
@@ -399,8 +425,8 @@ void compare_codecs(const Frames& f, const std::vector<std::string>& codecs,
   for (const auto& b : bounds) {
     const double bound_mm = std::stod(b);
     if (wants("v1")) print(compare_v1(f, bound_mm, key_interval, level, repeat));
-    for (const auto& basis : bases)
-      print(compare_v2(f, basis, bound_mm, key_interval, level, repeat));
+    for (const auto& [basis, transforms] : bases)
+      print(compare_v2(f, basis, bound_mm, key_interval, level, repeat, transforms));
 #ifdef CLOTHDB_HAVE_MESHOPTIMIZER
     if (wants("meshopt"))
       for (const auto& c : compare_meshopt(f, bound_mm, level, repeat)) print(c);
@@ -493,9 +519,11 @@ void register_bench_codec(CLI::App& bench) {
   cmd->add_option("--db-frames", args->db_frames, "With --db: frames to take")
       ->capture_default_str()
       ->check(CLI::Range(2u, 10000000u));
-  cmd->add_option("--codecs", args->codecs,
-                  "Codecs for the comparison table: v1, v2 (subspace + residual), meshopt "
-                  "(meshoptimizer's vertex codec on the same quantised frames; if built with it)")
+  cmd->add_option(
+         "--codecs", args->codecs,
+         "Codecs for the comparison table: v1, v2 (subspace + residual), v2-body (v2 relative to "
+         "a rigid frame of the garment's highest 5 %), meshopt "
+         "(meshoptimizer's vertex codec on the same quantised frames; if built with it)")
       ->capture_default_str();
   cmd->add_option("--modes", args->modes,
                   "Comma-separated basis sizes for v2 (PCA of the frames themselves, as `db "
