@@ -22,6 +22,7 @@
 #include "cli_util.hpp"
 #include "clothrt.h"
 #include "commands.hpp"
+#include "compress/recode.hpp"
 #include "database/codec.hpp"
 #include "database/schema.hpp"
 #include "exchange/point_cache.hpp"
@@ -467,6 +468,8 @@ struct BenchArgs {
   std::string file;
   int frames = 3000, players = 100;
   size_t cache_mb = 32;
+  std::string codec = "v1";  // synthetic: the codec of the databases built
+  uint32_t modes = 64;
 };
 
 void run_bench(const BenchArgs& a) {
@@ -489,8 +492,28 @@ void run_bench(const BenchArgs& a) {
     std::printf(
         "synthetic databases (runtime/tools/synthetic_db.hpp; smooth made-up motion, not "
         "simulation): %u vertices x %zu clips of 60 frames, and %u vertices x %zu clips "
-        "(built in %.1f s)\n\n",
+        "(built in %.1f s)\n",
         b.vertices, b.clip.size(), s.vertices, s.clip.size(), us_since(t0) / 1e6);
+    if (a.codec == "v2") {
+      // Every blob recoded (--always: even where v1 is smaller), so every frame played is
+      // decoded through the subspace, with the basis in the runtime's memory.
+      for (const std::string& path : {big, small}) {
+        RecodeOptions o;
+        o.modes = a.modes;
+        o.always = true;
+        const RecodeReport r = recode_database(path, o);
+        std::printf(
+            "  %s recoded to codec v2: basis of %u modes, blobs %.2f -> %.2f MB, largest new "
+            "error %.3f mm\n",
+            std::filesystem::path(path).filename().c_str(), r.basis_modes,
+            r.blob_bytes_before / 1e6, r.blob_bytes_after / 1e6, r.max_error * 1e3);
+      }
+    }
+    std::printf("\n");
+  } else if (a.codec != "v1") {
+    throw std::runtime_error(
+        "--codec v2: only with FILE synthetic (recode a file with `clothdb db "
+        "recode FILE --codec v2`)");
   }
   uint32_t vertices = 0;
   {
@@ -584,6 +607,14 @@ void register_bench_runtime(CLI::App& bench) {
   cmd->add_option("--players", a->players, "Players in the shared-database scenario")
       ->capture_default_str();
   cmd->add_option("--cache-mb", a->cache_mb, "Cache cap of the shared-database scenario, MB")
+      ->capture_default_str();
+  cmd->add_option("--codec", a->codec,
+                  "With FILE synthetic: v1, or v2 (every blob recoded to the subspace codec, "
+                  "issue 17)")
+      ->check(CLI::IsMember({"v1", "v2"}))
+      ->capture_default_str();
+  cmd->add_option("--modes", a->modes, "--codec v2: basis modes")
+      ->check(CLI::Range(1u, codec::kMaxBasisModes))
       ->capture_default_str();
   cmd->callback([a] { run_bench(*a); });
 }
