@@ -380,6 +380,16 @@ std::vector<float> turning_shape(uint32_t vertices, const std::vector<double>& a
   return frames;
 }
 
+// The shape swinging about y by up to 0.6 rad and sliding by up to 5 cm over `frames` frames.
+std::vector<float> swinging_shape(uint32_t vertices, uint32_t frames) {
+  std::vector<double> angle, shift;
+  for (uint32_t f = 0; f < frames; ++f) {
+    angle.push_back(0.6 * std::sin(0.3 * f));
+    shift.push_back(0.05 * std::cos(0.2 * f));
+  }
+  return turning_shape(vertices, angle, shift);
+}
+
 }  // namespace
 
 namespace clothdb::codec {
@@ -390,12 +400,7 @@ namespace clothdb::codec {
 // bound holds either way, on every coordinate.
 TEST(CodecV2, BodyFrameKeepsTheBoundAndCodesWhatTheBodyCarriesInItsTransforms) {
   const uint32_t vertices = 400, frames = 48;
-  std::vector<double> angle, shift;
-  for (uint32_t f = 0; f < frames; ++f) {
-    angle.push_back(0.6 * std::sin(0.3 * f));
-    shift.push_back(0.05 * std::cos(0.2 * f));
-  }
-  std::vector<float> x = turning_shape(vertices, angle, shift);
+  std::vector<float> x = swinging_shape(vertices, frames);
   // A little noise that no subspace predicts, so the residual layer has work on both sides.
   std::mt19937 rng(3);
   std::uniform_real_distribution<float> noise(-0.0003f, 0.0003f);
@@ -458,12 +463,7 @@ TEST(CodecV2, BadBodyTransformsAreRefusedAtEncode) {
 
 TEST(Predictability, TheBodyFrameRemovesARigidMotionThatCharacterSpaceMustCode) {
   const uint32_t vertices = 200, frames = 40;
-  std::vector<double> angle, shift;
-  for (uint32_t f = 0; f < frames; ++f) {
-    angle.push_back(0.6 * std::sin(0.3 * f));
-    shift.push_back(0.05 * std::cos(0.2 * f));
-  }
-  const auto x = turning_shape(vertices, angle, shift);
+  const auto x = swinging_shape(vertices, frames);
   const auto r = clothdb::analyse_predictability(x, vertices, frames, {}, {0}, {1e-3});
   ASSERT_EQ(r.rows.size(), 2u);
   EXPECT_EQ(r.rows[0].space, "character");
