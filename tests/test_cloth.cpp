@@ -235,7 +235,8 @@ TEST(Scenes, EveryHardCaseBuilds) {
   }
   EXPECT_THROW(make_hard_case("no-such-scene"), std::invalid_argument);
   EXPECT_GT(max_edge_strain(make_hard_case("stretched-start").model,
-                            make_hard_case("stretched-start").initial.x), 0.49);
+                            make_hard_case("stretched-start").initial.x),
+            0.49);
   EXPECT_EQ(make_large_sheet(10000).model.vertex_count(), 10000);
   EXPECT_EQ(make_seed004_grid().model.vertex_count(), 529);
 }

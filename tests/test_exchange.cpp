@@ -10,7 +10,9 @@
 using namespace clothdb;
 
 namespace {
-std::string temp(const std::string& name) { return testing::TempDir() + "/clothdb_" + name; }
+std::string temp(const std::string& name) {
+  return testing::TempDir() + "/clothdb_" + name;
+}
 }  // namespace
 
 TEST(PointCache, RoundTripIsExact) {
@@ -59,7 +61,8 @@ TEST(Obj, RoundTripAndPolygons) {
   EXPECT_EQ(m.triangles.size(), 2u);
   EXPECT_EQ(m.triangles[1], (std::array<int, 3>{0, 2, 3}));
   EXPECT_EQ(m.groups[0], "sheet");
-  std::ofstream(temp("quad.obj")) << "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1/1/1 2/2/2 3/3/3 -1/4/4\n";
+  std::ofstream(temp("quad.obj"))
+      << "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1/1/1 2/2/2 3/3/3 -1/4/4\n";
   EXPECT_EQ(read_obj(temp("quad.obj")).triangles.size(), 2u);
   std::ofstream(temp("bad.obj")) << "v 0 0 0\nv 1 0 0\nf 1 2 9\n";
   try {

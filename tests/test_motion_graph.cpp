@@ -505,8 +505,10 @@ TEST(Graph, DeclaredWeightsMakeTheGameTakeEdgesMoreOrLessOften) {
   MotionGraph g = build_motion_graph(clips, rig.skeleton, s, declared);
   set_edge_weights(g, {1.0, 0.5}, declared);
   for (const GraphEdge& e : g.edges) {
-    if (e.kind == EdgeKind::transition && e.first_frame == 100) EXPECT_EQ(e.weight, 5.0);  // its own
-    else EXPECT_EQ(e.weight, e.target_clip == 1 ? 0.5 : 1.0);  // the clip it plays into
+    if (e.kind == EdgeKind::transition && e.first_frame == 100)
+      EXPECT_EQ(e.weight, 5.0);  // its own
+    else
+      EXPECT_EQ(e.weight, e.target_clip == 1 ? 0.5 : 1.0);  // the clip it plays into
   }
   // The chain's stationary flow: into every node as much as out of it (pi = pi P), and the most
   // taken edge has reach 1.
@@ -574,8 +576,9 @@ TEST(Graph, ManifestTransitionsField) {
     load_manifest(file);
     FAIL() << "a zero weight was accepted";
   } catch (const MotionError& e) {
-    EXPECT_NE(std::string(e.what()).find(file.string() + ": clips[0].weight: expected a positive number"),
-              std::string::npos)
+    EXPECT_NE(
+        std::string(e.what()).find(file.string() + ": clips[0].weight: expected a positive number"),
+        std::string::npos)
         << e.what();
   }
   std::filesystem::remove_all(dir);

@@ -9,7 +9,9 @@ namespace clothdb {
 
 namespace {
 
-std::string triangle_label(size_t t) { return "triangle " + std::to_string(t); }
+std::string triangle_label(size_t t) {
+  return "triangle " + std::to_string(t);
+}
 
 }  // namespace
 
@@ -48,16 +50,16 @@ void build_topology(ClothMesh& mesh) {
   for (const auto& [key, list] : uses) {
     if (list.size() > 2) {
       throw MeshError("non-manifold edge (" + std::to_string(key.first) + ", " +
-                      std::to_string(key.second) + ") is shared by " +
-                      std::to_string(list.size()) + " triangles");
+                      std::to_string(key.second) + ") is shared by " + std::to_string(list.size()) +
+                      " triangles");
     }
     mesh.edges.push_back({key.first, key.second});
     if (list.size() == 2) {
       if (list[0].from == list[1].from) {
         throw MeshError("triangles " + std::to_string(list[0].triangle) + " and " +
                         std::to_string(list[1].triangle) +
-                        " are oriented inconsistently across edge (" +
-                        std::to_string(key.first) + ", " + std::to_string(key.second) + ")");
+                        " are oriented inconsistently across edge (" + std::to_string(key.first) +
+                        ", " + std::to_string(key.second) + ")");
       }
       mesh.hinges.push_back({list[0].from, list[0].to, list[0].opposite, list[1].opposite});
     }
@@ -70,7 +72,9 @@ ClothMesh weld_vertices(const Eigen::Matrix3Xd& positions,
   const int n = static_cast<int>(positions.cols());
   // Hash grid with cell = tolerance: a vertex's duplicates lie in its own or a neighbouring cell.
   const double cell = std::max(tolerance, 1e-12);
-  auto key = [&](long i, long j, long k) { return (i * 73856093) ^ (j * 19349663) ^ (k * 83492791); };
+  auto key = [&](long i, long j, long k) {
+    return (i * 73856093) ^ (j * 19349663) ^ (k * 83492791);
+  };
   std::unordered_multimap<long, int> grid;
   std::vector<int> remap(n, -1);
   std::vector<int> kept;
@@ -101,7 +105,8 @@ ClothMesh weld_vertices(const Eigen::Matrix3Xd& positions,
   }
   ClothMesh mesh;
   mesh.rest.resize(3, static_cast<Eigen::Index>(kept.size()));
-  for (size_t w = 0; w < kept.size(); ++w) mesh.rest.col(static_cast<Eigen::Index>(w)) = positions.col(kept[w]);
+  for (size_t w = 0; w < kept.size(); ++w)
+    mesh.rest.col(static_cast<Eigen::Index>(w)) = positions.col(kept[w]);
   for (const auto& t : triangles) {
     for (int k = 0; k < 3; ++k) {
       if (t[k] < 0 || t[k] >= n) {
@@ -127,7 +132,8 @@ ClothMesh make_equilateral_sheet(int columns, int rows, double edge_length) {
   const double h = edge_length * std::sqrt(3.0) / 2.0;
   for (int r = 0; r < rows; ++r)
     for (int c = 0; c < columns; ++c)
-      mesh.rest.col(r * columns + c) = Vec3(c * edge_length + (r % 2) * 0.5 * edge_length, r * h, 0);
+      mesh.rest.col(r * columns + c) =
+          Vec3(c * edge_length + (r % 2) * 0.5 * edge_length, r * h, 0);
   for (int r = 0; r + 1 < rows; ++r)
     for (int c = 0; c + 1 < columns; ++c) {
       const int a = r * columns + c, b = a + 1, d = a + columns, e = d + 1;

@@ -21,10 +21,10 @@ struct Hinge {
 };
 
 struct ClothMesh {
-  Eigen::Matrix3Xd rest;                       // 3 x n rest positions, metres
-  std::vector<std::array<int, 3>> triangles;   // counter-clockwise seen from +normal
-  std::vector<std::array<int, 2>> edges;       // unique undirected edges, edges[k][0] < edges[k][1]
-  std::vector<Hinge> hinges;                   // one per interior edge
+  Eigen::Matrix3Xd rest;                      // 3 x n rest positions, metres
+  std::vector<std::array<int, 3>> triangles;  // counter-clockwise seen from +normal
+  std::vector<std::array<int, 2>> edges;      // unique undirected edges, edges[k][0] < edges[k][1]
+  std::vector<Hinge> hinges;                  // one per interior edge
   // Grid bookkeeping for generated sheets (used for Provot's flexion springs and by scenes to find
   // corners/edges); -1 when the mesh was not generated as a grid.
   int grid_columns = -1;

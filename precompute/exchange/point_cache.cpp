@@ -51,19 +51,23 @@ PointCache read_pc2(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw ExchangeError(path + ": cannot open");
   std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (bytes.size() < 32) throw ExchangeError(path + ": too short for a PC2 header (" + std::to_string(bytes.size()) + " bytes)");
+  if (bytes.size() < 32)
+    throw ExchangeError(path + ": too short for a PC2 header (" + std::to_string(bytes.size()) +
+                        " bytes)");
   if (std::memcmp(bytes.data(), kSignature, 12) != 0)
     throw ExchangeError(path + ": not a PC2 point cache (signature is not POINTCACHE2)");
   const auto version = get<std::int32_t>(bytes, 12);
-  if (version != 1) throw ExchangeError(path + ": PC2 version " + std::to_string(version) + " is not supported (expected 1)");
+  if (version != 1)
+    throw ExchangeError(path + ": PC2 version " + std::to_string(version) +
+                        " is not supported (expected 1)");
   PointCache cache;
   cache.vertex_count = get<std::int32_t>(bytes, 16);
   cache.start_frame = get<float>(bytes, 20);
   cache.sample_rate = get<float>(bytes, 24);
   cache.frame_count = get<std::int32_t>(bytes, 28);
   if (cache.vertex_count <= 0 || cache.frame_count < 0)
-    throw ExchangeError(path + ": header has " + std::to_string(cache.vertex_count) + " points and " +
-                        std::to_string(cache.frame_count) + " samples");
+    throw ExchangeError(path + ": header has " + std::to_string(cache.vertex_count) +
+                        " points and " + std::to_string(cache.frame_count) + " samples");
   const size_t floats = static_cast<size_t>(cache.vertex_count) * cache.frame_count * 3;
   if (bytes.size() != 32 + floats * 4)
     throw ExchangeError(path + ": " + std::to_string(bytes.size()) + " bytes, but the header's " +
@@ -91,7 +95,8 @@ void write_obj(const std::string& path, const std::string& object_name, const fl
                   positions[3 * i + 2]);
     o << buf;
   }
-  for (const auto& t : triangles) o << "f " << t[0] + 1 << ' ' << t[1] + 1 << ' ' << t[2] + 1 << '\n';
+  for (const auto& t : triangles)
+    o << "f " << t[0] + 1 << ' ' << t[1] + 1 << ' ' << t[2] + 1 << '\n';
   write_file_atomic(path, o.str());
 }
 
@@ -129,11 +134,13 @@ ObjMesh read_obj(const std::string& path) {
           fail("face index '" + item + "' is not a number");
         }
         idx = idx < 0 ? n + idx : idx - 1;
-        if (idx < 0 || idx >= n) fail("face index " + item + " outside the " + std::to_string(n) + " vertices so far");
+        if (idx < 0 || idx >= n)
+          fail("face index " + item + " outside the " + std::to_string(n) + " vertices so far");
         poly.push_back(idx);
       }
       if (poly.size() < 3) fail("face has fewer than three vertices");
-      for (size_t k = 1; k + 1 < poly.size(); ++k) mesh.triangles.push_back({poly[0], poly[k], poly[k + 1]});
+      for (size_t k = 1; k + 1 < poly.size(); ++k)
+        mesh.triangles.push_back({poly[0], poly[k], poly[k + 1]});
     }
   }
   if (mesh.positions.empty()) throw ExchangeError(path + ": no vertices");

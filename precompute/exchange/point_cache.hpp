@@ -20,7 +20,7 @@ struct PointCache {
   int vertex_count = 0;
   int frame_count = 0;
   float start_frame = 0.0f;
-  float sample_rate = 1.0f;  // frames between samples, as Blender writes it (1 = every frame)
+  float sample_rate = 1.0f;      // frames between samples, as Blender writes it (1 = every frame)
   std::vector<float> positions;  // frame_count * vertex_count * 3
 };
 
@@ -35,7 +35,7 @@ void write_obj(const std::string& path, const std::string& object_name, const fl
                int vertex_count, const std::vector<std::array<int, 3>>& triangles);
 
 struct ObjMesh {
-  std::vector<float> positions;  // 3 per vertex
+  std::vector<float> positions;               // 3 per vertex
   std::vector<std::array<int, 3>> triangles;  // 0-based; polygons are fanned into triangles
   std::vector<std::string> groups;            // per vertex: the last `g`/`o` name it was used in
 };

@@ -39,7 +39,8 @@ double bone_distance(const Skeleton& skeleton, const std::vector<JointPose>& pos
     b = point_in_joint(pose[j], *skeleton.end_site[j]);
   }
   const Vec3 ab = b - a;
-  const double t = ab.squaredNorm() > 1e-18 ? std::clamp((p - a).dot(ab) / ab.squaredNorm(), 0.0, 1.0) : 0.0;
+  const double t =
+      ab.squaredNorm() > 1e-18 ? std::clamp((p - a).dot(ab) / ab.squaredNorm(), 0.0, 1.0) : 0.0;
   return (a + t * ab - p).norm();
 }
 
@@ -260,10 +261,12 @@ Garment make_skirt(const Skeleton& skeleton, const SkirtSpec& spec) {
   if (spec.vertices < 16 || spec.length <= 0 || spec.flare <= 0)
     throw GarmentError("skirt: vertices must be >= 16, length and flare positive");
   const double hem = waist * spec.flare;
-  const double drop = std::sqrt(std::max(spec.length * spec.length - (hem - waist) * (hem - waist), 1e-6));
+  const double drop =
+      std::sqrt(std::max(spec.length * spec.length - (hem - waist) * (hem - waist), 1e-6));
   // Square-ish cells: columns / rows = mean circumference / length.
   const double circumference = kPi * (waist + hem);
-  const int columns = std::max(8, static_cast<int>(std::lround(std::sqrt(spec.vertices * circumference / spec.length))));
+  const int columns = std::max(
+      8, static_cast<int>(std::lround(std::sqrt(spec.vertices * circumference / spec.length))));
   const int rows = std::max(2, spec.vertices / columns);
   Garment g;
   g.name = "skirt";
@@ -292,7 +295,8 @@ Garment make_cape(const Skeleton& skeleton, const CapeSpec& spec) {
   for (int j = 0; j < skeleton.joint_count(); ++j)
     if (classify_bone(skeleton, j) == BodyRegion::UpperArm) arms.push_back(j);
   if (arms.size() < 2)
-    throw GarmentError(skeleton.source + ": cape: cannot find two upper-arm bones for the shoulders");
+    throw GarmentError(skeleton.source +
+                       ": cape: cannot find two upper-arm bones for the shoulders");
   // The two upper arms farthest apart.
   int left = arms[0], right = arms[1];
   double span = 0;
@@ -309,8 +313,10 @@ Garment make_cape(const Skeleton& skeleton, const CapeSpec& spec) {
   for (int j = 0; j < skeleton.joint_count(); ++j)
     if (classify_bone(skeleton, j) == BodyRegion::Foot) {
       const auto kids = skeleton.children(j);
-      const Vec3 tip = kids.empty() ? (skeleton.end_site[j] ? point_in_joint(bind[j], *skeleton.end_site[j]) : bind[j].position)
-                                    : bind[kids.front()].position;
+      const Vec3 tip = kids.empty()
+                           ? (skeleton.end_site[j] ? point_in_joint(bind[j], *skeleton.end_site[j])
+                                                   : bind[j].position)
+                           : bind[kids.front()].position;
       Vec3 toe = tip - bind[j].position;
       toe.y() = 0;
       if (toe.norm() > 1e-6 && toe.dot(forward) < 0) forward = -forward;
@@ -332,10 +338,12 @@ Garment make_cape(const Skeleton& skeleton, const CapeSpec& spec) {
     if (anchor < 0) anchor = skeleton.parents[left] >= 0 ? skeleton.parents[left] : left;
   }
   const double width = spec.width > 0 ? spec.width : span * 0.8 + 0.1;
-  const double back = spec.back_offset > 0 ? spec.back_offset
-                                           : default_radius(BodyRegion::Torso, size) + 0.03;
-  if (spec.vertices < 16 || spec.length <= 0) throw GarmentError("cape: vertices must be >= 16, length positive");
-  const int columns = std::max(4, static_cast<int>(std::lround(std::sqrt(spec.vertices * width / spec.length))));
+  const double back =
+      spec.back_offset > 0 ? spec.back_offset : default_radius(BodyRegion::Torso, size) + 0.03;
+  if (spec.vertices < 16 || spec.length <= 0)
+    throw GarmentError("cape: vertices must be >= 16, length positive");
+  const int columns =
+      std::max(4, static_cast<int>(std::lround(std::sqrt(spec.vertices * width / spec.length))));
   const int rows = std::max(2, spec.vertices / columns);
   const Vec3 side = across.normalized();
   const Vec3 top_centre = mid - back * forward;
@@ -371,9 +379,11 @@ Garment import_garment(const Skeleton& skeleton, const MeshGarmentSpec& spec) {
   std::error_code ec;
   if (std::filesystem::is_directory(spec.file, ec))
     throw GarmentError(spec.file + ": is a directory, not a garment mesh file");
-  if (!std::filesystem::exists(spec.file)) throw GarmentError(spec.file + ": garment file not found");
+  if (!std::filesystem::exists(spec.file))
+    throw GarmentError(spec.file + ": garment file not found");
   Assimp::Importer importer;
-  const aiScene* scene = importer.ReadFile(spec.file, aiProcess_Triangulate | aiProcess_PreTransformVertices);
+  const aiScene* scene =
+      importer.ReadFile(spec.file, aiProcess_Triangulate | aiProcess_PreTransformVertices);
   if (!scene || !scene->mRootNode)
     throw GarmentError(spec.file + ": cannot read the garment: " + importer.GetErrorString());
   Eigen::Matrix3Xd points(3, 0);
@@ -393,11 +403,13 @@ Garment import_garment(const Skeleton& skeleton, const MeshGarmentSpec& spec) {
     for (unsigned b = 0; b < mesh->mNumBones; ++b)
       for (unsigned w = 0; w < mesh->mBones[b]->mNumWeights; ++w)
         if (mesh->mBones[b]->mWeights[w].mWeight > 0.5f)
-          bone_groups[base + mesh->mBones[b]->mWeights[w].mVertexId].push_back(mesh->mBones[b]->mName.C_Str());
+          bone_groups[base + mesh->mBones[b]->mWeights[w].mVertexId].push_back(
+              mesh->mBones[b]->mName.C_Str());
     for (unsigned f = 0; f < mesh->mNumFaces; ++f) {
       const aiFace& face = mesh->mFaces[f];
       if (face.mNumIndices != 3) continue;  // points and lines
-      triangles.push_back({base + static_cast<int>(face.mIndices[0]), base + static_cast<int>(face.mIndices[1]),
+      triangles.push_back({base + static_cast<int>(face.mIndices[0]),
+                           base + static_cast<int>(face.mIndices[1]),
                            base + static_cast<int>(face.mIndices[2])});
     }
   }
@@ -415,7 +427,8 @@ Garment import_garment(const Skeleton& skeleton, const MeshGarmentSpec& spec) {
   check_welded(g.mesh, spec);
   const std::vector<JointPose> bind = rest_pose(skeleton);
   const int bone = spec.bone.empty() ? -1 : skeleton.require(spec.bone);
-  const int rule_bone = spec.pins.kind == PinRuleKind::BoneDistance ? skeleton.require(spec.pins.bone) : -1;
+  const int rule_bone =
+      spec.pins.kind == PinRuleKind::BoneDistance ? skeleton.require(spec.pins.bone) : -1;
   std::vector<char> pinned(g.mesh.vertex_count(), 0);
   for (size_t old = 0; old < old_to_new.size(); ++old) {
     const int v = old_to_new[old];
@@ -424,24 +437,34 @@ Garment import_garment(const Skeleton& skeleton, const MeshGarmentSpec& spec) {
     switch (spec.pins.kind) {
       case PinRuleKind::VertexGroup:
         hit = group[old] == spec.pins.group ||
-              std::find(bone_groups[old].begin(), bone_groups[old].end(), spec.pins.group) != bone_groups[old].end();
+              std::find(bone_groups[old].begin(), bone_groups[old].end(), spec.pins.group) !=
+                  bone_groups[old].end();
         break;
-      case PinRuleKind::HeightBand: hit = p.y() >= spec.pins.y_min && p.y() <= spec.pins.y_max; break;
-      case PinRuleKind::BoneDistance: hit = bone_distance(skeleton, bind, rule_bone, p) <= spec.pins.distance; break;
+      case PinRuleKind::HeightBand:
+        hit = p.y() >= spec.pins.y_min && p.y() <= spec.pins.y_max;
+        break;
+      case PinRuleKind::BoneDistance:
+        hit = bone_distance(skeleton, bind, rule_bone, p) <= spec.pins.distance;
+        break;
     }
     if (hit) pinned[v] = 1;
   }
   for (int v = 0; v < g.mesh.vertex_count(); ++v) {
     if (!pinned[v]) continue;
-    const int j = bone >= 0 ? bone : (rule_bone >= 0 ? rule_bone : nearest_bone(skeleton, bind, g.mesh.rest.col(v)));
+    const int j =
+        bone >= 0 ? bone
+                  : (rule_bone >= 0 ? rule_bone : nearest_bone(skeleton, bind, g.mesh.rest.col(v)));
     g.pins.push_back(v);
     g.bindings.push_back({v, {{j, 1.0}}});
   }
   if (g.pins.empty()) {
-    std::string rule = spec.pins.kind == PinRuleKind::VertexGroup ? "vertex group '" + spec.pins.group + "'"
+    std::string rule = spec.pins.kind == PinRuleKind::VertexGroup
+                           ? "vertex group '" + spec.pins.group + "'"
                        : spec.pins.kind == PinRuleKind::HeightBand
-                           ? "height band [" + std::to_string(spec.pins.y_min) + ", " + std::to_string(spec.pins.y_max) + "] m"
-                           : "distance " + std::to_string(spec.pins.distance) + " m of bone '" + spec.pins.bone + "'";
+                           ? "height band [" + std::to_string(spec.pins.y_min) + ", " +
+                                 std::to_string(spec.pins.y_max) + "] m"
+                           : "distance " + std::to_string(spec.pins.distance) + " m of bone '" +
+                                 spec.pins.bone + "'";
     throw GarmentError(spec.file + ": the pin rule (" + rule + ") matches no vertex");
   }
   // The garment is carried by the bone most of its pins follow.
@@ -467,10 +490,12 @@ Eigen::Matrix3Xd skin_pins(const Garment& garment, const std::vector<JointPose>&
 
 Eigen::Matrix3Xd carry_garment(const Garment& garment, const std::vector<JointPose>& bind,
                                const std::vector<JointPose>& pose) {
-  const Eigen::Isometry3d motion = to_iso(pose[garment.anchor_joint]) * to_iso(bind[garment.anchor_joint]).inverse();
+  const Eigen::Isometry3d motion =
+      to_iso(pose[garment.anchor_joint]) * to_iso(bind[garment.anchor_joint]).inverse();
   Eigen::Matrix3Xd x = (motion.linear() * garment.mesh.rest).colwise() + motion.translation();
   const Eigen::Matrix3Xd pins = skin_pins(garment, bind, pose);
-  for (size_t k = 0; k < garment.pins.size(); ++k) x.col(garment.pins[k]) = pins.col(static_cast<Eigen::Index>(k));
+  for (size_t k = 0; k < garment.pins.size(); ++k)
+    x.col(garment.pins[k]) = pins.col(static_cast<Eigen::Index>(k));
   return x;
 }
 

@@ -25,10 +25,10 @@ struct PinBinding {
 
 struct Garment {
   std::string name;
-  ClothMesh mesh;                 // rest positions in bind space, metres
-  std::vector<int> pins;          // pinned vertices (the model's kinematic vertices, this order)
+  ClothMesh mesh;                    // rest positions in bind space, metres
+  std::vector<int> pins;             // pinned vertices (the model's kinematic vertices, this order)
   std::vector<PinBinding> bindings;  // one per pin, same order
-  int anchor_joint = -1;          // the bone the whole garment is carried by for its first frame
+  int anchor_joint = -1;             // the bone the whole garment is carried by for its first frame
 };
 
 struct SkirtSpec {
@@ -41,10 +41,10 @@ struct SkirtSpec {
 };
 
 struct CapeSpec {
-  std::string bone;            // the bone the collar follows; empty: the torso joint nearest the shoulders
-  double width = 0.0;          // metres; 0: the shoulder span plus 10 cm
-  double length = 0.8;         // metres
-  double back_offset = 0.0;    // distance behind the shoulders' line, metres; 0: torso radius + 3 cm
+  std::string bone;     // the bone the collar follows; empty: the torso joint nearest the shoulders
+  double width = 0.0;   // metres; 0: the shoulder span plus 10 cm
+  double length = 0.8;  // metres
+  double back_offset = 0.0;  // distance behind the shoulders' line, metres; 0: torso radius + 3 cm
   int vertices = 1000;
 };
 

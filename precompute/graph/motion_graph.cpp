@@ -754,7 +754,8 @@ void set_edge_weights(MotionGraph& graph, const std::vector<double>& clip_weight
                       const std::vector<ManifestTransition>& declared) {
   if (!clip_weights.empty() && clip_weights.size() != graph.clips.size())
     throw GraphError("set_edge_weights: " + std::to_string(clip_weights.size()) +
-                     " clip weights for a graph of " + std::to_string(graph.clips.size()) + " clips");
+                     " clip weights for a graph of " + std::to_string(graph.clips.size()) +
+                     " clips");
   for (GraphEdge& e : graph.edges) {
     e.weight = clip_weights.empty() ? 1.0 : clip_weights[e.target_clip];
     if (e.kind != EdgeKind::transition || !e.manual) continue;
@@ -1141,7 +1142,8 @@ MotionGraph motion_graph_from_json(const nlohmann::json& j, const std::string& w
     e.manual = r.boolean(o, "manual", p);
     if (o.contains("weight")) {  // graphs written before weights existed have none: all 1
       e.weight = r.number(o, "weight", p);
-      if (!(e.weight > 0) || !std::isfinite(e.weight)) r.fail(p + "weight", "expected a positive number");
+      if (!(e.weight > 0) || !std::isfinite(e.weight))
+        r.fail(p + "weight", "expected a positive number");
     }
     // The edge must fit its nodes: it leaves its source node's frame and arrives at its target's.
     const GraphNode& from = g.nodes[e.from];

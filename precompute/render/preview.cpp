@@ -187,14 +187,15 @@ void draw_border(std::vector<std::uint8_t>& rgba, int width, int height, int thi
                  std::array<std::uint8_t, 3> color) {
   for (int y = 0; y < height; ++y)
     for (int x = 0; x < width; ++x) {
-      if (x >= thickness && x < width - thickness && y >= thickness && y < height - thickness) continue;
+      if (x >= thickness && x < width - thickness && y >= thickness && y < height - thickness)
+        continue;
       std::uint8_t* p = &rgba[(static_cast<size_t>(y) * width + x) * 4];
       p[0] = color[0], p[1] = color[1], p[2] = color[2], p[3] = 255;
     }
 }
 
-void draw_number(std::vector<std::uint8_t>& rgba, int width, int height, int x0, int y0, long number,
-                 int scale, std::array<std::uint8_t, 3> color) {
+void draw_number(std::vector<std::uint8_t>& rgba, int width, int height, int x0, int y0,
+                 long number, int scale, std::array<std::uint8_t, 3> color) {
   // 3 x 5 bitmaps, one row per 3 bits (top row first), for 0..9.
   static const std::uint16_t kDigits[10] = {0x7B6F, 0x2C97, 0x73E7, 0x73CF, 0x5BC9,
                                             0x79CF, 0x79EF, 0x7249, 0x7BEF, 0x7BCF};
@@ -214,7 +215,8 @@ void draw_number(std::vector<std::uint8_t>& rgba, int width, int height, int x0,
         if (!((bits >> (14 - 3 * row - col)) & 1)) continue;
         for (int sy = 0; sy < scale; ++sy)
           for (int sx = 0; sx < scale; ++sx)
-            put(x0 + (1 + 4 * static_cast<int>(d) + col) * scale + sx, y0 + (1 + row) * scale + sy, color);
+            put(x0 + (1 + 4 * static_cast<int>(d) + col) * scale + sx, y0 + (1 + row) * scale + sy,
+                color);
       }
   }
 }
@@ -223,12 +225,14 @@ std::vector<std::uint8_t> contact_sheet(const std::vector<std::vector<std::uint8
                                         int width, int height, int columns) {
   const int rows = static_cast<int>((tiles.size() + columns - 1) / columns);
   const int sheet_w = width * columns;
-  std::vector<std::uint8_t> sheet(static_cast<size_t>(sheet_w) * height * std::max(rows, 1) * 4, 255);
+  std::vector<std::uint8_t> sheet(static_cast<size_t>(sheet_w) * height * std::max(rows, 1) * 4,
+                                  255);
   for (size_t i = 0; i < tiles.size(); ++i) {
     const int cx = static_cast<int>(i) % columns, cy = static_cast<int>(i) / columns;
     for (int y = 0; y < height; ++y)
-      std::copy_n(tiles[i].begin() + static_cast<size_t>(y) * width * 4, width * 4,
-                  sheet.begin() + (static_cast<size_t>(cy * height + y) * sheet_w + cx * width) * 4);
+      std::copy_n(
+          tiles[i].begin() + static_cast<size_t>(y) * width * 4, width * 4,
+          sheet.begin() + (static_cast<size_t>(cy * height + y) * sheet_w + cx * width) * 4);
   }
   return sheet;
 }

@@ -33,9 +33,10 @@ struct StepReport {
   int step_halvings = 0;   // Newton: how many times the step was halved to recover
   int iterations = 0;      // Newton iterations or constraint iterations actually run
   int factorizations = 0;  // Newton: matrix factorisations (or preconditioner builds for PCG)
-  int unconverged = 0;     // Newton: sub-steps kept unconverged (SolverSettings::newton_accept_decrease)
-  double residual = 0.0;   // Newton: final force residual (N); others: 0
-  std::string message;     // why it was unstable or halved, for the user
+  int unconverged =
+      0;  // Newton: sub-steps kept unconverged (SolverSettings::newton_accept_decrease)
+  double residual = 0.0;  // Newton: final force residual (N); others: 0
+  std::string message;    // why it was unstable or halved, for the user
 };
 
 class Solver {
@@ -50,8 +51,8 @@ class Solver {
 // Largest OpenMP thread count a solver accepts: four per hardware thread, at most 1024. OpenMP
 // crashes asked for 100,000 threads, and a few thousand make a 5-frame run take minutes.
 int max_solver_threads();
-// validate_solver_settings (database/run_settings.hpp) checks every field of the record; make_solver
-// also refuses more threads than max_solver_threads().
+// validate_solver_settings (database/run_settings.hpp) checks every field of the record;
+// make_solver also refuses more threads than max_solver_threads().
 
 std::unique_ptr<Solver> make_solver(SolverKind kind, const ClothModel& model,
                                     const SolverSettings& settings);

@@ -9,7 +9,8 @@ SolverCandidate candidate(SolverKind kind, int substeps, int iterations, double 
                           LinearSolverKind linear) {
   SolverCandidate c{kind, SolverSettings{}, ""};
   c.settings.substeps = substeps;
-  c.settings.iterations = std::max(1, iterations);  // unused by mass-spring and Newton; the record needs >= 1
+  c.settings.iterations =
+      std::max(1, iterations);  // unused by mass-spring and Newton; the record needs >= 1
   c.settings.newton_tolerance = tolerance;
   c.settings.linear_solver = linear;
   char buf[96] = "";
@@ -75,11 +76,8 @@ std::vector<SolverCandidate> solver_candidates(SolverKind kind, bool quick) {
     case SolverKind::Newton:
       if (quick)
         return {candidate(kind, 1, 0, 1e-4), candidate(kind, 1, 0, 1e-6, L::ConjugateGradient)};
-      return {candidate(kind, 1, 0, 1e-3),
-              candidate(kind, 1, 0, 1e-5),
-              candidate(kind, 2, 0, 1e-5),
-              candidate(kind, 4, 0, 1e-5),
-              candidate(kind, 1, 0, 1e-5, L::Cholmod),
+      return {candidate(kind, 1, 0, 1e-3), candidate(kind, 1, 0, 1e-5), candidate(kind, 2, 0, 1e-5),
+              candidate(kind, 4, 0, 1e-5), candidate(kind, 1, 0, 1e-5, L::Cholmod),
               // With an optimised BLAS (OpenBLAS) the fastest direct solver on both the 1,587-
               // and the 8,900-unknown systems measured (docs/BENCHMARKS.md), so that --auto
               // picks it where it wins; the reference stays on SimplicialLDLT.

@@ -22,10 +22,14 @@ std::unique_ptr<Solver> make_solver(SolverKind kind, const ClothModel& model,
                                 " is outside [1, " + std::to_string(max_solver_threads()) +
                                 "] (4 x this machine's hardware threads, at most 1024)");
   switch (kind) {
-    case SolverKind::MassSpring: return make_mass_spring_solver(model, settings);
-    case SolverKind::Pbd: return make_pbd_solver(model, settings);
-    case SolverKind::Xpbd: return make_xpbd_solver(model, settings);
-    case SolverKind::Newton: return make_newton_solver(model, settings);
+    case SolverKind::MassSpring:
+      return make_mass_spring_solver(model, settings);
+    case SolverKind::Pbd:
+      return make_pbd_solver(model, settings);
+    case SolverKind::Xpbd:
+      return make_xpbd_solver(model, settings);
+    case SolverKind::Newton:
+      return make_newton_solver(model, settings);
   }
   return nullptr;
 }
