@@ -16,34 +16,14 @@
 #include <utility>
 #include <vector>
 
+#include "report/svg_plot.hpp"
+
 extern char** environ;
 
 namespace clothdb {
 
 namespace {
 
-std::string escape(const std::string& s) {
-  std::string out;
-  for (char c : s) {
-    switch (c) {
-      case '<':
-        out += "&lt;";
-        break;
-      case '>':
-        out += "&gt;";
-        break;
-      case '&':
-        out += "&amp;";
-        break;
-      case '"':
-        out += "&quot;";
-        break;
-      default:
-        out += c;
-    }
-  }
-  return out;
-}
 
 std::string fmt(double v, const char* format = "%.1f") {
   char buf[48];
@@ -103,9 +83,9 @@ std::string motion_graph_svg(const MotionGraph& g) {
       << color << "\"/></marker>\n";
   o << "</defs>\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n";
   o << "<text x=\"" << width / 2 << "\" y=\"28\" text-anchor=\"middle\" font-size=\"18\">"
-    << escape("Motion graph: " + counts_line(g)) << "</text>\n";
+    << svg_escape("Motion graph: " + counts_line(g)) << "</text>\n";
   o << "<text x=\"" << width / 2 << "\" y=\"50\" text-anchor=\"middle\" font-size=\"12\" "
-    << "fill=\"#555\">" << escape(settings_line(g)) << "</text>\n";
+    << "fill=\"#555\">" << svg_escape(settings_line(g)) << "</text>\n";
   // Legend.
   const double ly = 72;
   o << "<line x1=\"" << left << "\" y1=\"" << ly << "\" x2=\"" << left + 40 << "\" y2=\"" << ly
@@ -128,7 +108,7 @@ std::string motion_graph_svg(const MotionGraph& g) {
     const double y = y_of(c);
     const GraphClip& clip = g.clips[c];
     o << "<text x=\"" << left - 12 << "\" y=\"" << y + 4
-      << "\" text-anchor=\"end\" font-size=\"13\">" << escape(clip.name) << "</text>\n";
+      << "\" text-anchor=\"end\" font-size=\"13\">" << svg_escape(clip.name) << "</text>\n";
     o << "<line x1=\"" << x_of(0) << "\" y1=\"" << y << "\" x2=\"" << x_of(clip.frame_count - 1)
       << "\" y2=\"" << y << "\" stroke=\"#dddddd\" stroke-width=\"6\" stroke-linecap=\"round\"/>\n";
     for (int f : {0, clip.frame_count - 1})
@@ -144,7 +124,7 @@ std::string motion_graph_svg(const MotionGraph& g) {
     o << "<line x1=\"" << fmt(x_of(e.first_frame)) << "\" y1=\"" << y << "\" x2=\""
       << fmt(x_of(e.last_frame)) << "\" y2=\"" << y
       << "\" stroke=\"#333\" stroke-width=\"2.5\" marker-end=\"url(#arrow-clip)\"><title>"
-      << escape("edge " + std::to_string(k) + ": " + g.clips[e.clip].name + " frames " +
+      << svg_escape("edge " + std::to_string(k) + ": " + g.clips[e.clip].name + " frames " +
                 std::to_string(e.first_frame) + ".." + std::to_string(e.last_frame))
       << "</title></line>\n";
   }
@@ -170,7 +150,7 @@ std::string motion_graph_svg(const MotionGraph& g) {
       << "\" stroke-width=\"1.5\" stroke-opacity=\"0.85\""
       << (e.manual ? " stroke-dasharray=\"5,3\"" : "") << " marker-end=\"url(#arrow-"
       << (e.manual ? "manual" : "auto") << ")\"><title>"
-      << escape("edge " + std::to_string(k) + ": " + g.clips[e.clip].name + " " +
+      << svg_escape("edge " + std::to_string(k) + ": " + g.clips[e.clip].name + " " +
                 std::to_string(e.first_frame) + " -> " + g.clips[e.target_clip].name + " " +
                 std::to_string(e.target_frame) + ", blend " + std::to_string(e.blend) +
                 " frames, distance " + fmt(e.distance * 100.0, "%.2f") + " cm RMS")
@@ -180,7 +160,7 @@ std::string motion_graph_svg(const MotionGraph& g) {
     const GraphNode& n = g.nodes[v];
     o << "<circle cx=\"" << fmt(x_of(n.frame)) << "\" cy=\"" << y_of(n.clip)
       << "\" r=\"4\" fill=\"#1f77b4\" stroke=\"white\" stroke-width=\"1\"><title>"
-      << escape("node " + std::to_string(v) + ": " + g.clips[n.clip].name + " frame " +
+      << svg_escape("node " + std::to_string(v) + ": " + g.clips[n.clip].name + " frame " +
                 std::to_string(n.frame))
       << "</title></circle>\n";
   }

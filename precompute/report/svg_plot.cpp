@@ -11,19 +11,6 @@ namespace clothdb {
 
 namespace {
 
-std::string escape(const std::string& s) {
-  std::string out;
-  for (char c : s) {
-    switch (c) {
-      case '<': out += "&lt;"; break;
-      case '>': out += "&gt;"; break;
-      case '&': out += "&amp;"; break;
-      case '"': out += "&quot;"; break;
-      default: out += c;
-    }
-  }
-  return out;
-}
 
 std::string fmt(double v) {
   char buf[32];
@@ -56,7 +43,8 @@ struct Axis {
           step = step0 * m;
           break;
         }
-      for (double v = std::ceil(lo / step) * step; v <= hi + 1e-12 * span; v += step) t.push_back(v);
+      for (double v = std::ceil(lo / step) * step; v <= hi + 1e-12 * span; v += step)
+        t.push_back(v);
     }
     return t;
   }
@@ -94,9 +82,8 @@ std::string palette_color(size_t i) {
 std::vector<size_t> pareto_front(const std::vector<double>& x, const std::vector<double>& y) {
   std::vector<size_t> order(x.size());
   std::iota(order.begin(), order.end(), 0);
-  std::sort(order.begin(), order.end(), [&](size_t a, size_t b) {
-    return x[a] != x[b] ? x[a] < x[b] : y[a] < y[b];
-  });
+  std::sort(order.begin(), order.end(),
+            [&](size_t a, size_t b) { return x[a] != x[b] ? x[a] < x[b] : y[a] < y[b]; });
   std::vector<size_t> front;
   double best = std::numeric_limits<double>::infinity();
   for (size_t i : order) {
@@ -107,6 +94,29 @@ std::vector<size_t> pareto_front(const std::vector<double>& x, const std::vector
     }
   }
   return front;
+}
+
+std::string svg_escape(const std::string& s) {
+  std::string out;
+  for (char c : s) {
+    switch (c) {
+      case '<':
+        out += "&lt;";
+        break;
+      case '>':
+        out += "&gt;";
+        break;
+      case '&':
+        out += "&amp;";
+        break;
+      case '"':
+        out += "&quot;";
+        break;
+      default:
+        out += c;
+    }
+  }
+  return out;
 }
 
 std::string render_svg(const PlotSpec& spec) {
@@ -122,7 +132,7 @@ std::string render_svg(const PlotSpec& spec) {
     << spec.height << "\" font-family=\"sans-serif\" font-size=\"12\">\n"
     << "<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n"
     << "<text x=\"" << spec.width / 2 << "\" y=\"22\" text-anchor=\"middle\" font-size=\"15\">"
-    << escape(spec.title) << "</text>\n";
+    << svg_escape(spec.title) << "</text>\n";
   for (double t : ax.ticks()) {
     const double px = ax.map(t, left, right);
     o << "<line x1=\"" << px << "\" y1=\"" << top << "\" x2=\"" << px << "\" y2=\"" << bottom
@@ -138,9 +148,9 @@ std::string render_svg(const PlotSpec& spec) {
   o << "<rect x=\"" << left << "\" y=\"" << top << "\" width=\"" << right - left << "\" height=\""
     << bottom - top << "\" fill=\"none\" stroke=\"black\"/>\n"
     << "<text x=\"" << (left + right) / 2 << "\" y=\"" << spec.height - 18
-    << "\" text-anchor=\"middle\">" << escape(spec.x_label) << (spec.log_x ? " (log)" : "")
+    << "\" text-anchor=\"middle\">" << svg_escape(spec.x_label) << (spec.log_x ? " (log)" : "")
     << "</text>\n<text transform=\"translate(20," << (top + bottom) / 2
-    << ") rotate(-90)\" text-anchor=\"middle\">" << escape(spec.y_label)
+    << ") rotate(-90)\" text-anchor=\"middle\">" << svg_escape(spec.y_label)
     << (spec.log_y ? " (log)" : "") << "</text>\n";
   auto usable = [&](double x, double y) {
     return std::isfinite(x) && std::isfinite(y) && (!spec.log_x || x > 0) && (!spec.log_y || y > 0);
@@ -163,13 +173,13 @@ std::string render_svg(const PlotSpec& spec) {
           << "\" fill-opacity=\"0.8\"/>\n";
         if (i < s.point_labels.size() && !s.point_labels[i].empty())
           o << "<text x=\"" << px + 6 << "\" y=\"" << py - 5 << "\" font-size=\"9\" fill=\"#444\">"
-            << escape(s.point_labels[i]) << "</text>\n";
+            << svg_escape(s.point_labels[i]) << "</text>\n";
       }
     }
     o << "<line x1=\"" << right + 15 << "\" y1=\"" << legend_y << "\" x2=\"" << right + 35
       << "\" y2=\"" << legend_y << "\" stroke=\"" << s.color << "\" stroke-width=\"3\""
       << (s.dashed ? " stroke-dasharray=\"6,4\"" : "") << "/><text x=\"" << right + 40 << "\" y=\""
-      << legend_y + 4 << "\">" << escape(s.label) << "</text>\n";
+      << legend_y + 4 << "\">" << svg_escape(s.label) << "</text>\n";
     legend_y += 18;
   }
   o << "</svg>\n";

@@ -27,6 +27,9 @@ struct PlotSpec {
 
 std::string render_svg(const PlotSpec& spec);
 
+// Text for an SVG element or attribute: <, >, & and " as entities.
+std::string svg_escape(const std::string& s);
+
 // Indices of the Pareto-optimal points when both x (cost) and y (error) are to be minimised:
 // a point is kept if no other point is at least as good in both and better in one. Sorted by x.
 std::vector<size_t> pareto_front(const std::vector<double>& x, const std::vector<double>& y);
