@@ -473,6 +473,10 @@ struct BenchArgs {
 };
 
 void run_bench(const BenchArgs& a) {
+  if (a.codec != "v1" && a.file != "synthetic")
+    throw std::runtime_error(
+        "--codec v2: only with FILE synthetic (recode a file with `clothdb db recode FILE "
+        "--codec v2`)");
   std::printf(
       "clothdb bench runtime %s\nmachine: %s, %u hardware threads; all scenarios run "
       "players on one thread\n\n",
@@ -510,10 +514,6 @@ void run_bench(const BenchArgs& a) {
       }
     }
     std::printf("\n");
-  } else if (a.codec != "v1") {
-    throw std::runtime_error(
-        "--codec v2: only with FILE synthetic (recode a file with `clothdb db "
-        "recode FILE --codec v2`)");
   }
   uint32_t vertices = 0;
   {
