@@ -151,6 +151,43 @@ TEST(Explore, StoppedRunResumesToTheSameContent) {
   EXPECT_EQ(content(db_path("whole")), content(path));
 }
 
+// The same with codec version 2 and bases built as the file grows: a run stopped on its budget
+// keeps every basis it built (even one no clip chose yet), so the run that resumes it encodes as
+// an uninterrupted run would; the bases none chose are removed once the exploration converges;
+// and the thread count changes nothing.
+TEST(Explore, StoppedRunWithCodecV2ResumesToTheSameContent) {
+  const CharacterScene scene = small_scene();
+  ExploreOptions options;
+  options.epsilon = 0.02;
+  options.batch = 2;
+  options.subspace_modes = 4;
+  options.subspace_first_frames = 40;
+  const ExploreReport whole = run(scene, temp_db("v2_whole"), options);
+  EXPECT_TRUE(whole.converged);
+  EXPECT_GE(whole.bases_built, 3);
+  const std::string path = temp_db("v2_parts");
+  int parts = 0, built = 0, removed = 0;
+  for (options.max_frames = 70;; ++parts) {
+    const ExploreReport part = run(scene, path, options);
+    built += part.bases_built;
+    removed += part.bases_removed;
+    if (part.converged) break;
+    EXPECT_EQ(part.bases_removed, 0);  // not before convergence
+    ASSERT_LT(parts, 100);
+  }
+  EXPECT_GE(parts, 3);
+  EXPECT_EQ(built, whole.bases_built);
+  EXPECT_EQ(removed, whole.bases_removed);
+  EXPECT_EQ(content(db_path("v2_whole")), content(path));
+  EXPECT_EQ(db::read_database_info(path).bases.size(),
+            static_cast<size_t>(whole.bases_built - whole.bases_removed));
+  // Bases are built between batches, on the explorer's thread: two threads give the same file.
+  options.max_frames = 0;
+  options.threads = 2;
+  run(scene, temp_db("v2_two_threads"), options);
+  EXPECT_EQ(content(db_path("v2_whole")), content(db_path("v2_two_threads")));
+}
+
 // Clips in the order they were explored: (start state, primary clip) by clip id.
 std::vector<std::pair<int64_t, int64_t>> clip_order(const std::string& path) {
   db::Reader r;

@@ -110,10 +110,10 @@ struct Exploration {
   std::map<std::pair<int64_t, int>, int64_t> clip_of;  // (state id, edge) -> its cloth clip id
   std::set<std::pair<int64_t, int>> failed;            // unstable in this run: not retried
   // Codec version 2 (ExploreOptions::subspace_modes): the newest basis (null until one is built
-  // or loaded), the bases in the file, and how many of this run's clips name each basis it built.
+  // or loaded), how many bases the file holds, and the ids of those this run built.
   std::shared_ptr<const codec::Basis> basis;
   int bases_in_file = 0;
-  std::map<int64_t, long> clips_naming;  // basis id -> clips of this run encoded with it
+  std::set<int64_t> bases_built;
 };
 
 // Kim et al. expand the dead end whose unresolved error matters most: its error times how often
@@ -188,10 +188,8 @@ void integrate_batch(Exploration& ex, db::Writer& writer, const std::vector<Job>
       db::Error info_err;
       if (codec::read_info(r.clip_blob.data(), r.clip_blob.size(), &info, &info_err) ==
               db::Status::Ok &&
-          info.version == codec::kFormatVersionV2) {
-        ++ex.clips_naming[info.basis_id];
+          info.version == codec::kFormatVersionV2)
         ++report.clips_v2;
-      }
     }
     if (r.steer_target != 0) {
       writer.set_clip_steering(
@@ -678,6 +676,50 @@ db::RunSettings make_run_settings(const CharacterScene& scene, const ExploreOpti
   return run;
 }
 
+// Removes the bases explorer runs built (source "explore: ...") that no clip or state blob names,
+// and returns how many. With edits in the file, only those of this run (`built`): an edit's undo
+// record may hold a blob of an older basis that no row names any more.
+static int remove_unchosen_bases(db::Reader& reader, db::Writer& writer,
+                                 const std::set<int64_t>& built) {
+  db::Error err;
+  std::vector<db::BasisRow> bases;
+  std::vector<db::EditLogEntry> edits;
+  if (db::list_bases(reader.handle(), writer.path(), &bases, &err) != db::Status::Ok ||
+      reader.edit_log(&edits, &err) != db::Status::Ok)
+    throw std::runtime_error(writer.path() + ": " + std::string(err.message));
+  std::set<int64_t> candidates;
+  for (const db::BasisRow& b : bases)
+    if (built.count(b.id) || (edits.empty() && b.source.rfind("explore: ", 0) == 0))
+      candidates.insert(b.id);
+  if (candidates.empty()) return 0;
+  std::set<int64_t> named;
+  auto name = [&](const std::vector<uint8_t>& blob) {
+    codec::BlobInfo info;
+    if (codec::read_info(blob.data(), blob.size(), &info, &err) == db::Status::Ok &&
+        info.version == codec::kFormatVersionV2)
+      named.insert(info.basis_id);
+  };
+  std::vector<db::ClothClip> clips;
+  std::vector<db::StoredState> states;
+  reader.cloth_clips(&clips, &err);
+  reader.cloth_states(&states, &err);
+  std::vector<uint8_t> blob, velocities;
+  for (const db::ClothClip& c : clips)
+    if (reader.clip_blob(c.id, &blob, &err) == db::Status::Ok) name(blob);
+  for (const db::StoredState& st : states)
+    if (reader.state_blobs(st.id, &blob, &velocities, &err) == db::Status::Ok) {
+      name(blob);
+      name(velocities);
+    }
+  int removed = 0;
+  for (int64_t id : candidates)
+    if (!named.count(id)) {
+      db::remove_basis(writer, id);
+      ++removed;
+    }
+  return removed;
+}
+
 ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db::Writer& writer,
                       const ExploreOptions& options, const BatchRunner& given_runner) {
   const db::RunSettings run = make_run_settings(scene, options, writer.codec());
@@ -796,7 +838,7 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
     BuiltBasis built = build_basis_from_clips(reader, clips, vertex_count, options.subspace_modes,
                                               options.subspace_sample_frames, body.get());
     built.basis.id = db::store_basis(writer, built.basis, "explore: " + built.source);
-    ex.clips_naming[built.basis.id] = 0;
+    ex.bases_built.insert(built.basis.id);
     ++ex.bases_in_file;
     ++report.bases_built;
     if (options.progress)
@@ -917,13 +959,11 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
   const std::vector<db::ClothLink> links = link_dead_ends(ex, run_id);
   writer.replace_cloth_links(links);
   db::set_meta_text(writer, db::meta::kDeadEndsLinked, "1");
-  // A basis this run built that no clip chose (version 1 was smaller every time) costs bytes and
-  // the runtime's memory for nothing.
-  for (const auto& [basis_id, count] : ex.clips_naming)
-    if (count == 0) {
-      db::remove_basis(writer, basis_id);
-      ++report.bases_removed;
-    }
+  // A basis no blob chose (version 1 was smaller every time) costs bytes and the runtime's memory
+  // for nothing. Only once the exploration has converged: until then a resumed run must find
+  // every basis an uninterrupted one would have, to choose as it would.
+  if (options.subspace_modes > 0 && queue.empty())
+    report.bases_removed = remove_unchosen_bases(reader, writer, ex.bases_built);
   report.links = static_cast<int>(links.size());
   for (const db::ClothLink& l : links) {
     report.worst_link_error = std::max(report.worst_link_error, l.blend_error);

@@ -134,8 +134,9 @@ struct ExploreOptions {
   // each time the frames have grown by subspace_growth since the file's newest basis (with B
   // bases stored, the next is due at first_frames x growth^B frames, so a resumed run decides as
   // an uninterrupted one did). Later clips are encoded with version 1 and with version 2 on the
-  // newest basis, and the smaller blob is kept; each version 2 blob names its basis. A basis that
-  // no blob uses when the run ends is removed. 0: version 1 only. States stay version 1.
+  // newest basis, and the smaller blob is kept; each version 2 blob names its basis. When the
+  // exploration converges, the bases explorer runs built that no blob names are removed (with
+  // edits in the file, only this run's). 0: version 1 only. States stay version 1.
   uint32_t subspace_modes = 0;
   long subspace_first_frames = 300;
   double subspace_growth = 2.0;
