@@ -397,9 +397,7 @@ void compare_codecs(const Frames& f, const std::vector<std::string>& codecs,
       sample.insert(sample.end(), f.x.begin() + ptrdiff_t(k * n),
                     f.x.begin() + ptrdiff_t((k + 1) * n));
       if (body)
-        to_body_frame(sample.data() + sample.size() - n, 1, f.vertices,
-                      std::vector<float>(transforms.begin() + ptrdiff_t(12 * k),
-                                         transforms.begin() + ptrdiff_t(12 * k + 12)));
+        to_body_frame(sample.data() + sample.size() - n, 1, f.vertices, transforms.data() + 12 * k);
     }
     for (const auto& m : modes) {
       const double t = thread_cpu_seconds();

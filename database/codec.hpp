@@ -135,6 +135,12 @@ struct Basis {
   }
 };
 
+// Cloth relative to the body (SubspaceSettings::body_frames): out = R^T (x - t) for the n
+// coordinates (3 per vertex) of one frame, in double from the transform T as stored (12 floats:
+// R row by row, then t). What encode_v2 projects onto the modes, and what a body-frame basis is
+// built from (precompute/compress/body_frame.hpp).
+void to_body_frame(const float* T, const float* x, size_t n, double* out);
+
 // Quantises float modes (mode_count x 3V, mode-major) to int16 with one scale per mode and returns
 // the basis as stored. Throws ClothdbError (InvalidArgument) on non-finite values or limits.
 Basis make_basis(int64_t id, uint32_t vertex_count, const float* mean, const float* modes,

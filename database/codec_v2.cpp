@@ -420,6 +420,16 @@ void reseal(uint8_t* blob, size_t size) {
 
 // ---- basis ------------------------------------------------------------------------------------
 
+void to_body_frame(const float* T, const float* x, size_t n, double* out) {
+  for (size_t i = 0; i < n; i += 3) {
+    const double px = double(x[i]) - T[9], py = double(x[i + 1]) - T[10],
+                 pz = double(x[i + 2]) - T[11];
+    out[i] = double(T[0]) * px + double(T[3]) * py + double(T[6]) * pz;
+    out[i + 1] = double(T[1]) * px + double(T[4]) * py + double(T[7]) * pz;
+    out[i + 2] = double(T[2]) * px + double(T[5]) * py + double(T[8]) * pz;
+  }
+}
+
 Basis make_basis(int64_t id, uint32_t vertex_count, const float* mean, const float* modes,
                  uint32_t mode_count) {
   if (vertex_count == 0 || vertex_count > kMaxVertices)
@@ -801,17 +811,10 @@ std::vector<uint8_t> encode_v2(const float* frames, uint32_t frame_count, uint32
   std::vector<double> d(n);
   for (uint32_t f = 0; f < frame_count; ++f) {
     const float* x = frames + size_t(f) * n;
-    for (size_t i = 0; i < n; ++i) d[i] = double(x[i]);
-    if (subspace.body_frames) {
-      // Into the body frame: R^T (x - t), with the transform as stored.
-      const float* T = subspace.body_frames + size_t(f) * kBodyFloats;
-      for (size_t i = 0; i < n; i += 3) {
-        const double px = d[i] - T[9], py = d[i + 1] - T[10], pz = d[i + 2] - T[11];
-        d[i] = double(T[0]) * px + double(T[3]) * py + double(T[6]) * pz;
-        d[i + 1] = double(T[1]) * px + double(T[4]) * py + double(T[7]) * pz;
-        d[i + 2] = double(T[2]) * px + double(T[5]) * py + double(T[8]) * pz;
-      }
-    }
+    if (subspace.body_frames)
+      to_body_frame(subspace.body_frames + size_t(f) * kBodyFloats, x, n, d.data());
+    else
+      for (size_t i = 0; i < n; ++i) d[i] = double(x[i]);
     for (size_t i = 0; i < n; ++i) d[i] -= subspace.use_mean ? double(basis.mean[i]) : 0.0;
     for (uint32_t k = 0; k < plan.M; ++k) {
       const float* u = basis.modes.data() + size_t(k) * n;

@@ -177,8 +177,8 @@ struct RunSettings {
   // Codec version 2 during the run (issue 17): modes of the garment subspace the explorer builds
   // from the clips stored so far (0: version 1 only).
   uint32_t subspace_modes = 0;
-  bool subspace_body_frame =
-      false;  // ... relative to a body frame (precompute/compress/body_frame)
+  // ... coding the cloth relative to a body frame (precompute/compress/body_frame.hpp).
+  bool subspace_body_frame = false;
 };
 
 // One serialiser: JSON text with every field ({"epsilon_m": ..., "solver": {...}, "codec": {...},

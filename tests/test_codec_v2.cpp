@@ -411,7 +411,7 @@ TEST(CodecV2, BodyFrameKeepsTheBoundAndCodesWhatTheBodyCarriesInItsTransforms) {
   const std::vector<float> transforms =
       clothdb::fit_body_frames(x.data(), frames, vertices, anchors);
   std::vector<float> in_body = x;
-  clothdb::to_body_frame(in_body.data(), frames, vertices, transforms);
+  clothdb::to_body_frame(in_body.data(), frames, vertices, transforms.data());
   const Basis body_basis = basis_of(in_body, vertices, 2, 11);
   const Basis plain_basis = basis_of(x, vertices, 2, 12);
   for (double bound : {0.0005, 0.002}) {

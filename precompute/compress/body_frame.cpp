@@ -7,6 +7,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "database/codec.hpp"
+
 namespace clothdb {
 
 RigidFrame fit_rigid(const Eigen::Matrix3Xd& p, const Eigen::Matrix3Xd& q) {
@@ -71,21 +73,13 @@ std::vector<float> fit_body_frames(const float* frames, uint32_t frame_count, ui
 }
 
 void to_body_frame(float* frames, uint32_t frame_count, uint32_t vertex_count,
-                   const std::vector<float>& transforms) {
-  if (transforms.size() != size_t(frame_count) * 12)
-    throw std::invalid_argument("to_body_frame: " + std::to_string(transforms.size()) +
-                                " transform floats for " + std::to_string(frame_count) + " frames");
+                   const float* transforms) {
   const size_t n = size_t(vertex_count) * 3;
+  std::vector<double> body(n);
   for (uint32_t f = 0; f < frame_count; ++f) {
-    const float* T = transforms.data() + size_t(f) * 12;
     float* x = frames + size_t(f) * n;
-    for (size_t i = 0; i < n; i += 3) {
-      const double px = double(x[i]) - T[9], py = double(x[i + 1]) - T[10],
-                   pz = double(x[i + 2]) - T[11];
-      x[i] = float(double(T[0]) * px + double(T[3]) * py + double(T[6]) * pz);
-      x[i + 1] = float(double(T[1]) * px + double(T[4]) * py + double(T[7]) * pz);
-      x[i + 2] = float(double(T[2]) * px + double(T[5]) * py + double(T[8]) * pz);
-    }
+    codec::to_body_frame(transforms + size_t(f) * 12, x, n, body.data());
+    for (size_t i = 0; i < n; ++i) x[i] = float(body[i]);
   }
 }
 

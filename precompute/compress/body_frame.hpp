@@ -38,9 +38,10 @@ BodyAnchors body_anchors(const std::vector<float>& rest_positions, double fracti
 std::vector<float> fit_body_frames(const float* frames, uint32_t frame_count, uint32_t vertex_count,
                                    const BodyAnchors& anchors);
 
-// In place: x <- R^T (x - t) for each frame, with its transform as fit_body_frames gives it (in
-// double, rounded once to float): the frames a body-frame basis is built from.
+// In place: x <- R^T (x - t) for each frame, with its transform as fit_body_frames gives it
+// (transforms: 12 floats per frame), by codec::to_body_frame in double, rounded once to float:
+// the frames a body-frame basis is built from.
 void to_body_frame(float* frames, uint32_t frame_count, uint32_t vertex_count,
-                   const std::vector<float>& transforms);
+                   const float* transforms);
 
 }  // namespace clothdb

@@ -64,7 +64,7 @@ BuiltBasis build_basis_from_clips(db::Reader& reader, const std::vector<db::Clot
   const uint32_t sampled = uint32_t(sample.size() / n);
   if (anchors)
     to_body_frame(sample.data(), sampled, vertex_count,
-                  fit_body_frames(sample.data(), sampled, vertex_count, *anchors));
+                  fit_body_frames(sample.data(), sampled, vertex_count, *anchors).data());
   const Subspace s = build_subspace(sample, uint32_t(n), modes);
   BuiltBasis out;
   out.basis = codec::make_basis(0, vertex_count, s.mean.data(), s.basis.data(), s.modes);
