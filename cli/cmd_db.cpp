@@ -11,6 +11,7 @@
 #include "compress/recode.hpp"
 #include "database/check.hpp"
 #include "database/cloth_graph.hpp"
+#include "graph/motion_graph.hpp"
 
 namespace clothdb::cli {
 
@@ -60,6 +61,20 @@ void print_error_floor(const db::DatabaseInfo& i) {
   std::printf(": an epsilon below it cannot link clip ends\n");
 }
 
+// The stored motion graph's coverage (graph/motion_graph.hpp: graph_coverage), if it holds one.
+void print_graph_coverage(const db::DatabaseInfo& i) {
+  for (const auto& [key, value] : i.meta) {
+    if (key != db::meta::kMotionGraph) continue;
+    const nlohmann::json j = nlohmann::json::parse(value, nullptr, false);
+    try {
+      std::printf("%s",
+                  coverage_text(motion_graph_from_json(j, i.path + ": meta motion_graph")).c_str());
+    } catch (const GraphError& e) {
+      std::printf("coverage: not shown: %s\n", e.what());
+    }
+  }
+}
+
 void print_info(const db::DatabaseInfo& i) {
   std::printf("file            %s (%.2f MB with WAL)\n", i.path.c_str(), i.file_bytes / 1e6);
   std::printf("schema version  %d\n", i.schema_version);
@@ -74,6 +89,7 @@ void print_info(const db::DatabaseInfo& i) {
   std::printf("motion          %llu files, %llu primary clips, %llu transitions\n",
               (unsigned long long)i.motion_files, (unsigned long long)i.primary_clips,
               (unsigned long long)i.primary_transitions);
+  print_graph_coverage(i);
   std::printf(
       "cloth graph     %llu states, %llu clips (%llu ok, %llu flagged, %llu edited), "
       "%llu edges\n",

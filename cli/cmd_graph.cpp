@@ -46,6 +46,10 @@ void print_summary(const MotionGraph& g) {
                 g.clips[t.clip_b].name.c_str(), t.rms);
   std::printf("  before pruning: %d nodes, %d transitions\n", g.candidate_nodes,
               g.candidate_transitions);
+  if (g.settings.min_segment_s > 0)
+    std::printf(
+        "  min_segment_s %g: transition points snapped onto nodes %d frames apart or more\n",
+        g.settings.min_segment_s, g.settings.min_segment_frames(g.clips.front().rate));
   for (int c = 0; c < static_cast<int>(g.clips.size()); ++c) {
     int nodes = 0, out = 0, in = 0;
     for (const GraphNode& n : g.nodes) nodes += n.clip == c;
@@ -54,6 +58,7 @@ void print_summary(const MotionGraph& g) {
     std::printf("  clip %-20s %5d frames at %g Hz: %3d nodes, %3d transitions out, %3d in\n",
                 g.clips[c].name.c_str(), g.clips[c].frame_count, g.clips[c].rate, nodes, out, in);
   }
+  std::printf("%s", coverage_text(g).c_str());
 }
 
 MotionGraph build_graph(const BuildArgs& a, GraphInput& input) {
@@ -197,6 +202,13 @@ void register_graph_commands(CLI::App& app) {
                 "Within a clip, ignore frame pairs closer than this")
       ->capture_default_str()
       ->check(positive_number());
+  b->add_option("--min-segment-s", build->settings.min_segment_s,
+                "Snap transition points within this many seconds of each other in one clip onto "
+                "one node, so that clip segments last at least this long except at clip ends (0: "
+                "off); a transition whose distance at the snapped frames exceeds the threshold "
+                "is dropped")
+      ->capture_default_str()
+      ->check(non_negative_number());
   b->add_flag("--no-prune", build->no_prune,
               "Keep every node (do not prune to the largest strongly connected component)");
   b->callback([build] {

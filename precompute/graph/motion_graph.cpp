@@ -299,6 +299,8 @@ void check_settings(const GraphSettings& s) {
     throw GraphError("threshold: a percentile is between 0 and 100");
   if (!(s.max_distance >= 0) || !std::isfinite(s.max_distance))
     throw GraphError("max_distance: expected a finite number >= 0");
+  if (!(s.min_segment_s >= 0) || !std::isfinite(s.min_segment_s))
+    throw GraphError("min_segment_s: expected a finite number of seconds >= 0");
 }
 
 int span_of(const GraphSettings& s) {
@@ -311,18 +313,44 @@ bool excluded(int clip_a, int clip_b, int i, int j, const GraphSettings& s) {
 
 }  // namespace
 
-std::vector<TransitionCandidate> find_transitions(const std::vector<MotionClip>& clips,
-                                                  const GraphSettings& settings,
-                                                  std::vector<PairThreshold>* thresholds) {
+namespace {
+
+// What the transition search computed: D and the threshold of every unordered pair of clips, and
+// the transitions found. Snapping looks D up again at the frames it moves a transition to.
+struct TransitionSearch {
+  std::vector<std::pair<int, int>> pairs;  // (a, b), a <= b
+  std::vector<DistanceMatrix> matrices;    // D_ab, per pair
+  std::vector<double> limit;               // threshold, per pair
+  std::vector<TransitionCandidate> found;
+
+  int pair_index(int a, int b) const {
+    const auto key = std::minmax(a, b);
+    return static_cast<int>(
+        std::find(pairs.begin(), pairs.end(), std::pair(key.first, key.second)) - pairs.begin());
+  }
+  // D(A_i, B_j) in metres RMS, or infinity when the windows do not fit (or are excluded).
+  double distance(int a, int i, int b, int j, const GraphSettings& s) const {
+    if (excluded(a, b, i, j, s)) return std::numeric_limits<double>::infinity();
+    const DistanceMatrix& m = matrices[pair_index(a, b)];
+    if (a > b) std::swap(i, j);  // D_ab(i, j) = D_ba(j, i)
+    if (i < 0 || j < 0 || i >= m.rows || j >= m.cols)
+      return std::numeric_limits<double>::infinity();
+    return m.at(i, j);
+  }
+};
+
+TransitionSearch search_transitions(const std::vector<MotionClip>& clips,
+                                    const GraphSettings& settings) {
   check_settings(settings);
+  TransitionSearch search;
   const int n = static_cast<int>(clips.size());
   const int span = span_of(settings);
   // Unordered pairs (a <= b): D is symmetric, D_ab(i, j) = D_ba(j, i).
-  std::vector<std::pair<int, int>> pairs;
+  std::vector<std::pair<int, int>>& pairs = search.pairs;
   for (int a = 0; a < n; ++a)
     for (int b = a; b < n; ++b) pairs.emplace_back(a, b);
-  std::vector<DistanceMatrix> matrices;
-  std::vector<double> limit;
+  std::vector<DistanceMatrix>& matrices = search.matrices;
+  std::vector<double>& limit = search.limit;
   for (const auto& [a, b] : pairs) {
     matrices.push_back(
         window_distances(clips[a], clips[b], settings.window, span, settings.joint_weights));
@@ -345,13 +373,7 @@ std::vector<TransitionCandidate> find_transitions(const std::vector<MotionClip>&
     std::nth_element(all.begin(), all.begin() + static_cast<std::ptrdiff_t>(rank), all.end());
     limit.push_back(std::min(all[rank], settings.max_distance));
   }
-  if (thresholds) {
-    thresholds->clear();
-    for (size_t p = 0; p < pairs.size(); ++p)
-      thresholds->push_back({pairs[p].first, pairs[p].second, limit[p]});
-  }
-
-  std::vector<TransitionCandidate> out;
+  std::vector<TransitionCandidate>& out = search.found;
   for (size_t p = 0; p < pairs.size(); ++p) {
     const auto [ca, cb] = pairs[p];
     const DistanceMatrix& m = matrices[p];
@@ -390,8 +412,134 @@ std::vector<TransitionCandidate> find_transitions(const std::vector<MotionClip>&
     return std::tie(x.from_clip, x.from_frame, x.to_clip, x.to_frame) <
            std::tie(y.from_clip, y.from_frame, y.to_clip, y.to_frame);
   });
+  return search;
+}
+
+std::vector<PairThreshold> pair_thresholds(const TransitionSearch& search) {
+  std::vector<PairThreshold> out;
+  for (size_t p = 0; p < search.pairs.size(); ++p)
+    out.push_back({search.pairs[p].first, search.pairs[p].second, search.limit[p]});
   return out;
 }
+
+}  // namespace
+
+std::vector<TransitionCandidate> find_transitions(const std::vector<MotionClip>& clips,
+                                                  const GraphSettings& settings,
+                                                  std::vector<PairThreshold>* thresholds) {
+  TransitionSearch search = search_transitions(clips, settings);
+  if (thresholds) *thresholds = pair_thresholds(search);
+  return std::move(search.found);
+}
+
+int GraphSettings::min_segment_frames(double rate) const {
+  if (!(min_segment_s > 0)) return 0;
+  // The small tolerance keeps 0.3 s at 30 Hz at 9 frames despite 0.3 * 30 = 9.000000000000002.
+  return static_cast<int>(std::ceil(min_segment_s * rate - 1e-9));
+}
+
+namespace {
+
+// Snapping (GraphSettings::min_segment_s). Per clip, the nodes are chosen among the transitions'
+// departure and arrival frames: the frames where most transition points lie first (ties: the
+// earlier frame), each taken when it is at least m = min_segment_frames apart from every node
+// taken before; declared transitions' points are taken first and never move. Every point then
+// lies less than m frames from a node. Each found transition (A, i) -> (B, j), which leaves A at
+// i and arrives in B at j + blend, is moved to the pair of nodes (i', a') within m - 1 frames of
+// (i, j + blend) whose Kovar distance D(A_i', B_(a' - blend)) is smallest (ties: the smaller
+// total move, then the earlier frames), and its alignment recomputed there (Kovar 2002 sec.
+// 3.1); if no such pair has D within the pair's threshold, the transition is dropped. Moving
+// both ends by the same number of frames follows the valley of D along its diagonal (both clips
+// advance together), which is why most transitions survive a move of a few frames. Two
+// transitions that become the same keep the one of smaller distance.
+std::vector<TransitionCandidate> snap_transitions(const std::vector<MotionClip>& clips,
+                                                  const GraphSettings& s,
+                                                  const TransitionSearch& search,
+                                                  const std::vector<TransitionCandidate>& input,
+                                                  int* moved, int* dropped) {
+  *moved = *dropped = 0;
+  const int m = s.min_segment_frames(clips.front().rate);
+  if (m <= 1) return input;
+  const int n = static_cast<int>(clips.size());
+  std::vector<std::map<int, int>> count(n);  // per clip: frame -> transition points there
+  std::vector<std::set<int>> nodes(n);
+  for (const TransitionCandidate& t : input) {
+    const int arrival = t.to_frame + s.blend;
+    if (t.manual) {
+      nodes[t.from_clip].insert(t.from_frame);
+      nodes[t.to_clip].insert(arrival);
+    } else {
+      ++count[t.from_clip][t.from_frame];
+      ++count[t.to_clip][arrival];
+    }
+  }
+  for (int c = 0; c < n; ++c) {
+    std::vector<std::pair<int, int>> order;  // (-points, frame)
+    for (const auto& [frame, points] : count[c]) order.emplace_back(-points, frame);
+    std::sort(order.begin(), order.end());
+    for (const auto& [neg, frame] : order) {
+      (void)neg;
+      const auto next = nodes[c].lower_bound(frame);
+      const bool far_after = next == nodes[c].end() || *next - frame >= m;
+      const bool far_before = next == nodes[c].begin() || frame - *std::prev(next) >= m;
+      if (far_after && far_before) nodes[c].insert(frame);
+    }
+  }
+  const auto near = [&](int clip, int frame) {
+    std::vector<int> out;
+    for (auto it = nodes[clip].lower_bound(frame - (m - 1));
+         it != nodes[clip].end() && *it <= frame + (m - 1); ++it)
+      out.push_back(*it);
+    return out;
+  };
+  std::map<std::tuple<int, int, int, int>, TransitionCandidate> kept;
+  for (const TransitionCandidate& t : input) {
+    TransitionCandidate best = t;
+    if (!t.manual) {
+      const double limit = search.limit[search.pair_index(t.from_clip, t.to_clip)];
+      double best_d = std::numeric_limits<double>::infinity();
+      int best_move = 0;
+      for (int i : near(t.from_clip, t.from_frame))
+        for (int a : near(t.to_clip, t.to_frame + s.blend)) {
+          const int j = a - s.blend;
+          const double d = search.distance(t.from_clip, i, t.to_clip, j, s);
+          const int move = std::abs(i - t.from_frame) + std::abs(j - t.to_frame);
+          if (d < best_d || (d == best_d && move < best_move)) {
+            best_d = d;
+            best_move = move;
+            best.from_frame = i;
+            best.to_frame = j;
+          }
+        }
+      if (!(best_d <= limit)) {
+        ++*dropped;
+        continue;
+      }
+      if (best.from_frame != t.from_frame || best.to_frame != t.to_frame) {
+        ++*moved;
+        const WindowAlignment al =
+            align_windows(clips[t.from_clip], best.from_frame, clips[t.to_clip], best.to_frame,
+                          s.window, s.joint_weights);
+        best.distance = best_d;
+        best.align = al.transform;
+      }
+    }
+    const auto key = std::make_tuple(best.from_clip, best.from_frame, best.to_clip, best.to_frame);
+    const auto it = kept.find(key);
+    if (it == kept.end()) {
+      kept.emplace(key, best);
+    } else {
+      ++*dropped;
+      if (best.manual || (!it->second.manual && best.distance < it->second.distance))
+        it->second = best;
+    }
+  }
+  std::vector<TransitionCandidate> out;
+  for (const auto& [key, t] : kept) out.push_back(t);  // sorted by (from, to) as found ones are
+  return out;
+}
+
+}  // namespace
 
 // ---------------------------------------------------------------------------------------------
 // Graph
@@ -617,7 +765,9 @@ MotionGraph build_motion_graph(const std::vector<MotionClip>& clips, const Skele
   g.parents = skeleton.parents;
   for (const MotionClip& c : clips) g.clips.push_back({c.name, c.source, c.frame_count, c.rate});
 
-  std::vector<TransitionCandidate> transitions = find_transitions(clips, settings, &g.thresholds);
+  const TransitionSearch search = search_transitions(clips, settings);
+  g.thresholds = pair_thresholds(search);
+  std::vector<TransitionCandidate> transitions = search.found;
   for (const ManifestTransition& d : declared) {
     auto clip_index = [&](const std::string& name, const char* field) {
       for (size_t c = 0; c < clips.size(); ++c)
@@ -647,6 +797,8 @@ MotionGraph build_motion_graph(const std::vector<MotionClip>& clips, const Skele
     });
     transitions.push_back(t);
   }
+  transitions = snap_transitions(clips, settings, search, transitions, &g.snapped_transitions,
+                                 &g.snap_dropped);
   g.candidate_transitions = static_cast<int>(transitions.size());
 
   // Nodes: clip starts and ends, transition departures and arrivals.
@@ -1003,6 +1155,9 @@ nlohmann::json motion_graph_to_json(const MotionGraph& g) {
                    {"min_self_offset", s.min_self_offset},
                    {"joint_weights", s.joint_weights},
                    {"prune", s.prune}};
+  // Only when snapping is on, so that graphs made before it existed keep their exact JSON (a
+  // database compares the graph it holds with the one given).
+  if (s.min_segment_s > 0) j["settings"]["min_segment_s"] = s.min_segment_s;
   j["thresholds"] = nlohmann::json::array();
   for (const PairThreshold& t : g.thresholds)
     j["thresholds"].push_back({{"clip_a", t.clip_a}, {"clip_b", t.clip_b}, {"rms", t.rms}});
@@ -1035,6 +1190,10 @@ nlohmann::json motion_graph_to_json(const MotionGraph& g) {
                  {"clip_edges", g.clip_edge_count()},
                  {"candidate_transitions", g.candidate_transitions},
                  {"candidate_nodes", g.candidate_nodes}};
+  if (s.min_segment_s > 0) {
+    j["counts"]["snapped_transitions"] = g.snapped_transitions;
+    j["counts"]["snap_dropped"] = g.snap_dropped;
+  }
   return j;
 }
 
@@ -1065,6 +1224,11 @@ MotionGraph motion_graph_from_json(const nlohmann::json& j, const std::string& w
     g.settings.joint_weights.push_back(weights[k].get<double>());
   }
   g.settings.prune = r.boolean(s, "prune", "settings.");
+  if (s.contains("min_segment_s")) {
+    g.settings.min_segment_s = r.number(s, "min_segment_s", "settings.");
+    if (!(g.settings.min_segment_s >= 0))
+      r.fail("settings.min_segment_s", "expected a number of seconds >= 0");
+  }
 
   const nlohmann::json& joints = r.member(j, "joints", "joints");
   const nlohmann::json& names = r.array(joints, "names", "joints.");
@@ -1162,8 +1326,136 @@ MotionGraph motion_graph_from_json(const nlohmann::json& j, const std::string& w
   if (const nlohmann::json* counts = j.contains("counts") ? &j.at("counts") : nullptr) {
     g.candidate_transitions = r.integer(*counts, "candidate_transitions", "counts.", 0, kMaxInt);
     g.candidate_nodes = r.integer(*counts, "candidate_nodes", "counts.", 0, kMaxInt);
+    if (counts->contains("snapped_transitions"))
+      g.snapped_transitions = r.integer(*counts, "snapped_transitions", "counts.", 0, kMaxInt);
+    if (counts->contains("snap_dropped"))
+      g.snap_dropped = r.integer(*counts, "snap_dropped", "counts.", 0, kMaxInt);
   }
   return g;
+}
+
+GraphSettings graph_settings_from_scene(const nlohmann::json& block, const std::string& where) {
+  const Reader r(where);
+  GraphSettings s;
+  if (block.is_null()) return s;
+  if (!block.is_object()) r.fail("graph", "expected an object");
+  const std::vector<std::string> known = {"window",       "blend",         "spacing",
+                                          "self_offset",  "percentile",    "threshold",
+                                          "max_distance", "min_segment_s", "prune"};
+  for (auto it = block.begin(); it != block.end(); ++it)
+    if (std::find(known.begin(), known.end(), it.key()) == known.end()) {
+      std::string list;
+      for (const std::string& k : known) list += (list.empty() ? "" : ", ") + k;
+      r.fail("graph." + it.key(), "unknown field (known: " + list + ")");
+    }
+  const auto non_negative = [&](const char* key, double fallback) {
+    if (!block.contains(key)) return fallback;
+    const double v = r.number(block, key, "graph.");
+    if (!(v >= 0)) r.fail(std::string("graph.") + key, "expected a number >= 0");
+    return v;
+  };
+  if (block.contains("window")) s.window = r.integer(block, "window", "graph.", 1, 1000);
+  if (block.contains("blend")) s.blend = r.integer(block, "blend", "graph.", 1, 1000);
+  if (block.contains("spacing")) s.spacing = r.integer(block, "spacing", "graph.", 0, 100000);
+  if (block.contains("self_offset"))
+    s.min_self_offset = r.integer(block, "self_offset", "graph.", 1, 100000);
+  if (block.contains("percentile") && block.contains("threshold"))
+    r.fail("graph.threshold",
+           "give either percentile (relative) or threshold (absolute), not both");
+  if (block.contains("percentile")) {
+    s.threshold_mode = ThresholdMode::percentile;
+    s.threshold = non_negative("percentile", s.threshold);
+    if (s.threshold > 100) r.fail("graph.percentile", "expected a percentile between 0 and 100");
+  }
+  if (block.contains("threshold")) {
+    s.threshold_mode = ThresholdMode::absolute;
+    s.threshold = non_negative("threshold", s.threshold);
+  }
+  s.max_distance = non_negative("max_distance", s.max_distance);
+  s.min_segment_s = non_negative("min_segment_s", s.min_segment_s);
+  if (block.contains("prune")) s.prune = r.boolean(block, "prune", "graph.");
+  return s;
+}
+
+GraphCoverage graph_coverage(const MotionGraph& g) {
+  GraphCoverage out;
+  std::vector<std::vector<char>> played;
+  for (const GraphClip& c : g.clips) {
+    out.clips.push_back({c.name, c.frame_count, 0});
+    played.emplace_back(static_cast<size_t>(std::max(0, c.frame_count)), 0);
+  }
+  std::vector<int> lengths;
+  for (const GraphEdge& e : g.edges) {
+    if (e.kind == EdgeKind::transition) {
+      out.largest_transition = std::max(out.largest_transition, e.distance);
+      continue;
+    }
+    if (e.clip < 0 || e.clip >= static_cast<int>(g.clips.size())) continue;
+    std::vector<char>& p = played[e.clip];
+    for (int f = std::max(0, e.first_frame); f <= e.last_frame && f < static_cast<int>(p.size());
+         ++f)
+      p[f] = 1;
+    const int length = e.last_frame - e.first_frame;
+    lengths.push_back(length);
+    const int minimum = g.settings.min_segment_frames(g.clips[e.clip].rate);
+    const bool at_clip_end = e.first_frame == 0 || e.last_frame == g.clips[e.clip].frame_count - 1;
+    if (length < minimum && !at_clip_end) ++out.short_inner_segments;
+  }
+  for (size_t c = 0; c < g.clips.size(); ++c) {
+    out.clips[c].kept = static_cast<int>(std::count(played[c].begin(), played[c].end(), 1));
+    out.frames += out.clips[c].frames;
+    out.kept += out.clips[c].kept;
+  }
+  out.segments = static_cast<int>(lengths.size());
+  if (!lengths.empty()) {
+    std::sort(lengths.begin(), lengths.end());
+    out.median_segment = lengths[(lengths.size() - 1) / 2];
+    out.shortest_segment = lengths.front();
+  }
+  return out;
+}
+
+std::string coverage_text(const MotionGraph& g) {
+  const GraphCoverage c = graph_coverage(g);
+  std::string text;
+  char line[512];
+  const double rate = g.clips.empty() ? 30.0 : g.clips.front().rate;
+  std::snprintf(line, sizeof line,
+                "coverage: %d of %d frames kept (%.1f %%); %d clip segments, median %d frames "
+                "(%.2f s), shortest %d; largest transition distance %.2f cm RMS\n",
+                c.kept, c.frames, 100.0 * c.kept_fraction(), c.segments, c.median_segment,
+                c.median_segment / rate, c.shortest_segment, 100.0 * c.largest_transition);
+  text += line;
+  for (const ClipCoverage& clip : c.clips) {
+    std::snprintf(line, sizeof line, "  clip %-20s %5d of %5d frames kept (%.1f %%)\n",
+                  clip.name.c_str(), clip.kept, clip.frames,
+                  clip.frames > 0 ? 100.0 * clip.kept / clip.frames : 0.0);
+    text += line;
+  }
+  const GraphSettings& s = g.settings;
+  if (s.min_segment_s > 0) {
+    std::snprintf(line, sizeof line,
+                  "  snapping: min_segment_s %g (%d frames): %d transitions moved onto shared "
+                  "nodes, %d dropped; %d segments shorter away from clip ends\n",
+                  s.min_segment_s, s.min_segment_frames(rate), g.snapped_transitions,
+                  g.snap_dropped, c.short_inner_segments);
+    text += line;
+  }
+  if (c.kept_fraction() < 0.5) {
+    char threshold[128];
+    if (s.threshold_mode == ThresholdMode::percentile)
+      std::snprintf(threshold, sizeof threshold, "percentile %g (at most max_distance %g m)",
+                    s.threshold, s.max_distance);
+    else
+      std::snprintf(threshold, sizeof threshold, "threshold %g m", s.threshold);
+    std::snprintf(line, sizeof line,
+                  "warning: the graph keeps only %.1f %% of the frames (under 50 %%) with %s, "
+                  "spacing %d, min_segment_s %g: raise the %s to keep more of the motion\n",
+                  100.0 * c.kept_fraction(), threshold, s.spacing, s.min_segment_s,
+                  s.threshold_mode == ThresholdMode::percentile ? "percentile" : "threshold");
+    text += line;
+  }
+  return text;
 }
 
 MotionGraph load_motion_graph(const std::filesystem::path& file) {

@@ -123,7 +123,26 @@ struct GraphSettings {
   int min_self_offset = 15;
   std::vector<double> joint_weights;  // per joint; empty: all 1
   bool prune = true;                  // keep the largest strongly connected component only
+  // Snapping (0: off). Transitions of different clip pairs leave or arrive a frame or two apart,
+  // and each point becomes a node that needs its own cloth states. With min_segment_s > 0 the
+  // found transitions' points within one clip are moved onto shared nodes at least
+  // min_segment_frames() apart, so that every clip segment lasts at least this long except where
+  // a clip starts or ends. A moved transition keeps its blend length; its Kovar distance is
+  // recomputed at the frames it moved to and it is dropped if that exceeds the threshold.
+  // Declared transitions are never moved.
+  double min_segment_s = 0.0;
+
+  // ceil(min_segment_s * rate) frames at `rate` Hz (0 when snapping is off).
+  int min_segment_frames(double rate) const;
 };
+
+// The scene file's "graph" block (precompute/character_scene), e.g.
+//   "graph": {"percentile": 0.3, "min_segment_s": 0.3, "spacing": 10}
+// Fields: window, blend, spacing, self_offset (frames), percentile (0-100) or threshold (metres
+// RMS, absolute), max_distance (metres), min_segment_s (seconds), prune (true/false); each
+// absent field keeps GraphSettings' default. Throws GraphError "<where>: graph.<field>:
+// <problem>" for an unknown field or a bad value.
+GraphSettings graph_settings_from_scene(const nlohmann::json& block, const std::string& where);
 
 struct GraphClip {
   std::string name;
@@ -182,6 +201,11 @@ struct MotionGraph {
   // Before pruning: transitions found or declared, and nodes.
   int candidate_transitions = 0;
   int candidate_nodes = 0;
+  // Snapping (settings.min_segment_s > 0): found transitions moved onto a shared node, and those
+  // dropped because their distance at the snapped frames exceeded the threshold (or two became
+  // the same transition).
+  int snapped_transitions = 0;
+  int snap_dropped = 0;
 
   int node_count() const { return static_cast<int>(nodes.size()); }
   int edge_count() const { return static_cast<int>(edges.size()); }
@@ -230,6 +254,32 @@ struct GraphInput {
 // dropped.
 GraphInput load_graph_input(const std::filesystem::path& manifest,
                             const std::vector<std::string>& clip_names = {});
+
+// How much of the motion a pruned graph keeps (graph build, graph show, db info). Frames kept: the
+// frames of a clip that some clip edge plays (first_frame .. last_frame; a transition's blend
+// mixes two clips and is not counted). A segment is a clip edge; its length is last_frame -
+// first_frame, in frames at the clip's rate (the time it lasts).
+struct ClipCoverage {
+  std::string name;
+  int frames = 0;  // in the clip
+  int kept = 0;    // played by a clip edge of the graph
+};
+struct GraphCoverage {
+  std::vector<ClipCoverage> clips;
+  int frames = 0, kept = 0;  // over all clips
+  int segments = 0;          // clip edges
+  int median_segment = 0;    // frames; the lower median (0 without segments)
+  int shortest_segment = 0;  // frames
+  // Segments shorter than settings.min_segment_frames() that neither start at a clip's first
+  // frame nor end at its last (snapping promises none).
+  int short_inner_segments = 0;
+  double largest_transition = 0.0;  // largest Kovar distance of a transition edge, metres RMS
+  double kept_fraction() const { return frames > 0 ? double(kept) / frames : 0.0; }
+};
+GraphCoverage graph_coverage(const MotionGraph& graph);
+// The coverage as printed lines ("coverage ..."), and a warning naming the settings when the graph
+// keeps under 50 % of the frames.
+std::string coverage_text(const MotionGraph& graph);
 
 // Strongly connected components of a directed graph (Kovar 2002 sec. 3.4 prunes to the largest;
 // Tarjan 1972, iterative so that long clip chains cannot overflow the stack). Each component's
