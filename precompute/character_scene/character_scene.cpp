@@ -94,7 +94,7 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   if (!j.is_object()) f.fail("(top level)", "expected an object");
   f.only(j,
          {"name", "manifest", "clips", "garment", "material", "solver", "colliders", "air_drag",
-          "settle_frames", "steering"},
+          "settle_frames", "steering", "graph"},
          "");
   s.name = f.string(j, "name", "", file.stem().string());
   const std::string manifest = f.string(j, "manifest", "", "");
@@ -242,6 +242,7 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   s.steering.frames = f.integer(st, "frames", "steering.", s.steering.frames, 0, 1000);
   s.steering.max_distance =
       1e-3 * f.number(st, "max_mm", "steering.", 1e3 * s.steering.max_distance, true);
+  if (j.contains("graph")) s.graph = f.object(j, "graph", "");
   return s;
 }
 

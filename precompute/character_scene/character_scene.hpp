@@ -26,13 +26,17 @@
 //                   "friction_static": 0.4, "friction_kinetic": 0.3,
 //                   "motion": "interpolated"},   // or "swept", "end-pose": cloth/collision.hpp
 //     "air_drag": 0.3,
-//     "settle_frames": 30
+//     "settle_frames": 30,
+//     "graph": {"percentile": 0.5, "min_segment_s": 0.35}
+//        // the motion graph `clothdb precompute` and `clothdb floor` build from the scene's clips;
+//        // fields and defaults: graph/motion_graph.hpp, graph_settings_from_scene
 //   }
 // Every field but "manifest" and "garment" has a default. Errors name the scene file and field.
 #pragma once
 
 #include <filesystem>
 #include <functional>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
@@ -82,6 +86,9 @@ struct SceneFile {
   double air_drag = 0.3;
   int settle_frames = 30;
   SteeringSpec steering;
+  // The "graph" block as given (an object; null when absent). The graph layer reads and checks it
+  // (graph_settings_from_scene), the one owner of the graph settings and their defaults.
+  nlohmann::json graph;
 };
 
 // Reads and validates a scene file. Throws SceneError "<file>: <field>: <problem>" (and passes on

@@ -137,9 +137,29 @@ ChosenGraph choose_motion_graph(const CharacterScene& scene, const std::string& 
     if (j.is_discarded()) throw std::runtime_error(out.where + ": not valid JSON");
     out.graph = motion_graph_from_json(j, out.where);
     out.json = stored_json;
+    // A scene that fixes its graph settings must get a graph made with them (one made by `graph
+    // build --db` with other settings would otherwise be explored silently).
+    if (!scene.file.graph.is_null()) {
+      const GraphSettings wanted =
+          graph_settings_from_scene(scene.file.graph, scene.file.path.string());
+      MotionGraph probe;
+      probe.settings = wanted;
+      if (motion_graph_to_json(probe)["settings"] != j["settings"])
+        throw std::runtime_error(out.where + ": was built with other graph settings (" +
+                                 j["settings"].dump() + ") than the graph block of " +
+                                 scene.file.path.string() + " (" +
+                                 motion_graph_to_json(probe)["settings"].dump() +
+                                 "); use a new --db, or build the graph from the scene");
+    }
   } else {
-    GraphSettings settings;
-    if (percentile > 0) settings.threshold = percentile;
+    GraphSettings settings = graph_settings_from_scene(scene.file.graph, scene.file.path.string());
+    if (percentile > 0) {
+      if (!scene.file.graph.is_null())
+        throw std::runtime_error(scene.file.path.string() +
+                                 ": graph: the scene's graph block fixes the motion graph's "
+                                 "settings; set percentile there, not with --percentile");
+      settings.threshold = percentile;
+    }
     const MotionManifest& manifest = scene.file.manifest;
     std::vector<double> weights;
     std::vector<ManifestTransition> declared;
