@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <limits>
 #include <numbers>
 #include <set>
 
@@ -582,6 +583,216 @@ TEST(Graph, ManifestTransitionsField) {
         << e.what();
   }
   std::filesystem::remove_all(dir);
+}
+
+// Three walks of different periods and arm swings, placed apart and turned: with a generous
+// percentile their transitions land a frame or two apart in each clip, the case snapping is for.
+struct ThreeWalks {
+  Rig rig = make_rig();
+  std::vector<MotionClip> clips;
+};
+
+ThreeWalks three_walks() {
+  ThreeWalks w;
+  const int joints = w.rig.skeleton.joint_count();
+  w.clips.push_back(make_clip(w.rig, "walk", 220, walk(joints, 32)));
+  const auto b = walk(joints, 36, 0.5);
+  w.clips.push_back(make_clip(
+      w.rig, "walk_b", 200, [&](double f) { return b(f + 7); }, FloorTransform{1.1, -3, 2}));
+  const auto c = walk(joints, 29, 0.25);
+  w.clips.push_back(make_clip(
+      w.rig, "walk_c", 210, [&](double f) { return c(f + 3); }, FloorTransform{-0.4, 2, 5}));
+  return w;
+}
+
+// Shortest distance in frames between two nodes of one clip, clip starts and ends left out.
+int closest_inner_nodes(const MotionGraph& g) {
+  int closest = std::numeric_limits<int>::max();
+  for (int u = 0; u < g.node_count(); ++u)
+    for (int v = u + 1; v < g.node_count(); ++v) {
+      const GraphNode& a = g.nodes[u];
+      const GraphNode& b = g.nodes[v];
+      const int last = g.clips[a.clip].frame_count - 1;
+      if (a.clip != b.clip || a.frame == 0 || b.frame == 0 || a.frame == last || b.frame == last)
+        continue;
+      closest = std::min(closest, std::abs(a.frame - b.frame));
+    }
+  return closest;
+}
+
+double pair_threshold(const MotionGraph& g, int a, int b) {
+  for (const PairThreshold& t : g.thresholds)
+    if (t.clip_a == std::min(a, b) && t.clip_b == std::max(a, b)) return t.rms;
+  ADD_FAILURE() << "no threshold for clips " << a << ", " << b;
+  return 0.0;
+}
+
+TEST(Snapping, NeverKeepsATransitionAboveTheThresholdAtTheFramesItMovedTo) {
+  const ThreeWalks w = three_walks();
+  for (const ThresholdMode mode : {ThresholdMode::percentile, ThresholdMode::absolute}) {
+    GraphSettings s;
+    s.threshold_mode = mode;
+    s.threshold = mode == ThresholdMode::percentile ? 4.0 : 0.03;
+    s.spacing = 4;
+    s.prune = false;
+    const MotionGraph loose = build_motion_graph(w.clips, w.rig.skeleton, s);
+    s.min_segment_s = 0.5;  // 15 frames at 30 Hz
+    const MotionGraph g = build_motion_graph(w.clips, w.rig.skeleton, s);
+    // The case is one snapping has to act on: without it, nodes of a clip are closer than that.
+    ASSERT_LT(closest_inner_nodes(loose), 15);
+    EXPECT_GT(g.snapped_transitions, 0);
+    EXPECT_GT(g.transition_count(), 0);
+    for (const GraphEdge& e : g.edges) {
+      if (e.kind != EdgeKind::transition) continue;
+      // The distance is Kovar's D at the frames the transition now uses, not where it was found
+      // (to 1 um: D from the matrix's sums and from the two point clouds round differently, and
+      // the square root of a rounding error of 1e-15 near a perfect match is 3e-8).
+      const WindowAlignment al = align_windows(
+          w.clips[e.clip], e.first_frame, w.clips[e.target_clip], e.target_first_frame, s.window);
+      EXPECT_NEAR(e.distance, al.rms, 1e-6) << e.first_frame << " -> " << e.target_first_frame;
+      EXPECT_LE(e.distance, pair_threshold(g, e.clip, e.target_clip))
+          << w.clips[e.clip].name << " " << e.first_frame << " -> " << w.clips[e.target_clip].name
+          << " " << e.target_first_frame;
+      // Its alignment is the one at those frames too (the blend's poses use it).
+      EXPECT_NEAR(e.align.theta, al.transform.theta, 1e-9);
+      EXPECT_NEAR(e.align.x, al.transform.x, 1e-9);
+      EXPECT_NEAR(e.align.z, al.transform.z, 1e-9);
+      EXPECT_EQ(e.blend, s.blend);
+    }
+  }
+}
+
+TEST(Snapping, SegmentsLastAtLeastMinSegmentExceptAtClipEnds) {
+  const ThreeWalks w = three_walks();
+  for (const bool prune : {false, true})
+    for (const double min_segment_s : {0.3, 0.5, 0.8}) {
+      GraphSettings s;
+      s.threshold = 4.0;
+      s.spacing = 4;
+      s.prune = prune;
+      s.min_segment_s = min_segment_s;
+      const MotionGraph g = build_motion_graph(w.clips, w.rig.skeleton, s);
+      const int m = s.min_segment_frames(30.0);
+      EXPECT_EQ(m, static_cast<int>(std::lround(min_segment_s * 30)));
+      ASSERT_GT(g.clip_edge_count(), 0);
+      for (const GraphEdge& e : g.edges) {
+        if (e.kind != EdgeKind::clip) continue;
+        const bool at_clip_end =
+            e.first_frame == 0 || e.last_frame == g.clips[e.clip].frame_count - 1;
+        if (!at_clip_end)
+          EXPECT_GE(e.last_frame - e.first_frame, m)
+              << g.clips[e.clip].name << " " << e.first_frame << ".." << e.last_frame;
+      }
+      EXPECT_GE(closest_inner_nodes(g), m);
+      EXPECT_EQ(graph_coverage(g).short_inner_segments, 0);
+      if (prune) {
+        EXPECT_TRUE(is_strongly_connected(g));
+      }
+      // Snapped graphs go through JSON unchanged, their setting included.
+      const nlohmann::json j = motion_graph_to_json(g);
+      EXPECT_EQ(motion_graph_to_json(motion_graph_from_json(j, "snapped")).dump(), j.dump());
+      EXPECT_EQ(motion_graph_from_json(j, "snapped").settings.min_segment_s, min_segment_s);
+    }
+  // Without snapping the same settings leave short segments between transitions: the property
+  // above is snapping's doing.
+  GraphSettings s;
+  s.threshold = 4.0;
+  s.spacing = 4;
+  s.prune = false;
+  s.min_segment_s = 0.5;
+  const MotionGraph snapped = build_motion_graph(w.clips, w.rig.skeleton, s);
+  s.min_segment_s = 0;
+  const MotionGraph loose = build_motion_graph(w.clips, w.rig.skeleton, s);
+  GraphSettings judged = loose.settings;
+  judged.min_segment_s = 0.5;
+  MotionGraph loose_judged = loose;
+  loose_judged.settings = judged;
+  EXPECT_GT(graph_coverage(loose_judged).short_inner_segments, 0);
+  EXPECT_EQ(graph_coverage(snapped).short_inner_segments, 0);
+  // And without snapping the JSON has no min_segment_s (graphs made before it keep their text).
+  EXPECT_FALSE(motion_graph_to_json(loose)["settings"].contains("min_segment_s"));
+}
+
+TEST(Coverage, FiguresOfAHandMadeGraph) {
+  MotionGraph g;
+  g.clips = {{"a", "a", 51, 30}, {"b", "b", 50, 30}, {"c", "c", 100, 30}};
+  g.nodes = {{0, 10}, {0, 30}, {0, 40}, {1, 0}, {1, 25}};
+  g.edges.push_back(clip_edge(0, 1, 0, 10, 30));  // 20 frames long, a's frames 10..30
+  g.edges.push_back(clip_edge(1, 2, 0, 30, 40));  // 10 frames, shares frame 30
+  g.edges.push_back(clip_edge(3, 4, 1, 0, 25));   // 25 frames, from b's start
+  g.edges.push_back(transition_edge(2, 3, 0, 40, 1, 10, 10));
+  g.edges.back().distance = 0.05;
+  g.edges.push_back(transition_edge(4, 0, 1, 25, 0, 10, 5));
+  g.edges.back().distance = 0.02;
+  g.settings.min_segment_s = 0.5;  // 15 frames
+  const GraphCoverage c = graph_coverage(g);
+  ASSERT_EQ(c.clips.size(), 3u);
+  EXPECT_EQ(c.clips[0].kept, 31);  // 10..40
+  EXPECT_EQ(c.clips[1].kept, 26);  // 0..25: a transition's blend frames are not counted
+  EXPECT_EQ(c.clips[2].kept, 0);
+  EXPECT_EQ(c.frames, 201);
+  EXPECT_EQ(c.kept, 57);
+  EXPECT_EQ(c.segments, 3);
+  EXPECT_EQ(c.median_segment, 20);
+  EXPECT_EQ(c.shortest_segment, 10);
+  EXPECT_EQ(c.largest_transition, 0.05);
+  // a 30..40 is shorter than 15 frames away from a clip end; b 0..25 starts b.
+  EXPECT_EQ(c.short_inner_segments, 1);
+  // 57 of 201 frames: under half, and the warning names the setting to change.
+  const std::string text = coverage_text(g);
+  EXPECT_NE(text.find("57 of 201 frames kept (28.4 %)"), std::string::npos) << text;
+  EXPECT_NE(text.find("warning"), std::string::npos) << text;
+  EXPECT_NE(text.find("percentile"), std::string::npos) << text;
+  // Clip c gone, the graph keeps 57 of 101: no warning.
+  g.clips.pop_back();
+  EXPECT_EQ(graph_coverage(g).frames, 101);
+  EXPECT_EQ(coverage_text(g).find("warning"), std::string::npos) << coverage_text(g);
+  // An even number of segments: the lower median.
+  g.edges.push_back(clip_edge(2, 2, 0, 40, 50));
+  EXPECT_EQ(graph_coverage(g).median_segment, 10);
+}
+
+TEST(SceneGraphBlock, ReadsEveryFieldAndNamesABadOne) {
+  const nlohmann::json ok = nlohmann::json::parse(
+      R"({"window": 4, "blend": 8, "spacing": 6, "self_offset": 20, "percentile": 0.5,
+          "max_distance": 0.08, "min_segment_s": 0.35, "prune": false})");
+  const GraphSettings s = graph_settings_from_scene(ok, "scene.json");
+  EXPECT_EQ(s.window, 4);
+  EXPECT_EQ(s.blend, 8);
+  EXPECT_EQ(s.spacing, 6);
+  EXPECT_EQ(s.min_self_offset, 20);
+  EXPECT_EQ(s.threshold_mode, ThresholdMode::percentile);
+  EXPECT_EQ(s.threshold, 0.5);
+  EXPECT_EQ(s.max_distance, 0.08);
+  EXPECT_EQ(s.min_segment_s, 0.35);
+  EXPECT_FALSE(s.prune);
+  const GraphSettings absolute =
+      graph_settings_from_scene(nlohmann::json::parse(R"({"threshold": 0.04})"), "scene.json");
+  EXPECT_EQ(absolute.threshold_mode, ThresholdMode::absolute);
+  EXPECT_EQ(absolute.threshold, 0.04);
+  // Absent: GraphSettings' defaults.
+  const GraphSettings none = graph_settings_from_scene(nlohmann::json(), "scene.json");
+  EXPECT_EQ(none.threshold, GraphSettings{}.threshold);
+  EXPECT_EQ(none.min_segment_s, 0.0);
+
+  const std::vector<std::pair<std::string, std::string>> bad = {
+      {R"({"min_segment_s": -0.3})", "scene.json: graph.min_segment_s: "},
+      {R"({"min_segment_s": "long"})", "scene.json: graph.min_segment_s: "},
+      {R"({"percentile": 120})", "scene.json: graph.percentile: "},
+      {R"({"window": 0})", "scene.json: graph.window: "},
+      {R"({"blend": 2.5})", "scene.json: graph.blend: "},
+      {R"({"prune": 1})", "scene.json: graph.prune: "},
+      {R"({"min_segment": 0.3})", "scene.json: graph.min_segment: unknown field"},
+      {R"({"percentile": 1, "threshold": 0.03})", "scene.json: graph.threshold: "},
+      {R"([1, 2])", "scene.json: graph: "}};
+  for (const auto& [text, message] : bad) {
+    try {
+      graph_settings_from_scene(nlohmann::json::parse(text), "scene.json");
+      ADD_FAILURE() << text << " was accepted";
+    } catch (const GraphError& e) {
+      EXPECT_EQ(std::string(e.what()).rfind(message, 0), 0u) << text << ": " << e.what();
+    }
+  }
 }
 
 TEST(Graph, CmuDemoManifest) {
