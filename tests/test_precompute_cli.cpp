@@ -113,7 +113,8 @@ std::vector<std::string> content(const std::string& path) {
 
 // A 200-vertex skirt on the first 2.5 s of CMU 01_03 (a graph of 2 nodes and 2 edges) with heavy
 // air drag: at epsilon 2 mm the exploration converges in about 50 clips and a few seconds.
-std::string small_scene(const std::string& name) {
+// `extra`: more top-level fields, e.g. R"(, "graph": {...})".
+std::string small_scene(const std::string& name, const std::string& extra = "") {
   const std::string scene = (work_dir() / (name + ".json")).string();
   std::ofstream(scene) << R"({"name": "sigkill", "manifest": ")" << kSource
                        << R"(/motions/cmu_walk.json",
@@ -122,7 +123,8 @@ std::string small_scene(const std::string& name) {
     "material": {"density": 0.15, "youngs_modulus": 1e8, "thickness": 0.0005, "bending_stiffness": 1e-5, "damping": 0.001},
     "solver": {"name": "xpbd", "substeps": 6, "iterations": 1, "tethers": false},
     "colliders": {"bones": ["LowerBack", "LHipJoint", "RHipJoint", "LeftUpLeg", "LeftLeg", "RightUpLeg", "RightLeg"]},
-    "air_drag": 1.0, "settle_frames": 10})";
+    "air_drag": 1.0, "settle_frames": 10)"
+                       << extra << "}";
   return scene;
 }
 
@@ -204,6 +206,37 @@ TEST(PrecomputeCli, RefusesADifferentGraphThanTheDatabaseHolds) {
   waitpid(pid, &status, 0);
   EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 1);
   EXPECT_NE(read_file(log).find(db + ": holds a different motion graph"), std::string::npos)
+      << read_file(log);
+}
+
+// The scene's graph block (issue 27): a bad field is refused by name before any file is made, and
+// a database holding a graph built with other settings than the block's is refused; `db info`
+// reports the stored graph's coverage.
+TEST(PrecomputeCli, SceneGraphBlockIsCheckedByFieldAndAgainstTheStoredGraph) {
+  const std::filesystem::path dir = work_dir();
+  const std::string db = (dir / "graph_block.db").string();
+  const std::string log = (dir / "graph_block_log.txt").string();
+  std::filesystem::remove(log);
+  remove_db(db);
+  const std::string bad = small_scene("bad_graph_block", R"(, "graph": {"min_segment_s": -0.3})");
+  int status = 0;
+  waitpid(start({"precompute", bad, "--db", db}, log), &status, 0);
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 1);
+  EXPECT_NE(read_file(log).find(bad + ": graph.min_segment_s: expected a number >= 0"),
+            std::string::npos)
+      << read_file(log);
+  EXPECT_FALSE(std::filesystem::exists(db));
+
+  run({"graph", "build", kSource + "/motions/cmu_walk.json", "--clips", "01_03_level_walk", "--db",
+       db},
+      log);
+  run({"db", "info", db}, log);
+  EXPECT_NE(read_file(log).find("coverage: "), std::string::npos) << read_file(log);
+  const std::string other =
+      small_scene("other_graph_block", R"(, "graph": {"percentile": 0.1, "min_segment_s": 0.3})");
+  waitpid(start({"precompute", other, "--db", db}, log), &status, 0);
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 1);
+  EXPECT_NE(read_file(log).find("was built with other graph settings"), std::string::npos)
       << read_file(log);
 }
 
