@@ -47,7 +47,8 @@ void register_floor(CLI::App& app) {
                   "Motion graph file (from `clothdb graph build --out`); default: built from the "
                   "scene's clips as `precompute` builds it");
   cmd->add_option("--percentile", args->percentile,
-                  "Motion graph: transition threshold percentile (default: graph build's)");
+                  "Motion graph: transition threshold percentile (default: the scene's graph "
+                  "block, else graph build's; refused beside a graph block)");
   cmd->add_option("--histories", args->options.histories, "Different histories (K)")
       ->capture_default_str()
       ->check(CLI::Range(2, 64));

@@ -93,7 +93,8 @@ void register_precompute(CLI::App& app) {
                   "database holds "
                   "(`clothdb graph build --db`), else one built from the scene's clips");
   cmd->add_option("--percentile", args->percentile,
-                  "Motion graph: transition threshold percentile (default: graph build's)");
+                  "Motion graph: transition threshold percentile (default: the scene's graph "
+                  "block, else graph build's; refused beside a graph block)");
   cmd->add_option("--curve", args->curve,
                   "Write the error-against-CPU-time curve to PREFIX.csv and PREFIX.svg (default: "
                   "beside the database)");

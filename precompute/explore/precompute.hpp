@@ -3,7 +3,9 @@
 //
 //   motion graph: --graph FILE, else the one the database holds (`clothdb graph build --db`, or an
 //                 earlier precompute), else one built from the scene's clips and its manifest
-//                 (Kovar et al. 2002) with the manifest's weights and declared transitions;
+//                 (Kovar et al. 2002) with the manifest's weights and declared transitions and
+//                 the settings of the scene's "graph" block (a stored graph made with other
+//                 settings than the block's is refused, and so is --percentile beside it);
 //   resume:       an existing database must have been made from the same scene file (hash), the
 //                 same motion graph and the same solver setting (or --auto's recorded choice);
 //   --auto:       calibrates the solvers on the start edge and takes the cheapest within
