@@ -190,7 +190,7 @@ ClothScene folding_sheet(int resolution) {
 
 // Self-collision (issue 29): a tube skirt (radius 0.16 m, 0.5 m long) round a body capsule of
 // radius 0.1 m, held at its waist and its hem. The hem ring turns once about the body and rises
-// 0.15 m in 1.5 s, then holds: the cloth between is wrung round the body in folds that press on
+// 0.3 m in 1.5 s, then holds: the cloth between is wrung round the body in folds that press on
 // each other (the rise leaves the slack to do so without stretching).
 ClothScene twisted_skirt(int resolution) {
   const int around = resolution > 0 ? resolution : 24;
@@ -215,7 +215,7 @@ ClothScene twisted_skirt(int resolution) {
   m.bending_stiffness = 2e-6;
   ClothScene scene;
   scene.name = "twisted-skirt";
-  scene.description = "tube skirt round a body, hem turned once and raised 0.15 m: wrung in folds";
+  scene.description = "tube skirt round a body, hem turned once and raised 0.3 m: wrung in folds";
   scene.model = make_model(std::move(mesh), m, held);
   CapsuleCollider body;
   body.a = body.a_start = Vec3(0, 0.2, 0);
@@ -231,7 +231,7 @@ ClothScene twisted_skirt(int resolution) {
     const Eigen::Matrix3d r = Eigen::AngleAxisd(2.0 * kPi * s, Vec3::UnitY()).toRotationMatrix();
     Eigen::Matrix3Xd p = rest;
     for (Eigen::Index k = waist_count; k < p.cols(); ++k)
-      p.col(k) = r * rest.col(k) + Vec3(0, 0.15 * s, 0);
+      p.col(k) = r * rest.col(k) + Vec3(0, 0.3 * s, 0);
     return p;
   };
   return scene;
