@@ -74,6 +74,17 @@ double segment_distance_sq(const Vec3& p1, const Vec3& q1, const Vec3& p2, const
   return ((p1 + s * (q1 - p1)) - (p2 + t * (q2 - p2))).squaredNorm();
 }
 
+// True if the boxes of segments p1-q1 and p2-q2 are more than `gap` apart along some axis: then
+// the segments are too (the cheap test before the closest points, which most listed pairs fail).
+bool boxes_apart(const Vec3& p1, const Vec3& q1, const Vec3& p2, const Vec3& q2, double gap) {
+  for (int k = 0; k < 3; ++k) {
+    const double lo1 = std::min(p1[k], q1[k]), hi1 = std::max(p1[k], q1[k]);
+    const double lo2 = std::min(p2[k], q2[k]), hi2 = std::max(p2[k], q2[k]);
+    if (lo2 > hi1 + gap || lo1 > hi2 + gap) return true;
+  }
+  return false;
+}
+
 Vec3 unit_normal(const Eigen::Matrix3Xd& x, const std::array<int, 3>& t) {
   const Vec3 n = (x.col(t[1]) - x.col(t[0])).cross(x.col(t[2]) - x.col(t[0]));
   const double len = n.norm();
@@ -146,6 +157,7 @@ void build_candidates(SelfCollision& sc, const ClothModel& model, const Eigen::M
       const std::array<int, 2>& e2 = mesh.edges[static_cast<size_t>(e)];
       if (e2[0] == e1[0] || e2[0] == e1[1] || e2[1] == e1[0] || e2[1] == e1[1]) return;
       if (!first_free && w[e2[0]] + w[e2[1]] <= 0.0) return;
+      if (boxes_apart(p1, q1, x.col(e2[0]), x.col(e2[1]), reach)) return;
       if (segment_distance_sq(p1, q1, x.col(e2[0]), x.col(e2[1])) >= reach_sq) return;
       if (segment_distance_sq(rest.col(e1[0]), rest.col(e1[1]), rest.col(e2[0]), rest.col(e2[1])) <
           rest_sq)
@@ -245,6 +257,13 @@ int project_self_collision(SelfCollision& sc, const ClothModel& model, Eigen::Ma
     const std::array<int, 2>& e1 = mesh.edges[static_cast<size_t>(pair[0])];
     const std::array<int, 2>& e2 = mesh.edges[static_cast<size_t>(pair[1])];
     const Vec3 p1 = x.col(e1[0]), q1 = x.col(e1[1]), p2 = x.col(e2[0]), q2 = x.col(e2[1]);
+    // Most listed pairs are farther apart than the thickness both now and at the sub-step's
+    // start: skip them before the closest points (a pair that went through each other and on by
+    // more than the thickness within one sub-step, 8 mm at 4 mm and 3.6 m/s relative at 15
+    // sub-steps of 1/30 s, is missed here, as it would be by the vertex-triangle test).
+    if (boxes_apart(p1, q1, p2, q2, h) && boxes_apart(x_start.col(e1[0]), x_start.col(e1[1]),
+                                                      x_start.col(e2[0]), x_start.col(e2[1]), h))
+      continue;
     double s = 0.0, t = 0.0;
     closest_on_segments(p1, q1, p2, q2, s, t);
     const Vec3 d = (p1 + s * (q1 - p1)) - (p2 + t * (q2 - p2));
