@@ -10,7 +10,7 @@
 
 #include "cloth/mesh.hpp"
 #include "cloth/self_intersection.hpp"
-#include "database/run_settings.hpp"
+#include "database/store/run_settings.hpp"
 #include "hard_cases/hard_cases.hpp"
 #include "solvers/solver.hpp"
 

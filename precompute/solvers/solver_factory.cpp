@@ -16,7 +16,7 @@ int max_solver_threads() {
 
 std::unique_ptr<Solver> make_solver(SolverKind kind, const ClothModel& model,
                                     const SolverSettings& settings) {
-  // The record's own ranges (database/run_settings.hpp), then this machine's thread cap.
+  // The record's own ranges (database/store/run_settings.hpp), then this machine's thread cap.
   validate_solver_settings(settings, "solver settings");
   if (settings.threads > max_solver_threads())
     throw std::invalid_argument("solver settings: threads: " + std::to_string(settings.threads) +
