@@ -4,6 +4,8 @@
 #include <cstdio>
 #include <fstream>
 #include <memory>
+#include <stdexcept>
+#include <string>
 
 #include "bench/character_bench.hpp"
 #include "cli_util.hpp"
@@ -31,7 +33,7 @@ std::string load_average() {
 
 void register_bench_character(CLI::App& bench) {
   struct Args {
-    std::string scene, solvers, substeps = "0", threads = "1", motions, out;
+    std::string scene, solvers, substeps = "0", threads = "1", motions, self_collision, out;
     int vertices = 0, settle_every = 0;
     CharacterBenchOptions options;
   };
@@ -78,6 +80,10 @@ void register_bench_character(CLI::App& bench) {
       "--collider-motion", args->motions,
       "Comma-separated: end-pose | interpolated | swept (see cloth/collision.hpp); default: "
       "the scene's colliders.motion");
+  cmd->add_option("--self-collision", args->self_collision,
+                  "Comma-separated XPBD self-collision thicknesses in mm, 0: off, e.g. 0,4; "
+                  "default: the scene's, and when that is on also a run without it (the table's "
+                  "'CPU vs off' column is its cost)");
   cmd->add_option("--settle-every", args->settle_every,
                   "Instead of the clip run: settle the garment from every N-th frame of the clip "
                   "and print each settled state's largest edge strain and penetration");
@@ -92,6 +98,19 @@ void register_bench_character(CLI::App& bench) {
       if (t < 1) throw std::invalid_argument("--threads: expected thread counts >= 1");
     for (const auto& m : split_list(args->motions))
       options.collider_motions.push_back(parse_collider_motion(m));
+    for (const auto& t : split_list(args->self_collision)) {
+      std::size_t used = 0;
+      double mm = -1.0;
+      try {
+        mm = std::stod(t, &used);
+      } catch (const std::exception&) {
+        used = 0;
+      }
+      if (used != t.size() || !(mm >= 0.0 && mm <= 50.0))
+        throw std::invalid_argument(
+            "--self-collision: expected thicknesses in mm in [0, 50], got '" + t + "'");
+      options.self_collision_mm.push_back(mm);
+    }
     if (args->vertices > 0) {
       if (file.garment_kind == GarmentKind::Mesh)
         throw std::invalid_argument(args->scene +

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "cli_util.hpp"
+#include "cloth/self_intersection.hpp"
 #include "commands.hpp"
 #include "database/codec/codec.hpp"
 #include "database/store/writer.hpp"
@@ -33,7 +34,49 @@ struct ClipTable {
   std::map<int64_t, std::vector<db::ClothEdge>> edges_from;  // clip id -> its out edges
   std::vector<db::StoredState> states;
   std::map<int64_t, db::ClipSteering> steering;  // clip id -> how its end was steered (issue 16)
+  // clip id -> the most edge-triangle crossings in one of its decoded frames; filled only for
+  // `--by self-intersections` (measured here, not stored: it decodes every clip).
+  std::map<int64_t, int> crossings;
 };
+
+// The garment's topology (rest positions zero: only the triangles and edges are used).
+ClothMesh garment_topology(db::Reader& reader) {
+  db::Garment garment;
+  db::Error err;
+  if (reader.garment(&garment, &err) != db::Status::Ok) throw std::runtime_error(err.message);
+  ClothMesh mesh;
+  mesh.rest = Eigen::Matrix3Xd::Zero(3, Eigen::Index(garment.vertex_count()));
+  for (size_t k = 0; k + 2 < garment.triangles.size(); k += 3)
+    mesh.triangles.push_back(
+        {int(garment.triangles[k]), int(garment.triangles[k + 1]), int(garment.triangles[k + 2])});
+  build_topology(mesh);
+  return mesh;
+}
+
+Eigen::Matrix3Xd frame_positions(const std::vector<float>& frames, int f, int n) {
+  Eigen::Matrix3Xd m(3, n);
+  for (int v = 0; v < n; ++v)
+    for (int k = 0; k < 3; ++k)
+      m(k, v) = frames[(size_t(f) * size_t(n) + size_t(v)) * 3 + size_t(k)];
+  return m;
+}
+
+// Edge-triangle crossings of every frame of clip `id` as decoded (cloth/self_intersection.hpp).
+std::vector<int> clip_crossings(db::Reader& reader, const ClothMesh& mesh, int64_t id) {
+  std::vector<uint8_t> blob;
+  std::vector<float> frames;
+  codec::DecodeScratch scratch;
+  db::Error err;
+  if (reader.clip_blob(id, &blob, &err) != db::Status::Ok ||
+      reader.decode_all(blob, &frames, scratch, &err) != db::Status::Ok)
+    throw std::runtime_error(err.message);
+  const int n = mesh.vertex_count();
+  const int count = n > 0 ? int(frames.size() / (size_t(n) * 3)) : 0;
+  std::vector<int> out;
+  for (int f = 0; f < count; ++f)
+    out.push_back(count_self_intersections(mesh, frame_positions(frames, f, n)));
+  return out;
+}
 
 ClipTable read_table(db::Reader& reader) {
   ClipTable t;
@@ -93,6 +136,12 @@ const Metric kMetrics[] = {
        auto it = t.steering.find(c.id);
        return it == t.steering.end() ? 0.0 : it->second.displacement;
      }},
+    // The most edge-triangle crossings in one decoded frame (issue 29); measured when listing.
+    {"self-intersections", "self_intersections", 1,
+     [](const ClipTable& t, const db::ClothClip& c) {
+       auto it = t.crossings.find(c.id);
+       return it == t.crossings.end() ? db::kUnknownMetric : double(it->second);
+     }},
 };
 
 const Metric& find_metric(const std::string& name) {
@@ -119,7 +168,15 @@ nlohmann::json number_or_null(double v) {
 void list_clips(const std::string& path, int worst, const std::string& by, bool json) {
   const Metric& metric = find_metric(by);
   db::Reader reader = open_reader(path);
-  const ClipTable t = read_table(reader);
+  ClipTable t = read_table(reader);
+  if (std::string(metric.name) == "self-intersections") {
+    const ClothMesh mesh = garment_topology(reader);
+    for (const auto& c : t.clips) {
+      const std::vector<int> per_frame = clip_crossings(reader, mesh, c.id);
+      t.crossings[c.id] =
+          per_frame.empty() ? 0 : *std::max_element(per_frame.begin(), per_frame.end());
+    }
+  }
   std::vector<const db::ClothClip*> order;
   for (const auto& c : t.clips) order.push_back(&c);
   // Worst first; unknown values last; ties by id so the listing is stable.
@@ -143,9 +200,10 @@ void list_clips(const std::string& path, int worst, const std::string& by, bool 
           {"status", db::clip_status_name(c->status)}};
       for (const Metric& m : kMetrics) {
         const double v = m.get(t, *c);
-        row[m.json] = std::string(m.name) == "halved"
-                          ? (std::isnan(v) ? nlohmann::json(nullptr) : nlohmann::json(int(v)))
-                          : number_or_null(v * m.scale);
+        const bool whole =
+            std::string(m.name) == "halved" || std::string(m.name) == "self-intersections";
+        row[m.json] = whole ? (std::isnan(v) ? nlohmann::json(nullptr) : nlohmann::json(int(v)))
+                            : number_or_null(v * m.scale);
       }
       row["worst_frame"] =
           c->worst_frame < 0 ? nlohmann::json(nullptr) : nlohmann::json(c->worst_frame);
@@ -158,23 +216,24 @@ void list_clips(const std::string& path, int worst, const std::string& by, bool 
   }
   std::printf("%zu of %zu clips in %s, worst %s first (? = not measured)\n", order.size(),
               t.clips.size(), path.c_str(), metric.name);
-  std::printf("%6s  %-34s %6s  %-7s %8s %8s %8s %8s %6s %8s %8s %6s\n", "id", "primary clip",
+  std::printf("%6s  %-34s %6s  %-7s %8s %8s %8s %8s %6s %8s %8s %6s %6s\n", "id", "primary clip",
               "frames", "status", "strain%", "pen mm", "mpen mm", "jit mm", "halved", "pop mm",
-              "steer mm", "worst");
+              "steer mm", "worst", "cross");
   for (const db::ClothClip* c : order) {
     std::string name =
         t.primary_name.count(c->primary_clip) ? t.primary_name.at(c->primary_clip) : "?";
     if (name.size() > 34) name = name.substr(0, 31) + "...";
     std::printf(
-        "%6lld  %-34s %6d  %-7s %8s %8s %8s %8s %6s %8s %8s %6s\n", (long long)c->id, name.c_str(),
-        c->frame_count, db::clip_status_name(c->status), cell(100 * c->max_strain, "%.2f").c_str(),
-        cell(1e3 * c->max_penetration, "%.2f").c_str(),
+        "%6lld  %-34s %6d  %-7s %8s %8s %8s %8s %6s %8s %8s %6s %6s\n", (long long)c->id,
+        name.c_str(), c->frame_count, db::clip_status_name(c->status),
+        cell(100 * c->max_strain, "%.2f").c_str(), cell(1e3 * c->max_penetration, "%.2f").c_str(),
         cell(1e3 * c->mean_penetration, "%.2f").c_str(), cell(1e3 * c->jitter, "%.3f").c_str(),
         c->halved_steps < 0 ? "?" : std::to_string(c->halved_steps).c_str(),
         cell(1e3 * worst_pop(t, c->id), "%.2f").c_str(),
         t.steering.count(c->id) ? cell(1e3 * t.steering.at(c->id).displacement, "%.2f").c_str()
                                 : "-",
-        c->worst_frame < 0 ? "?" : std::to_string(c->worst_frame).c_str());
+        c->worst_frame < 0 ? "?" : std::to_string(c->worst_frame).c_str(),
+        t.crossings.count(c->id) ? std::to_string(t.crossings.at(c->id)).c_str() : "?");
   }
 }
 
@@ -340,6 +399,12 @@ void show_clip(const ShowArgs& a) {
     triangles[k] = {int(garment.triangles[3 * k]), int(garment.triangles[3 * k + 1]),
                     int(garment.triangles[3 * k + 2])};
 
+  // Frames where the cloth passes through itself (issue 29): framed in orange on the sheet.
+  const std::vector<int> crossings = clip_crossings(reader, garment_topology(reader), c.id);
+  int crossing_frames = 0, most = 0;
+  for (int k : crossings) crossing_frames += k > 0 ? 1 : 0, most = std::max(most, k);
+  std::printf("  self-intersections %d frames with edge-triangle crossings, at most %d in one\n",
+              crossing_frames, most);
   const std::vector<int> shown = sheet_frames(c.frame_count, a.tiles, c.worst_frame);
   auto frame_matrix = [&](int f) {
     Eigen::Matrix3Xd m(3, n);
@@ -376,6 +441,8 @@ void show_clip(const ShowArgs& a) {
     scene.floor_height = floor - 0.01;
     std::vector<uint8_t> tile = render_preview(scene, cam, size, size);
     const bool worst = f == c.worst_frame;
+    if (size_t(f) < crossings.size() && crossings[size_t(f)] > 0)
+      draw_border(tile, size, size, std::max(6, size / 20), {255, 140, 0});
     if (worst) draw_border(tile, size, size, std::max(3, size / 40), {220, 20, 20});
     draw_number(tile, size, size, size / 40 + 4, size / 40 + 4, f, std::max(2, size / 100),
                 worst ? std::array<uint8_t, 3>{220, 20, 20} : std::array<uint8_t, 3>{40, 40, 40});
@@ -386,9 +453,11 @@ void show_clip(const ShowArgs& a) {
   write_png(a.png, contact_sheet(tiles, size, size, columns), size * columns, size * rows);
   std::string list;
   for (int f : shown) list += (list.empty() ? "" : " ") + std::to_string(f);
-  std::printf("contact sheet %s: frames %s%s; worst frame %d framed in red\n", a.png.c_str(),
-              list.c_str(), body.empty() ? " (without the body)" : " with the body capsules",
-              c.worst_frame);
+  std::printf(
+      "contact sheet %s: frames %s%s; worst frame %d framed in red, frames where the cloth "
+      "crosses itself in orange\n",
+      a.png.c_str(), list.c_str(), body.empty() ? " (without the body)" : " with the body capsules",
+      c.worst_frame);
 }
 
 }  // namespace
@@ -406,14 +475,17 @@ void register_clip_quality_commands(CLI::App& app) {
       "Table of the worst cloth clips by a quality metric measured at precompute time "
       "(docs/DATABASE.md): strain (max edge strain, %), penetration (max depth into the body, mm), "
       "mean-penetration (mean depth of penetrating vertex-frames, mm), jitter (RMS normalised 4th "
-      "difference, mm), halved (solver step halvings), pop (largest jump at its out edges, mm)");
+      "difference, mm), halved (solver step halvings), pop (largest jump at its out edges, mm), "
+      "self-intersections (most edge-triangle crossings in one frame, measured on the decoded "
+      "frames when listing by it)");
   list->add_option("FILE", la->file, "clothdb database")->required();
   list->add_option("--worst", la->worst, "Show the N worst clips (0: all)")
       ->capture_default_str()
       ->check(non_negative_number());
   list->add_option("--by", la->by,
                    "strain | penetration | mean-penetration | jitter | halved | pop | steering "
-                   "(the largest pull steering gave a vertex in one frame; 0: not steered)")
+                   "(the largest pull steering gave a vertex in one frame; 0: not steered) | "
+                   "self-intersections (decodes every clip)")
       ->capture_default_str();
   list->add_flag("--json", la->json, "Print JSON (lengths in mm, strain in %; null: not measured)");
   list->callback([la] { list_clips(la->file, la->worst, la->by, la->json); });
@@ -423,7 +495,8 @@ void register_clip_quality_commands(CLI::App& app) {
   CLI::App* show = clip.add_subcommand(
       "show",
       "One cloth clip's quality metrics, start state and out edges (with their pops), and a PNG "
-      "contact sheet of its frames with the body capsules, the worst frame framed in red");
+      "contact sheet of its frames with the body capsules, the worst frame framed in red and "
+      "frames where the cloth crosses itself framed in orange");
   show->add_option("FILE", sa->file, "clothdb database")->required();
   show->add_option("ID", sa->id, "Cloth clip id (see `clothdb clips list`)")->required();
   show->add_option("--png", sa->png, "Write the contact sheet here (default: FILE.clip<ID>.png)");

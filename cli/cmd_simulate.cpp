@@ -9,6 +9,7 @@
 
 #include "character_scene/character_scene.hpp"
 #include "cli_util.hpp"
+#include "cloth/self_intersection.hpp"
 #include "commands.hpp"
 #include "exchange/body_mesh.hpp"
 #include "exchange/point_cache.hpp"
@@ -97,7 +98,11 @@ void register_simulate(CLI::App& app) {
     for (BoneCapsule& c : whole_skeleton.capsules) c.radius *= 0.6;
     std::ostringstream csv;
     csv << "frame,max_strain,max_penetration_mm,mean_penetration_mm,kinetic_energy_J,step_"
-           "halvings\n";
+           "halvings,self_intersections\n";
+    // Edge-triangle crossings (cloth/self_intersection.hpp): per frame, the worst, and how many
+    // frames have any (issue 29).
+    int worst_crossings = count_self_intersections(scene.model.mesh, state.x);
+    int worst_crossing_frame = 0, crossing_frames = worst_crossings > 0 ? 1 : 0;
     FrameMetrics worst;
     const auto start = std::chrono::steady_clock::now();
     double solver_seconds = 0;
@@ -111,7 +116,11 @@ void register_simulate(CLI::App& app) {
       solver_seconds += run.seconds;
       const FrameMetrics& m = run.metrics.front();
       csv << f << ',' << m.max_strain << ',' << 1e3 * m.max_penetration << ','
-          << 1e3 * m.mean_penetration << ',' << m.kinetic_energy << ',' << m.step_halvings << '\n';
+          << 1e3 * m.mean_penetration << ',' << m.kinetic_energy << ',' << m.step_halvings;
+      const int crossings = count_self_intersections(scene.model.mesh, state.x);
+      csv << ',' << crossings << '\n';
+      if (crossings > 0) ++crossing_frames;
+      if (crossings > worst_crossings) worst_crossings = crossings, worst_crossing_frame = f;
       worst.max_strain = std::max(worst.max_strain, m.max_strain);
       worst.max_penetration = std::max(worst.max_penetration, m.max_penetration);
       worst.mean_penetration = std::max(worst.mean_penetration, m.mean_penetration);
@@ -187,7 +196,10 @@ void register_simulate(CLI::App& app) {
                               {"max_penetration_mm", 1e3 * worst.max_penetration},
                               {"max_mean_penetration_mm", 1e3 * worst.mean_penetration},
                               {"thickness_mm", 1e3 * file.material.thickness},
-                              {"step_halvings", worst.step_halvings}};
+                              {"step_halvings", worst.step_halvings},
+                              {"self_intersections_max", worst_crossings},
+                              {"self_intersections_worst_frame", worst_crossing_frame},
+                              {"frames_with_self_intersections", crossing_frames}};
     write_file_atomic(args->out + "/summary.json", summary.dump(2) + "\n");
     std::printf(
         "%s\nwrote %s/{garment.obj,cloth.pc2,body.obj,body.pc2,metrics.csv,summary.json} and %zu "

@@ -62,6 +62,8 @@ void visit_solver_fields(SolverSettings& s, V& v) {
   v.number("strain_limit", s.strain_limit, 0.0, 10.0);
   v.integer("strain_limit_iterations", s.strain_limit_iterations, 1, kMaxIterations);
   v.integer("strain_limit_contact_rounds", s.strain_limit_contact_rounds, 0, kMaxIterations);
+  // Up to 50 mm: thicker than any garment layer; 0 (off) is not written.
+  v.grouped("self_collision", "thickness_mm", s.self_collision_thickness_mm, 0.0, 50.0);
 }
 
 template <class V>
@@ -122,6 +124,9 @@ struct Validator {
     check_range(where, prefix + name, static_cast<long long>(i), lo, hi);
   }
   void boolean(const char*, bool&) {}
+  void grouped(const char* group, const char* name, double& d, double lo, double hi) {
+    check_range(where, prefix + group + "." + name, d, lo, hi);
+  }
   template <class E>
   void choice(const char* name, E& e, std::initializer_list<std::pair<const char*, E>> options) {
     for (const auto& o : options)
@@ -139,6 +144,10 @@ struct ToJson {
   }
   void integer64(const char* name, long& i, long, long) { out[name] = i; }
   void boolean(const char* name, bool& b) { out[name] = b; }
+  // A group whose only field is 0 means off and is left out.
+  void grouped(const char* group, const char* name, double& d, double, double) {
+    if (d != 0.0) out[group] = {{name, d}};
+  }
   template <class E>
   void choice(const char* name, E& e, std::initializer_list<std::pair<const char*, E>> options) {
     for (const auto& o : options)
@@ -189,6 +198,16 @@ struct FromJson {
     if (!v) return;
     if (!v->is_boolean()) refuse(where, prefix + name, "expected true or false, got " + v->dump());
     b = v->get<bool>();
+  }
+  void grouped(const char* group, const char* name, double& d, double lo, double hi) {
+    const json* g = get(group);
+    if (!g) return;
+    if (!g->is_object())
+      refuse(where, prefix + group,
+             "expected an object such as {\"" + std::string(name) + "\": 4}");
+    FromJson inner{*g, where, prefix + group + ".", {}};
+    inner.number(name, d, lo, hi);
+    inner.only();
   }
   template <class E>
   void choice(const char* name, E& e, std::initializer_list<std::pair<const char*, E>> options) {

@@ -117,6 +117,12 @@ struct SolverSettings {
   // last round vertices are kept out of the body but may end inside the collision margin.
   // 0: off.
   int strain_limit_contact_rounds = 0;
+  // XPBD cloth self-collision (issue 29): vertex-triangle and edge-edge contacts keep the cloth at
+  // least this far (mm) from itself, resolved in every sub-step (precompute/solvers/
+  // self_collision.hpp). JSON: "self_collision": {"thickness_mm": T}, written only when on so
+  // records made without it read and compare as before. 0: off. Newton, PBD and mass-spring refuse
+  // a setting with it on.
+  double self_collision_thickness_mm = 0.0;
 };
 
 // Thrown for an invalid setting; what() is "<where>: <field>: <problem>".

@@ -8,6 +8,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "cloth/self_intersection.hpp"
 #include "report/stats.hpp"
 
 namespace clothdb {
@@ -75,6 +76,7 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
   row.solver = solver->describe();
   row.threads = settings.threads;
   row.collider_motion = motion;
+  row.self_collision_mm = settings.self_collision_thickness_mm;
   row.vertices = scene.model.vertex_count();
   row.capsules = static_cast<int>(scene.body.capsules.size());
   ClothState state = settle_garment(scene, *solver, clip_pose(clip, 0));
@@ -117,6 +119,12 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
       locate_edge(scene, clip, f, state.x, edges[frame_worst_edge], row);
     }
     row.max_penetration = std::max(row.max_penetration, m.max_penetration);
+    const int crossings = count_self_intersections(scene.model.mesh, state.x);
+    if (crossings > 0) ++row.self_intersection_frames;
+    if (crossings > row.self_intersections) {
+      row.self_intersections = crossings;
+      row.self_intersection_frame = f;
+    }
     row.mean_penetration = std::max(row.mean_penetration, m.mean_penetration);
     const auto caps =
         body_capsules(scene.body, scene.skeleton, clip_pose(clip, f - 1), clip_pose(clip, f));
@@ -189,21 +197,32 @@ std::vector<CharacterBenchRow> run_character_bench(
         settings.strain_limit_iterations = options.strain_limit_iterations;
       if (options.contact_rounds >= 0)
         settings.strain_limit_contact_rounds = options.contact_rounds;
+      std::vector<double> self_mm = options.self_collision_mm;
+      if (self_mm.empty()) {
+        self_mm.push_back(file.settings.self_collision_thickness_mm);
+        if (self_mm.front() > 0.0) self_mm.push_back(0.0);
+      }
       for (int threads : options.threads) {
         settings.threads = threads;
         std::vector<ColliderMotion> motions = options.collider_motions;
         if (motions.empty()) motions.push_back(file.collider_motion);
         for (ColliderMotion motion : motions) {
-          rows.push_back(run_one(scene, clip, kind, settings, motion, frames, progress));
-          const CharacterBenchRow& r = rows.back();
-          if (progress)
-            progress(r.solver + " threads=" + std::to_string(threads) + " " +
-                     collider_motion_name(motion) + ": " + fixed(r.ms_per_frame, 2) +
-                     " ms/frame (CPU " + fixed(r.cpu_ms_per_frame, 2) + "), strain p99 " +
-                     fixed(100 * r.p99_strain, 2) + " % max " + fixed(100 * r.max_strain, 2) +
-                     " %, max penetration " + fixed(1e3 * r.max_penetration, 2) +
-                     " mm, tunnelled " + std::to_string(r.tunnelled) + ", worst edge " +
-                     worst_edge_text(r) + (r.stable ? "" : ", UNSTABLE: " + r.message));
+          for (double mm : self_mm) {
+            settings.self_collision_thickness_mm = mm;
+            rows.push_back(run_one(scene, clip, kind, settings, motion, frames, progress));
+            const CharacterBenchRow& r = rows.back();
+            if (progress)
+              progress(r.solver + " threads=" + std::to_string(threads) + " " +
+                       collider_motion_name(motion) + ": " + fixed(r.ms_per_frame, 2) +
+                       " ms/frame (CPU " + fixed(r.cpu_ms_per_frame, 2) + "), strain p99 " +
+                       fixed(100 * r.p99_strain, 2) + " % max " + fixed(100 * r.max_strain, 2) +
+                       " %, max penetration " + fixed(1e3 * r.max_penetration, 2) +
+                       " mm, tunnelled " + std::to_string(r.tunnelled) + ", worst edge " +
+                       worst_edge_text(r) + ", self-intersections max " +
+                       std::to_string(r.self_intersections) + " in " +
+                       std::to_string(r.self_intersection_frames) + " frames" +
+                       (r.stable ? "" : ", UNSTABLE: " + r.message));
+          }
         }
       }
     }
@@ -239,9 +258,20 @@ std::string character_rows_markdown(const std::vector<CharacterBenchRow>& rows) 
   out << "| solver | threads | colliders | verts | capsules | frames | ms/frame | CPU ms/frame | "
          "p99 strain | max strain "
          "| max pen. mm | mean pen. mm | tunnelled | deepest path | it./frame | fact./frame "
-         "| halvings | worst edge | stable |\n"
-         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+         "| halvings | worst edge | self-col. mm | CPU vs off | crossings max (frame) | frames "
+         "crossing | stable |\n"
+         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+         "---|\n";
   for (const auto& r : rows) {
+    // The cost of self-collision: CPU per frame over that of the same run without it (same
+    // sub-steps, threads and colliders), when the table has one.
+    std::string ratio = "-";
+    for (const auto& off : rows)
+      if (r.self_collision_mm > 0.0 && off.self_collision_mm == 0.0 && off.threads == r.threads &&
+          off.collider_motion == r.collider_motion && off.frames == r.frames &&
+          off.cpu_ms_per_frame > 0.0 &&
+          r.solver.rfind(off.solver, 0) == 0)  // describe() appends self_collision=...
+        ratio = fixed(r.cpu_ms_per_frame / off.cpu_ms_per_frame, 2) + "x";
     out << "| " << r.solver << " | " << r.threads << " | "
         << collider_motion_name(r.collider_motion) << " | " << r.vertices << " | " << r.capsules
         << " | " << r.frames << " | " << fixed(r.ms_per_frame, 2) << " | "
@@ -250,7 +280,12 @@ std::string character_rows_markdown(const std::vector<CharacterBenchRow>& rows) 
         << fixed(1e3 * r.mean_penetration, 2) << " | " << r.tunnelled << " | "
         << fixed(r.deepest_path, 2) << " | " << fixed(r.iterations_per_frame, 2) << " | "
         << fixed(r.factorizations_per_frame, 2) << " | " << r.step_halvings << " | "
-        << worst_edge_text(r) << " | " << (r.stable ? "yes" : "no: " + r.message) << " |\n";
+        << worst_edge_text(r) << " | " << fixed(r.self_collision_mm, 1) << " | " << ratio << " | "
+        << r.self_intersections << " ("
+        << (r.self_intersection_frame < 0 ? std::string("-")
+                                          : std::to_string(r.self_intersection_frame))
+        << ") | " << r.self_intersection_frames << " | " << (r.stable ? "yes" : "no: " + r.message)
+        << " |\n";
   }
   return out.str();
 }

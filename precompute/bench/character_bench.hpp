@@ -27,6 +27,9 @@ struct CharacterBenchOptions {
   int contact_rounds = -1;          // XPBD strain_limit_contact_rounds; negative: the scene's
   std::vector<int> threads{1};
   std::vector<ColliderMotion> collider_motions;  // empty: the scene's
+  // XPBD self-collision thicknesses (mm) to run, 0 for off. Empty: the scene's, and when that is
+  // on also a run without it, so its cost is shown beside the same run without (issue 29).
+  std::vector<double> self_collision_mm;
 };
 
 struct CharacterBenchRow {
@@ -48,6 +51,12 @@ struct CharacterBenchRow {
   // Vertex-frames whose straight path over the frame, relative to a capsule moving with the body,
   // reaches deeper than half the capsule's radius: the vertex passed through the limb.
   int tunnelled = 0;
+  // Self-collision thickness of the run (mm, 0: off), and edge-triangle crossings
+  // (cloth/self_intersection.hpp): the most in one frame, that frame, and how many frames have any.
+  double self_collision_mm = 0;
+  int self_intersections = 0;
+  int self_intersection_frame = -1;
+  int self_intersection_frames = 0;
   double deepest_path = 0;  // largest path_depth_fraction over vertices, capsules and frames
   // Where the largest strain was, to tell a collision pushing on the cloth from the solver not
   // converging: the frame, how far down the garment the edge sits at rest (0 at its highest rest

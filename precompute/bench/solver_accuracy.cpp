@@ -10,6 +10,7 @@
 #include <stdexcept>
 
 #include "bench/solver_bench.hpp"
+#include "cloth/self_intersection.hpp"
 #include "report/cpu_time.hpp"
 #include "report/stats.hpp"
 
@@ -82,7 +83,10 @@ Trajectory simulate_from(const ClothScene& scene, const SolverCandidate& candida
   Trajectory out;
   out.states.reserve(static_cast<size_t>(frames) + 1);
   out.states.push_back(start);
-  auto solver = make_solver(candidate.kind, scene.model, candidate.settings);
+  SolverSettings settings = candidate.settings;
+  if (candidate.kind == SolverKind::Xpbd)
+    settings.self_collision_thickness_mm = scene.self_collision_mm;
+  auto solver = make_solver(candidate.kind, scene.model, settings);
   ClothState state = start;
   Environment env = scene.env;
   StepInputs inputs;
@@ -635,6 +639,10 @@ SceneAccuracy measure_scene_accuracy(const ClothScene& scene, const AccuracyOpti
     row.step_halvings = run.step_halvings;
     const int done_frames = static_cast<int>(run.states.size()) - 1;
     if (done_frames > 0) row.cpu_s_per_sim_s = run.cpu_seconds / (done_frames * scene.frame_dt);
+    row.self_intersections = 0;
+    for (const ClothState& st : run.states)
+      row.self_intersections =
+          std::max(row.self_intersections, count_self_intersections(scene.model.mesh, st.x));
     if (run.stable) {
       row.long_run_rms_mm = pooled_error(run, reference).rms;
       row.long_run_final_rms_mm = frame_errors(run, reference).back().rms;
@@ -800,6 +808,7 @@ std::string accuracy_json(const AccuracyReport& report) {
                       {"long_run_final_rms_mm", num(r.long_run_final_rms_mm)},
                       {"long_run_within_chaos_floor", r.long_run_within_floor},
                       {"step_halvings", r.step_halvings},
+                      {"self_intersections", r.self_intersections},
                       {"ensemble_stats", stats_json(r.stats)},
                       {"ensemble_stats_within_spread", r.stats_within}});
     }
@@ -904,13 +913,13 @@ std::string accuracy_markdown(const AccuracyReport& report) {
   o << "\n| scene | solver | settings | CPU s / sim s | short-horizon RMS mm | max mm | "
        "self-conv. mm (1x vs x"
     << report.options.refine
-    << ") | mismatch mm (refined vs ref.) | long-run RMS mm | chaos floor mm | "
-       "stable |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
+    << ") | mismatch mm (refined vs ref.) | long-run RMS mm | chaos floor mm | crossings max | "
+       "stable |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const SceneAccuracy& s : report.scenes)
     for (const AccuracyRow& r : s.rows) {
       if (!r.run) {
         o << "| " << s.name << " | " << r.solver << " | " << r.settings
-          << " | not run: " << r.message << " | | | | | | | |\n";
+          << " | not run: " << r.message << " | | | | | | | | |\n";
         continue;
       }
       o << "| " << s.name << " | " << r.solver << " | " << r.settings << " | "
@@ -918,7 +927,7 @@ std::string accuracy_markdown(const AccuracyReport& report) {
         << fmt("%.3g", r.short_max_mm) << " | " << fmt("%.3g", r.self_convergence_rms_mm) << " | "
         << fmt("%.3g", r.model_mismatch_rms_mm) << " | " << fmt("%.3g", r.long_run_rms_mm)
         << (r.long_run_within_floor ? " (within floor)" : "") << " | "
-        << fmt("%.3g", s.chaos_floor_final_rms_mm) << " | "
+        << fmt("%.3g", s.chaos_floor_final_rms_mm) << " | " << r.self_intersections << " | "
         << (r.stable ? "yes" : "no: " + r.message) << " |\n";
     }
   o << "\n| scene | solver | target short-horizon RMS mm | CPU s / sim s | how "

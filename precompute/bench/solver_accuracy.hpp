@@ -133,6 +133,9 @@ struct AccuracyRow {
   double long_run_final_rms_mm = NAN;
   bool long_run_within_floor = false;  // final RMS <= the chaos floor's final RMS: divergence
   int step_halvings = 0;
+  // The most edge-triangle crossings in one frame of the run (cloth/self_intersection.hpp; XPBD
+  // runs with the scene's self_collision_mm); -1: not run.
+  int self_intersections = -1;
   // Short-horizon windows against the reference (the headline).
   double short_rms_mm = NAN, short_max_mm = NAN;
   // Self-convergence: the same windows at `refine` x sub-steps.

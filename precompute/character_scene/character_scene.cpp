@@ -204,6 +204,10 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   } catch (const SettingsError& e) {
     throw SceneError(e.what());
   }
+  if (s.settings.self_collision_thickness_mm > 0.0 && s.solver != SolverKind::Xpbd)
+    f.fail("solver.self_collision.thickness_mm",
+           std::string("self-collision is implemented for xpbd only, not for ") +
+               solver_name(s.solver));
 
   const json& c = f.object(j, "colliders", "");
   f.only(c,

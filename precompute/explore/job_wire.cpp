@@ -20,8 +20,8 @@ static_assert(std::endian::native == std::endian::little, "the wire format is li
 // with a basis.)
 static_assert(sizeof(JobInput) - sizeof(SolverSettings) - sizeof(db::CodecSettings) == 96 + 40,
               "JobInput changed: update encode_job/decode_job");
-static_assert(sizeof(ClipQuality) == 40, "ClipQuality changed: update encode_result/decode_result");
-static_assert(sizeof(JobResult) == 232, "JobResult changed: update encode_result/decode_result");
+static_assert(sizeof(ClipQuality) == 56, "ClipQuality changed: update encode_result/decode_result");
+static_assert(sizeof(JobResult) == 248, "JobResult changed: update encode_result/decode_result");
 static_assert(sizeof(WorkerHello) == 64, "WorkerHello changed: update encode_hello/decode_hello");
 #endif
 
@@ -252,6 +252,9 @@ std::vector<uint8_t> encode_result(uint64_t seq, const JobResult& r) {
   o.f64(q.jitter);
   o.i32(q.halved_steps);
   o.i32(q.worst_frame);
+  o.i32(q.self_intersections);
+  o.i32(q.self_intersection_frame);
+  o.i32(q.self_intersection_frames);
   o.f64(r.cpu_seconds);
   o.i64(r.steer_target);
   o.f64(r.steer_distance);
@@ -280,6 +283,9 @@ JobResult decode_result(const uint8_t* data, size_t size, uint64_t* seq) {
   q.jitter = in.f64("jitter");
   q.halved_steps = in.i32("halved_steps");
   q.worst_frame = in.i32("worst_frame");
+  q.self_intersections = in.i32("self_intersections");
+  q.self_intersection_frame = in.i32("self_intersection_frame");
+  q.self_intersection_frames = in.i32("self_intersection_frames");
   r.cpu_seconds = in.f64("cpu_seconds");
   r.steer_target = in.i64("steer_target");
   r.steer_distance = in.f64("steer_distance");

@@ -18,9 +18,10 @@
 
 namespace clothdb {
 
-constexpr uint32_t kWireVersion = 5;  // 2: clip quality metrics and the last frame; 3: Newton
+constexpr uint32_t kWireVersion = 6;  // 2: clip quality metrics and the last frame; 3: Newton
                                       // options; 4: solver and codec settings as RunSettings JSON;
-                                      // 5: steering (targets, epsilon, what the pull did)
+                                      // 5: steering (targets, epsilon, what the pull did);
+                                      // 6: self-intersection metrics of the clip (issue 29)
 
 class WireError : public std::runtime_error {
  public:

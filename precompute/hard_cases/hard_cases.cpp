@@ -2,11 +2,14 @@
 // (a few hundred vertices) so tests run fast; benchmarks pass a larger resolution.
 #include "hard_cases/hard_cases.hpp"
 
+#include <Eigen/Geometry>
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <ctime>
 #include <stdexcept>
 
+#include "cloth/self_intersection.hpp"
 #include "report/cpu_time.hpp"
 
 namespace clothdb {
@@ -156,11 +159,90 @@ ClothScene cantilever(int resolution) {
   return scene;
 }
 
+// Self-collision (issue 29): a 1 m x 0.5 m sheet laid flat and held along a line across it, 40 cm
+// from one end, dropped with soft bending: both sides fall and fold down onto each other, the
+// short side over the long one, and swing. Without self-collision they pass through each other;
+// with it they meet and hang side by side.
+ClothScene folding_sheet(int resolution) {
+  const int n = resolution > 0 ? resolution : 21;
+  const int rows = std::max(2, (n + 1) / 2);
+  ClothMesh mesh = make_quad_grid(n, rows, 1.0, 0.5);
+  // (x, y, 0) -> (x, 0, -y): flat at height 0.6, the held line along z at x = 0.
+  Eigen::Matrix3d lay;
+  lay << 1, 0, 0, 0, 0, 1, 0, -1, 0;
+  transform_mesh(mesh, lay, Vec3(-0.4, 0.6, 0.25));
+  // The grid column nearest x = 0 (40 % of the width) is held.
+  const int held = static_cast<int>(std::lround(0.4 * (n - 1)));
+  std::vector<int> pins;
+  for (int r = 0; r < rows; ++r) pins.push_back(grid_index(mesh, held, r));
+  Material m;
+  m.bending_stiffness = 1e-6;
+  ClothScene scene;
+  scene.name = "folding-sheet";
+  scene.description = "sheet held along a line 40/60 across it, dropped: its sides fold together";
+  scene.model = make_model(std::move(mesh), m, pins);
+  finish_scene(scene, m);
+  scene.env.air_drag = 0.5 * m.density;  // little drag: the sides swing through, not creep in
+  scene.frames = 45;
+  scene.self_collision_mm = 5.0;
+  return scene;
+}
+
+// Self-collision (issue 29): a tube skirt (radius 0.16 m, 0.5 m long) round a body capsule of
+// radius 0.1 m, held at its waist and its hem. The hem ring turns once about the body and rises
+// 0.3 m in 1.5 s, then holds: the cloth between is wrung round the body in folds that press on
+// each other (the rise leaves the slack to do so without stretching).
+ClothScene twisted_skirt(int resolution) {
+  const int around = resolution > 0 ? resolution : 24;
+  const int rows = std::max(3, around * 5 / 8);
+  const double radius = 0.16, length = 0.5;
+  ClothMesh grid = make_quad_grid(around + 1, rows, 1.0, 1.0);
+  Eigen::Matrix3Xd tube(3, grid.rest.cols());
+  for (Eigen::Index i = 0; i < grid.rest.cols(); ++i) {
+    const double angle = 2.0 * kPi * grid.rest(0, i);  // x in [0, 1] once around
+    tube.col(i) = Vec3(radius * std::cos(angle), 1.0 + length * (grid.rest(1, i) - 1.0),
+                       -radius * std::sin(angle));
+  }
+  // The last column lies on the first: weld it shut.
+  ClothMesh mesh = weld_vertices(tube, grid.triangles, 1e-3 * radius);
+  std::vector<int> held;
+  int waist_count = 0;
+  for (int i = 0; i < mesh.vertex_count(); ++i)
+    if (mesh.rest(1, i) > 1.0 - 1e-9) held.push_back(i), ++waist_count;
+  for (int i = 0; i < mesh.vertex_count(); ++i)
+    if (mesh.rest(1, i) < 1.0 - length + 1e-9) held.push_back(i);
+  Material m;
+  m.bending_stiffness = 2e-6;
+  ClothScene scene;
+  scene.name = "twisted-skirt";
+  scene.description = "tube skirt round a body, hem turned once and raised 0.3 m: wrung in folds";
+  scene.model = make_model(std::move(mesh), m, held);
+  CapsuleCollider body;
+  body.a = body.a_start = Vec3(0, 0.2, 0);
+  body.b = body.b_start = Vec3(0, 1.3, 0);
+  body.radius = 0.1;
+  scene.env.capsules.push_back(body);
+  finish_scene(scene, m);
+  scene.frames = 60;
+  scene.self_collision_mm = 5.0;
+  const Eigen::Matrix3Xd rest = kinematic_positions(scene.model, scene.model.mesh.rest);
+  scene.kinematic_path = [rest, waist_count](double t) {
+    const double s = std::min(t / 1.5, 1.0);
+    const Eigen::Matrix3d r = Eigen::AngleAxisd(2.0 * kPi * s, Vec3::UnitY()).toRotationMatrix();
+    Eigen::Matrix3Xd p = rest;
+    for (Eigen::Index k = waist_count; k < p.cols(); ++k)
+      p.col(k) = r * rest.col(k) + Vec3(0, 0.3 * s, 0);
+    return p;
+  };
+  return scene;
+}
+
 }  // namespace
 
 std::vector<std::string> hard_case_names() {
   return {"hanging-sheet", "sphere-drape",    "swung-sheet",        "stiff-large-step",
-          "slivers",       "stretched-start", "light-stiff-fabric", "cantilever"};
+          "slivers",       "stretched-start", "light-stiff-fabric", "cantilever",
+          "folding-sheet", "twisted-skirt"};
 }
 
 ClothScene make_hard_case(const std::string& name, int resolution) {
@@ -189,6 +271,8 @@ ClothScene make_hard_case(const std::string& name, int resolution) {
   if (name == "slivers") return slivers(resolution);
   if (name == "stretched-start") return stretched_start(resolution);
   if (name == "cantilever") return cantilever(resolution);
+  if (name == "folding-sheet") return folding_sheet(resolution);
+  if (name == "twisted-skirt") return twisted_skirt(resolution);
   std::string known;
   for (const auto& n : hard_case_names()) known += (known.empty() ? "" : ", ") + n;
   throw std::invalid_argument("unknown scene '" + name + "' (known: " + known + ")");
@@ -285,6 +369,7 @@ RunResult run_scene(const ClothScene& scene, Solver& solver, int frames, bool ke
     m.max_penetration = max_penetration(state.x, scene.model.inv_mass, env);
     m.mean_penetration = mean_penetration(state.x, scene.model.inv_mass, env);
     m.kinetic_energy = kinetic_energy(scene.model, state.v);
+    m.self_intersections = count_self_intersections(scene.model.mesh, state.x);
     m.total_energy = m.kinetic_energy + gravity_potential(scene.model, state.x, g) - energy0;
     if (report) {
       m.step_halvings = report->step_halvings;

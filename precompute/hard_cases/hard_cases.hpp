@@ -24,10 +24,14 @@ struct ClothScene {
   std::function<Eigen::Matrix3Xd(double t)> kinematic_path;
   // Moves colliders to time t (sets start/end poses for the step ending at t); empty: static.
   std::function<void(double t_start, double t_end, Environment& env)> collider_path;
+  // Self-collision thickness (mm) the scene is meant for: `bench solvers` runs its XPBD settings
+  // with it (the other solvers have none, and show their crossings). 0: none.
+  double self_collision_mm = 0.0;
 };
 
 // Names: "hanging-sheet", "sphere-drape", "swung-sheet", "stiff-large-step", "slivers",
-// "stretched-start", "light-stiff-fabric", "cantilever". `resolution` is the nodes per side
+// "stretched-start", "light-stiff-fabric", "cantilever", and for self-collision "folding-sheet"
+// and "twisted-skirt". `resolution` is the nodes per side
 // (0 = the scene's default, small enough for tests).
 std::vector<std::string> hard_case_names();
 ClothScene make_hard_case(const std::string& name, int resolution = 0);
@@ -60,6 +64,8 @@ struct FrameMetrics {
   int step_halvings = 0;
   int iterations = 0;      // the solver's StepReport::iterations for the frame
   int factorizations = 0;  // Newton's StepReport::factorizations for the frame
+  // Edges crossing a triangle they do not touch (cloth/self_intersection.hpp).
+  int self_intersections = 0;
   bool stable = true;
 };
 

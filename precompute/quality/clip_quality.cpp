@@ -5,6 +5,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "cloth/self_intersection.hpp"
 #include "solvers/solver.hpp"
 
 namespace clothdb {
@@ -66,8 +67,14 @@ ClipQuality measure_clip(const ClothModel& model, const float* frames, int frame
       jitter_count += frame_free;
       fq.jitter = std::sqrt(frame_jitter / frame_free);
     }
+    fq.self_intersections = count_self_intersections(model.mesh, x);
+    if (fq.self_intersections > 0) ++out.self_intersection_frames;
+    if (fq.self_intersections > out.self_intersections) {
+      out.self_intersections = fq.self_intersections;
+      out.self_intersection_frame = f;
+    }
     fq.score = std::max({fq.strain / kVisibleStrain, fq.max_penetration / kVisiblePenetration,
-                         fq.jitter / kVisibleJitter});
+                         fq.jitter / kVisibleJitter, double(fq.self_intersections)});
     out.max_strain = std::max(out.max_strain, fq.strain);
     out.max_penetration = std::max(out.max_penetration, fq.max_penetration);
     if (fq.score > q[size_t(out.worst_frame)].score) out.worst_frame = f;

@@ -34,9 +34,13 @@
 // - halved_steps: how many times the solver halved its step to recover (StepReport::
 //   step_halvings summed over the clip; only the Newton solver halves, the others report 0).
 //   Not visible in the frames: measure_clip returns -1 (unknown); whoever ran the solver sets it.
+// - self_intersections: the most edge-triangle crossings in one frame (an edge through a triangle
+//   it does not touch: cloth/self_intersection.hpp, issue 29), self_intersection_frame the first
+//   frame with that many (-1: none), self_intersection_frames how many frames have any.
 // - worst_frame: the frame with the largest score max(strain / kVisibleStrain, penetration /
-//   kVisiblePenetration, jitter / kVisibleJitter) of that frame's own values (first on ties): the
-//   frame the contact sheet of `clothdb clip show` marks.
+//   kVisiblePenetration, jitter / kVisibleJitter, crossings) of that frame's own values (first on
+//   ties): the frame the contact sheet of `clothdb clip show` marks. One crossing already shows
+//   (the cloth is visibly through itself), so it counts like a visible defect.
 //
 // The pop at a transition (transition_pop) is per cloth edge, not per clip.
 #pragma once
@@ -66,12 +70,16 @@ struct ClipQuality {
   double jitter = 0;            // m, RMS normalised fourth difference
   int halved_steps = -1;        // -1: unknown (set by the caller that ran the solver)
   int worst_frame = 0;
+  int self_intersections = 0;  // most edge-triangle crossings in one frame
+  int self_intersection_frame = -1;
+  int self_intersection_frames = 0;
 };
 
 // The same measures for one frame (jitter: RMS over free vertices of that frame's normalised
 // fourth difference, 0 for the first and last two frames).
 struct FrameQuality {
   double strain = 0, max_penetration = 0, jitter = 0;
+  int self_intersections = 0;
   double score = 0;  // what worst_frame maximises
 };
 
