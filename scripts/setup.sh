@@ -6,7 +6,7 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
 # libopenblas0-serial: single-threaded OpenBLAS, which update-alternatives makes libblas.so.3 and
 # liblapack.so.3 on install; on it Newton's "cholmod-supernodal" factorises the 3k skirt 3-4x
-# faster than on the reference BLAS (docs/BENCHMARKS.md, "Newton on seed 004's grids"). The
+# faster than on the reference BLAS (docs/notebook/BENCHMARKS.md, "Newton on seed 004's grids"). The
 # serial build, not pthread: the solvers choose their own threads.
 PACKAGES=(cmake g++ make pkg-config libeigen3-dev libomp-dev libassimp-dev assimp-testmodels
   libsqlite3-dev libzstd-dev libcli11-dev nlohmann-json3-dev libsuitesparse-dev libpng-dev
