@@ -32,7 +32,7 @@ AREA_TITLES = {
     "strain": "Strain: how much the cloth stretches",
 }
 FIELDS = ["what", "figure", "date", "machine", "commit", "command"]
-MAX_LINES = 250  # issue 26: the results page is read, not scrolled
+MAX_LINES = 250  # the results page is read, not scrolled
 
 HEADER = """# Results
 
