@@ -74,7 +74,7 @@ example() {
 }
 
 example graph-build 0 'clothdb graph build motions/cmu_walk.json --clips 01_01 --db small.db'
-example precompute-refused 1 'clothdb precompute tests/data/mpi_small.json --db small.db --epsilon 10 --quiet'
+example precompute-refused 1 'clothdb precompute tests/data/mpi_small.json --db small.db --epsilon 10 --threads 1 --quiet'
 example precompute 0 'clothdb precompute tests/data/mpi_small.json --db small.db --epsilon 66 --threads 1 --quiet'
 example db-check 0 'clothdb db check small.db'
 example db-info 0 'clothdb db info small.db'
