@@ -36,6 +36,7 @@ trap 'rm -rf "$WORK"' EXIT
 mkdir -p "$WORK/run/tests" "$WORK/out"
 ln -s "$ROOT/motions" "$WORK/run/motions"
 ln -s "$ROOT/tests/data" "$WORK/run/tests/data"
+ln -s "$ROOT/scripts" "$WORK/run/scripts"
 export LC_ALL=C TZ=UTC
 clothdb() { "$CLOTHDB" "$@"; }
 
@@ -83,9 +84,14 @@ example clip-show 0 'clothdb clip show small.db 9 --png clip9.png'
 example clip-resim 0 'clothdb db dump small.db > before.dump' \
   'clothdb clip resim small.db 9 --substeps 24 --max-frames 300 --quiet' \
   'clothdb clips list small.db --worst 2 --by strain'
+example clip-import 0 'clothdb clip export small.db 9 --out clip9' \
+  'python3 scripts/pc2_offset.py clip9/cloth.pc2 --from-frame 5 --mm 0,0,100  # stands in for Blender' \
+  'clothdb clip import small.db 9 clip9' \
+  'clothdb clip import small.db 9 clip9 --on-break ramp'
 example undo 0 'clothdb clip log small.db' \
   'clothdb undo small.db' \
-  'clothdb db dump small.db | cmp - before.dump && echo "every row as before the resim"'
+  'clothdb undo small.db' \
+  'clothdb db dump small.db | cmp - before.dump && echo "every row as before the edits"'
 
 # Put each output between its markers (or compare in --check mode).
 python3 - "$GUIDE" "$WORK/out" "$WORK/names" "$CHECK" <<'EOF'
