@@ -2,7 +2,7 @@
 # The example outputs in docs/GUIDE.md, made by running the guide's commands (so that they
 # cannot go stale). On a small database made here in a few seconds (tests/data/mpi_small.json:
 # a 192-vertex skirt on CMU 01_01, 10 nodes, 14 edges), each example's commands run in a
-# temporary folder that holds links to motions/ and tests/data/, so the commands read exactly as
+# temporary folder that holds links to motions/, scripts/ and tests/data/, so the commands read as
 # a reader types them from the repository root. Times, dates, durations and the temporary folder
 # are masked, so the same binary gives the same text.
 #
