@@ -15,7 +15,7 @@ OUT=${CLOTHDB_DEMO_OUT:-out/demo}
 CPU_HOURS=${CLOTHDB_DEMO_CPU_HOURS:-0.2}
 # Codec bound per coordinate in mm for a new database. 0.1 mm, not the codec's default 0.5 mm:
 # on the skirt's 11-26 mm edges 0.5 mm of quantisation adds up to 10 % edge strain to what is
-# played, 0.1 mm about 2 % (docs/BENCHMARKS.md, "Contact rounds"). Empty: the codec's default.
+# played, 0.1 mm about 2 % (docs/notebook/BENCHMARKS.md, "Contact rounds"). Empty: the codec's default.
 BOUND=${CLOTHDB_DEMO_POSITION_BOUND-0.1}
 BOUND_ARGS=()
 if [ -n "$BOUND" ]; then BOUND_ARGS=(--position-bound "$BOUND"); fi

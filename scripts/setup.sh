@@ -6,12 +6,13 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
 # libopenblas0-serial: single-threaded OpenBLAS, which update-alternatives makes libblas.so.3 and
 # liblapack.so.3 on install; on it Newton's "cholmod-supernodal" factorises the 3k skirt 3-4x
-# faster than on the reference BLAS (docs/BENCHMARKS.md, "Newton on seed 004's grids"). The
-# serial build, not pthread: the solvers choose their own threads.
+# faster than on the reference BLAS (docs/notebook/BENCHMARKS.md, "Newton on seed 004's grids"). The
+# serial build, not pthread: the solvers choose their own threads. python3: the docs checks
+# (scripts/results.py, scripts/guide_examples.sh), standard library only.
 PACKAGES=(cmake g++ make pkg-config libeigen3-dev libomp-dev libassimp-dev assimp-testmodels
   libsqlite3-dev libzstd-dev libcli11-dev nlohmann-json3-dev libsuitesparse-dev libpng-dev
   libgtest-dev libosmesa6-dev libglu1-mesa-dev clang-14 libclang-rt-14-dev libopenmpi-dev openmpi-bin
-  libmeshoptimizer-dev libopenblas0-serial)
+  libmeshoptimizer-dev libopenblas0-serial python3)
 missing=()
 for p in "${PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

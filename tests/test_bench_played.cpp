@@ -68,7 +68,7 @@ TEST(BenchPlayed, WithinTheCodecBoundUntilTheFirstLinkAndTheBlendsAfter) {
   // for long enough that the rest state is near the skirt's equilibrium: settled for only 10
   // frames, the skirt is still sagging, and a loop that restarts it from the rest state each turn
   // drifts up to 37 mm from a simulation that goes on sagging although each link records only
-  // 6 mm (what `bench played` is for; docs/BENCHMARKS.md).
+  // 6 mm (what `bench played` is for; docs/notebook/BENCHMARKS.md).
   const CharacterScene scene = settled_scene();
   const double epsilon = 0.02;
   const std::string path = build_db(scene, "loop", epsilon, 0, true);

@@ -789,7 +789,8 @@ TEST(NewtonSolver, StopOnTheUpdateReachesTheTightEndState) {
 // bent into a cylinder about a grid axis (w = kappa x^2 / 2) stores exactly D/2 kappa^2 per unit
 // area in its interior hinges (the diagonal hinges stay flat), while a twist w = tau x y stores
 // twice the plate value D tau^2 (nu = 0). A wrong constant in the weighting or the mapping from D
-// shows up in the first; the second is the quad grid's anisotropy (docs/BENCHMARKS.md, cantilever).
+// shows up in the first; the second is the quad grid's anisotropy (docs/notebook/BENCHMARKS.md,
+// cantilever).
 TEST(ShellEnergy, QuadGridHingeEnergyOfCylindricalBendingAndTwist) {
   const int n = 21;
   const ClothMesh mesh = make_quad_grid(n, n, 1.0, 1.0);

@@ -37,7 +37,7 @@ constexpr uint32_t kFormatVersion = 1;    // what encode() writes
 constexpr uint32_t kFormatVersionV2 = 2;  // what encode_v2() writes; the newest this build reads
 constexpr double kDefaultPositionBound = 0.0005;  // m: 0.5 mm per coordinate
 // A key frame every 4 frames: random access costs at most 4 frame reconstructions, and on
-// simulated garments the ratio is within 1 % of K = 16 or 64 (docs/BENCHMARKS.md, Codec).
+// simulated garments the ratio is within 1 % of K = 16 or 64 (docs/notebook/BENCHMARKS.md, Codec).
 constexpr uint32_t kDefaultKeyInterval = 4;
 // zstd level 9: about 12 % smaller than level 3 on simulated cloth and faster to decode; encoding
 // (6 MB/s per core) stays several times faster than a solver produces frames.

@@ -76,7 +76,7 @@ struct SolverSettings {
   // Inertial). Whichever candidate has the lower incremental potential Phi is used, so a bad
   // prediction never costs more than starting from x_n. Off (Start) by default: on a stretched
   // hanging sheet it ended 2e-5 m from the plain loop's solution after six frames, more than the
-  // tolerance explains, which is not understood yet (docs/BENCHMARKS.md, Newton study).
+  // tolerance explains, which is not understood yet (docs/notebook/BENCHMARKS.md, Newton study).
   enum class Guess { Start, Inertial, Extrapolate };
   Guess newton_guess = Guess::Start;
   // Chord (modified) Newton: keep the last factorisation while each iteration still reduces the
@@ -84,7 +84,7 @@ struct SolverSettings {
   // The stale matrix is positive definite, so its direction is still a descent direction and the
   // line search still guarantees progress; only the convergence rate changes (linear, not
   // quadratic), and the tolerance test is the same. Off by default: on seed 004's grids it cost
-  // more CPU time than it saved (`clothdb bench newton`, docs/BENCHMARKS.md).
+  // more CPU time than it saved (`clothdb bench newton`, docs/notebook/BENCHMARKS.md).
   double newton_reuse_contraction = 0.0;
   // Try the exact Hessian first (quadratic convergence near a minimum) and fall back to the
   // projected element Hessians when it is indefinite; false: the projected ones only (no wasted

@@ -32,8 +32,8 @@ struct CapsuleCollider {
 };
 
 // Where a moving sphere or capsule is during a (sub)step, and how a vertex is tested against it.
-// This is the "no tunnelling for fast limbs" choice of issue 3; docs/BENCHMARKS.md compares the
-// three on the boxing clip.
+// This is the "no tunnelling for fast limbs" choice of issue 3; docs/notebook/BENCHMARKS.md
+// compares the three on the boxing clip.
 enum class ColliderMotion {
   // At the end pose for every sub-step, as if the limb jumped there at the start of the step.
   // Only for comparison: a limb faster than its radius per step can pass through cloth.

@@ -9,7 +9,7 @@
 //
 // Rank 0 only coordinates (it simulates only when every worker is lost): its per-job work is
 // microseconds to milliseconds against seconds of simulation, and a coordinator that never blocks
-// in a solver answers every worker at once (docs/BENCHMARKS.md measures both).
+// in a solver answers every worker at once (docs/notebook/BENCHMARKS.md measures both).
 //
 // Fault tolerance (OpenMPI 4.1 has no ULFM): run with `mpirun --enable-recovery`, so the job
 // survives a dead process; rank 0 sets MPI_ERRORS_RETURN and polls with MPI_Iprobe, and a job not
@@ -58,7 +58,7 @@ struct OwnerOptions {
   int threads = 1;       // rank 0's threads when it must simulate itself (every worker lost)
 };
 
-// What rank 0 measured (for docs/BENCHMARKS.md and the summary line).
+// What rank 0 measured (for docs/notebook/BENCHMARKS.md and the summary line).
 struct OwnerStats {
   long jobs_sent = 0, results = 0, lost = 0, late = 0, duplicates = 0, local_jobs = 0;
   double bytes_out = 0, bytes_back = 0;  // job and result messages

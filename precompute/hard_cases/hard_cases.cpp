@@ -130,7 +130,7 @@ ClothScene cantilever(int resolution) {
   // width is exactly D = E t^3 / 12. Under full gravity the linear Euler-Bernoulli deflection
   // q L^4 / (8 D) would be 0.35 m, more than L: this is a large-deflection hard case, not the
   // small-load check. For that, the Newton test uses seed 004's equilateral plate: on this quad
-  // grid the hinge model is about 20 % too soft even at small loads (docs/BENCHMARKS.md).
+  // grid the hinge model is about 20 % too soft even at small loads (docs/notebook/BENCHMARKS.md).
   const int columns = resolution > 0 ? resolution : 21;
   const int rows = std::max(3, columns / 5 + 1);
   ClothMesh mesh = make_quad_grid(columns, rows, 0.2, 0.04);

@@ -109,8 +109,8 @@ std::string compact_number(double v) {
 // CHOLMOD 3 (SuiteSparse 5, Debian 12) runs loops of its factorisation in OpenMP regions with a
 // fixed num_threads(4) clause, whatever OMP_NUM_THREADS says, so a one-thread solver factorised on
 // four threads: on the 3k skirt the fork-joins around every supernode cost more than the
-// supernodal factorisation itself (docs/BENCHMARKS.md, "Newton on seed 004's grids"). While
-// alive and `active`, this makes the calling thread's parallel regions inactive (one thread
+// supernodal factorisation itself (docs/notebook/BENCHMARKS.md, "Newton on seed 004's grids").
+// While alive and `active`, this makes the calling thread's parallel regions inactive (one thread
 // each). max-active-levels is a per-thread ICV since OpenMP 5.0 (libgomp 11 and later), so other
 // threads' parallel regions are not affected.
 class SerialOpenMpScope {
@@ -154,9 +154,9 @@ class LinearSolver {
         // Simplicial: as fast as SimplicialLDLT at 1,587 unknowns, 1.4x faster at 8,900.
         // Supernodal: factorises dense column blocks with the BLAS behind libblas.so.3; on
         // OpenBLAS 2x faster than SimplicialLDLT at 1,587 unknowns and 5x at 8,900, on the
-        // reference BLAS no faster and 1.3x (docs/BENCHMARKS.md, "Newton on seed 004's grids").
-        // A failed (indefinite) supernodal factorisation leaves the factor supernodal, so the
-        // projected retry that follows it is supernodal too.
+        // reference BLAS no faster and 1.3x (docs/notebook/BENCHMARKS.md, "Newton on seed 004's
+        // grids"). A failed (indefinite) supernodal factorisation leaves the factor supernodal, so
+        // the projected retry that follows it is supernodal too.
         cholmod_.setMode(kind_ == LinearSolverKind::CholmodSupernodal
                              ? Eigen::CholmodSupernodalLLt
                              : Eigen::CholmodSimplicialLLt);

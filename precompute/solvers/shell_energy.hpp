@@ -54,7 +54,7 @@ double stretch_hessians(const double* x0, const double* x1, double rest_length, 
 // plate value (test ShellEnergy.QuadGridHingeEnergyOfCylindricalBendingAndTwist). The quad grid is
 // nevertheless about 20 % too soft in a cantilever, under refinement too: the minimiser folds the
 // diagonal hinges in a pattern that a smooth field cannot express and adds deflection that the
-// grid-line hinges do not pay for (docs/BENCHMARKS.md has the refinement table). The
+// grid-line hinges do not pay for (docs/notebook/BENCHMARKS.md has the refinement table). The
 // rest area is floored at kMinHingeAreaRatio |e0|^2 so that sliver rest triangles do not make a
 // hinge arbitrarily stiff.
 constexpr double kMinHingeAreaRatio = 0.05;

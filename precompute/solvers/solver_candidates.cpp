@@ -79,8 +79,8 @@ std::vector<SolverCandidate> solver_candidates(SolverKind kind, bool quick) {
       return {candidate(kind, 1, 0, 1e-3), candidate(kind, 1, 0, 1e-5), candidate(kind, 2, 0, 1e-5),
               candidate(kind, 4, 0, 1e-5), candidate(kind, 1, 0, 1e-5, L::Cholmod),
               // With an optimised BLAS (OpenBLAS) the fastest direct solver on both the 1,587-
-              // and the 8,900-unknown systems measured (docs/BENCHMARKS.md), so that --auto
-              // picks it where it wins; the reference stays on SimplicialLDLT.
+              // and the 8,900-unknown systems measured (docs/notebook/BENCHMARKS.md), so that
+              // --auto picks it where it wins; the reference stays on SimplicialLDLT.
               candidate(kind, 1, 0, 1e-5, L::CholmodSupernodal),
               candidate(kind, 1, 0, 1e-5, L::ConjugateGradient),
               candidate(kind, 1, 0, 1e-5, L::ConjugateGradientIC)};
