@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "cli_util.hpp"
+#include "clips_list.hpp"
 #include "commands.hpp"
 #include "database/codec.hpp"
 #include "database/schema.hpp"
@@ -116,13 +117,11 @@ nlohmann::json number_or_null(double v) {
   return std::isnan(v) ? nlohmann::json(nullptr) : nlohmann::json(v);
 }
 
-void list_clips(const std::string& path, int worst, const std::string& by, bool json) {
-  const Metric& metric = find_metric(by);
-  db::Reader reader = open_reader(path);
-  const ClipTable t = read_table(reader);
+// The clips of `t`, worst `metric` first; unknown values last; ties by id so the listing is
+// stable. worst > 0: only that many.
+std::vector<const db::ClothClip*> worst_first(const ClipTable& t, const Metric& metric, int worst) {
   std::vector<const db::ClothClip*> order;
   for (const auto& c : t.clips) order.push_back(&c);
-  // Worst first; unknown values last; ties by id so the listing is stable.
   std::stable_sort(order.begin(), order.end(), [&](const db::ClothClip* a, const db::ClothClip* b) {
     const double va = metric.get(t, *a), vb = metric.get(t, *b);
     if (std::isnan(va) != std::isnan(vb)) return std::isnan(vb);
@@ -130,32 +129,43 @@ void list_clips(const std::string& path, int worst, const std::string& by, bool 
     return a->id < b->id;
   });
   if (worst > 0 && order.size() > size_t(worst)) order.resize(size_t(worst));
+  return order;
+}
 
-  if (json) {
-    nlohmann::json rows = nlohmann::json::array();
-    for (const db::ClothClip* c : order) {
-      nlohmann::json row = {
-          {"id", c->id},
-          {"primary_clip",
-           t.primary_name.count(c->primary_clip) ? t.primary_name.at(c->primary_clip) : ""},
-          {"start_state", c->start_state},
-          {"frames", c->frame_count},
-          {"status", db::clip_status_name(c->status)}};
-      for (const Metric& m : kMetrics) {
-        const double v = m.get(t, *c);
-        row[m.json] = std::string(m.name) == "halved"
-                          ? (std::isnan(v) ? nlohmann::json(nullptr) : nlohmann::json(int(v)))
-                          : number_or_null(v * m.scale);
-      }
-      row["worst_frame"] =
-          c->worst_frame < 0 ? nlohmann::json(nullptr) : nlohmann::json(c->worst_frame);
-      rows.push_back(std::move(row));
+nlohmann::json list_json(const ClipTable& t, const Metric& metric, int worst) {
+  nlohmann::json rows = nlohmann::json::array();
+  for (const db::ClothClip* c : worst_first(t, metric, worst)) {
+    nlohmann::json row = {
+        {"id", c->id},
+        {"primary_clip",
+         t.primary_name.count(c->primary_clip) ? t.primary_name.at(c->primary_clip) : ""},
+        {"primary_clip_id", c->primary_clip},
+        {"start_state", c->start_state},
+        {"frames", c->frame_count},
+        {"status", db::clip_status_name(c->status)}};
+    for (const Metric& m : kMetrics) {
+      const double v = m.get(t, *c);
+      row[m.json] = std::string(m.name) == "halved"
+                        ? (std::isnan(v) ? nlohmann::json(nullptr) : nlohmann::json(int(v)))
+                        : number_or_null(v * m.scale);
     }
-    nlohmann::json out = {
-        {"file", path}, {"by", metric.name}, {"clips_in_file", t.clips.size()}, {"clips", rows}};
-    std::printf("%s\n", out.dump(2).c_str());
+    row["worst_frame"] =
+        c->worst_frame < 0 ? nlohmann::json(nullptr) : nlohmann::json(c->worst_frame);
+    rows.push_back(std::move(row));
+  }
+  return {
+      {"file", t.path}, {"by", metric.name}, {"clips_in_file", t.clips.size()}, {"clips", rows}};
+}
+
+void list_clips(const std::string& path, int worst, const std::string& by, bool json) {
+  const Metric& metric = find_metric(by);
+  db::Reader reader = open_reader(path);
+  const ClipTable t = read_table(reader);
+  if (json) {
+    std::printf("%s\n", list_json(t, metric, worst).dump(2).c_str());
     return;
   }
+  const std::vector<const db::ClothClip*> order = worst_first(t, metric, worst);
   std::printf("%zu of %zu clips in %s, worst %s first (? = not measured)\n", order.size(),
               t.clips.size(), path.c_str(), metric.name);
   std::printf("%6s  %-34s %6s  %-7s %8s %8s %8s %8s %6s %8s %8s %6s\n", "id", "primary clip",
@@ -392,6 +402,17 @@ void show_clip(const ShowArgs& a) {
 }
 
 }  // namespace
+
+nlohmann::json clips_list_json(db::Reader& reader, const std::string& by, int worst) {
+  const Metric& metric = find_metric(by);
+  return list_json(read_table(reader), metric, worst);
+}
+
+std::vector<ClipMetricName> clip_metrics() {
+  std::vector<ClipMetricName> names;
+  for (const Metric& m : kMetrics) names.push_back({m.name, m.json});
+  return names;
+}
 
 void register_clip_quality_commands(CLI::App& app) {
   struct ListArgs {
