@@ -2,12 +2,13 @@
 // (clothrt), with the character's body capsules, controls for the walk through the motion graph,
 // and the clip table of `clothdb clips list` (issue 32, docs/guide/viewer.md).
 //
-// How frames reach the page: cpp-httplib 0.11 (Debian) has no WebSocket, so the page pulls. It
-// keeps one `GET /api/frame?dt=SECONDS` in flight over a keep-alive connection; the server
-// advances its one player by dt, writes the positions (character space, float32) as the body and
-// the player's state as a JSON header, and the page draws the newest frame at every animation
-// frame. The mesh's triangles, the clip table and the body capsules of each primary clip are
-// fetched once. The server does no work while nobody asks (a paused page asks for nothing).
+// How frames reach the page: cpp-httplib 0.11 (Debian) has no WebSocket, so the page pulls, over
+// a keep-alive connection: `GET /api/frames?dt=SECONDS&n=4` advances the server's one player four
+// times by dt and answers with the four frames' positions (character space, float32) as the body
+// and the player's state at each as a JSON header. The page shows one per animation frame and asks
+// for the next batch while the last is still to be shown, so a request's fixed cost is shared by
+// four frames and its latency is hidden. The mesh's triangles, the clip table and the body
+// capsules of each primary clip are fetched once. Nobody asking (a paused page) costs nothing.
 #include <pthread.h>
 #include <signal.h>
 #include <sys/resource.h>
@@ -57,6 +58,9 @@ using nlohmann::json;
 // the time since its last request, capped), and blends longer than 600 frames are not blends.
 constexpr double kMaxStepSeconds = 1.0;
 constexpr double kMaxBlendFrames = 600;
+// Frames per request: the page asks for a few at a time, so the fixed cost of a request (thread
+// wake-ups, parsing) is shared; more than 16 would only add latency to the controls.
+constexpr int64_t kMaxBatch = 16;
 
 struct ViewArgs {
   std::string file, host = "127.0.0.1", assets, scene;
@@ -83,12 +87,12 @@ struct Viewer {
   std::vector<int64_t> clip_ids;        // primary clips, id order
   std::vector<int64_t> cloth_clip_ids;  // for validating jumps
   json info;                            // GET /api/info, built once
-  // Body capsules per primary clip: frames x capsules x (a, b, radius) in character space.
-  std::map<int64_t, json> capsules;
+  // Body capsules per primary clip as the JSON GET /api/capsules answers: {"clip", "frames":
+  // [[ax, ay, az, bx, by, bz, radius] x capsules, flattened] per frame}, character space.
+  std::map<int64_t, std::string> capsules;
   std::string body_note;  // why the body is not drawn ("" when it is)
 
   std::mutex mu;
-  std::vector<float> positions;
   uint64_t frames_served = 0;
   double last_us = 0;  // advance + positions of the last frame, µs
 
@@ -184,7 +188,7 @@ void load_body(Viewer& v, const std::string& scene_file) {
                                    float(c.b.y()), float(c.b.z()), float(c.radius)});
         frames.push_back(std::move(flat));
       }
-      v.capsules[e.db_clip] = std::move(frames);
+      v.capsules[e.db_clip] = json{{"clip", e.db_clip}, {"frames", frames}}.dump();
     }
   } catch (const std::exception& e) {
     v.body_note = std::string("drawing without the body: ") + e.what();
@@ -204,7 +208,6 @@ void open_viewer(Viewer& v, const ViewArgs& a) {
   v.triangles.resize(size_t(clothrt_db_triangle_count(v.db)) * 3);
   if (clothrt_db_triangles(v.db, v.triangles.data(), v.triangles.size()) != CLOTHRT_OK)
     throw std::runtime_error(a.file + ": triangles: " + clothrt_db_errmsg(v.db));
-  v.positions.resize(size_t(v.vertices) * 3);
   {
     db::Reader reader = open_reader(a.file);
     std::vector<db::ClothClip> clips;
@@ -232,7 +235,8 @@ void open_viewer(Viewer& v, const ViewArgs& a) {
     throw std::runtime_error(a.file + ": creating a player: " + clothrt_db_errmsg(v.db));
   check(v, clothrt_player_set_random(v.player, 0, a.seed), "random mode");
   check(v, clothrt_player_start(v.player, 0), a.file + ": start");
-  check(v, clothrt_player_get_positions(v.player, v.positions.data(), 12, nullptr),
+  std::vector<float> first(size_t(v.vertices) * 3);
+  check(v, clothrt_player_get_positions(v.player, first.data(), 12, nullptr),
         a.file + ": positions");
   load_body(v, a.scene);
 
@@ -327,6 +331,18 @@ const char* content_type(const fs::path& p) {
   return "application/octet-stream";
 }
 
+// Every answer goes out through a content provider, as it is: cpp-httplib compresses a plain body
+// of a text or JSON type with Brotli at its best (slowest) quality, which took seconds for
+// three.js (1.3 MB) and milliseconds of server CPU for each clip's capsules, for a page served
+// over loopback.
+void reply(httplib::Response& res, std::string body, const char* type) {
+  auto data = std::make_shared<const std::string>(std::move(body));
+  res.set_content_provider(data->size(), type,
+                           [data](size_t offset, size_t length, httplib::DataSink& sink) {
+                             return sink.write(data->data() + offset, length);
+                           });
+}
+
 // A file below `root` named by the request's (decoded) path `rel`, or a 4xx: nothing outside
 // `root` is ever served, whatever "..", symbolic links or encodings the path uses.
 void serve_file(const fs::path& root, const std::string& rel, httplib::Response& res) {
@@ -340,9 +356,9 @@ void serve_file(const fs::path& root, const std::string& rel, httplib::Response&
     throw BadRequest(403, "the path leaves the served folder");
   if (!fs::is_regular_file(p, ec)) throw BadRequest(404, "no such file");
   std::ifstream in(p, std::ios::binary);
-  std::ostringstream data;
-  data << in.rdbuf();
-  res.set_content(data.str(), content_type(p));
+  std::ostringstream text;
+  text << in.rdbuf();
+  reply(res, text.str(), content_type(p));
 }
 
 std::string missing_three_page() {
@@ -362,10 +378,10 @@ httplib::Server::Handler guarded(F f) {
       f(req, res);
     } catch (const BadRequest& e) {
       res.status = e.status;
-      res.set_content(json{{"error", e.what()}}.dump(), "application/json");
+      reply(res, json{{"error", e.what()}}.dump(), "application/json");
     } catch (const std::exception& e) {
       res.status = 500;
-      res.set_content(json{{"error", e.what()}}.dump(), "application/json");
+      reply(res, json{{"error", e.what()}}.dump(), "application/json");
     }
   };
 }
@@ -374,7 +390,7 @@ void add_routes(httplib::Server& svr, Viewer& v) {
   svr.Get("/", guarded([&v](const httplib::Request&, httplib::Response& res) {
             if (v.three_root.empty()) {
               res.status = 503;
-              res.set_content(missing_three_page(), "text/html; charset=utf-8");
+              reply(res, missing_three_page(), "text/html; charset=utf-8");
               return;
             }
             serve_file(v.assets, "index.html", res);
@@ -387,24 +403,26 @@ void add_routes(httplib::Server& svr, Viewer& v) {
             serve_file(v.three_root, req.matches[1].str(), res);
           }));
   svr.Get("/api/info", guarded([&v](const httplib::Request&, httplib::Response& res) {
-            res.set_content(v.info.dump(), "application/json");
+            reply(res, v.info.dump(), "application/json");
           }));
   svr.Get("/api/triangles", guarded([&v](const httplib::Request&, httplib::Response& res) {
-            res.set_content(reinterpret_cast<const char*>(v.triangles.data()),
-                            v.triangles.size() * sizeof(uint32_t), "application/octet-stream");
+            reply(res,
+                  std::string(reinterpret_cast<const char*>(v.triangles.data()),
+                              v.triangles.size() * sizeof(uint32_t)),
+                  "application/octet-stream");
           }));
-  svr.Get(
-      "/api/capsules", guarded([&v](const httplib::Request& req, httplib::Response& res) {
-        if (!req.has_param("clip")) throw BadRequest(400, "missing parameter 'clip'");
-        const int64_t clip = known_primary_clip(v, parse_int("clip", req.get_param_value("clip"), 1,
-                                                             std::numeric_limits<int64_t>::max()));
-        auto it = v.capsules.find(clip);
-        if (it == v.capsules.end())
-          throw BadRequest(404, v.body_note.empty()
-                                    ? "no body poses for primary clip " + std::to_string(clip)
-                                    : v.body_note);
-        res.set_content(json{{"clip", clip}, {"frames", it->second}}.dump(), "application/json");
-      }));
+  svr.Get("/api/capsules", guarded([&v](const httplib::Request& req, httplib::Response& res) {
+            if (!req.has_param("clip")) throw BadRequest(400, "missing parameter 'clip'");
+            const int64_t clip =
+                known_primary_clip(v, parse_int("clip", req.get_param_value("clip"), 1,
+                                                std::numeric_limits<int64_t>::max()));
+            auto it = v.capsules.find(clip);
+            if (it == v.capsules.end())
+              throw BadRequest(404, v.body_note.empty()
+                                        ? "no body poses for primary clip " + std::to_string(clip)
+                                        : v.body_note);
+            reply(res, it->second, "application/json");
+          }));
   svr.Get("/api/clips", guarded([&v](const httplib::Request& req, httplib::Response& res) {
             const std::string by = req.has_param("by") ? req.get_param_value("by") : "strain";
             const auto names = clip_metrics();
@@ -412,37 +430,46 @@ void add_routes(httplib::Server& svr, Viewer& v) {
                              [&](const ClipMetricName& m) { return m.name == by; }))
               throw BadRequest(400, "by: unknown metric '" + by.substr(0, 40) + "'");
             db::Reader reader = open_reader(v.file);
-            res.set_content(clips_list_json(reader, by, 0).dump(), "application/json");
+            reply(res, clips_list_json(reader, by, 0).dump(), "application/json");
           }));
-  // One frame: advance by dt seconds (0: the current pose again), positions as the body.
-  svr.Get("/api/frame", guarded([&v](const httplib::Request& req, httplib::Response& res) {
+  // n frames, each dt seconds after the one before (dt 0: the current pose again): the positions
+  // of each, one after another, as the body; their states as a JSON array in a header.
+  svr.Get("/api/frames", guarded([&v](const httplib::Request& req, httplib::Response& res) {
             const double dt = req.has_param("dt") ? parse_number("dt", req.get_param_value("dt"), 0,
                                                                  kMaxStepSeconds)
                                                   : 0.0;
+            const int64_t n =
+                req.has_param("n") ? parse_int("n", req.get_param_value("n"), 1, kMaxBatch) : 1;
+            const size_t floats = size_t(v.vertices) * 3;
+            std::string body(size_t(n) * floats * sizeof(float), '\0');
+            json states = json::array();
             std::lock_guard<std::mutex> lock(v.mu);
-            const auto t0 = Clock::now();
-            const int rc = clothrt_player_advance(v.player, dt);
-            clothrt_player_get_positions(v.player, v.positions.data(), 12, nullptr);
-            v.last_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
-            ++v.frames_served;
-            json state = frame_state(v);
-            if (rc != CLOTHRT_OK) state["error"] = clothrt_player_errmsg(v.player);
-            res.set_header("X-Clothdb-Frame", state.dump());
-            res.set_content(reinterpret_cast<const char*>(v.positions.data()),
-                            v.positions.size() * sizeof(float), "application/octet-stream");
+            for (int64_t k = 0; k < n; ++k) {
+              const auto t0 = Clock::now();
+              const int rc = clothrt_player_advance(v.player, dt);
+              float* out = reinterpret_cast<float*>(body.data()) + size_t(k) * floats;
+              clothrt_player_get_positions(v.player, out, 12, nullptr);
+              v.last_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
+              ++v.frames_served;
+              json state = frame_state(v);
+              if (rc != CLOTHRT_OK) state["error"] = clothrt_player_errmsg(v.player);
+              states.push_back(std::move(state));
+            }
+            res.set_header("X-Clothdb-Frames", states.dump());
+            reply(res, std::move(body), "application/octet-stream");
           }));
   svr.Post("/api/control", guarded([&v](const httplib::Request& req, httplib::Response& res) {
-             res.set_content(control(v, req.body).dump(), "application/json");
+             reply(res, control(v, req.body).dump(), "application/json");
            }));
-  // The server's own CPU time and frames served, for `scripts/bench_viewer.sh`.
+  // The server's own CPU time and frames served, for viewer/bench.mjs.
   svr.Get("/api/stats", guarded([&v](const httplib::Request&, httplib::Response& res) {
             rusage ru{};
             getrusage(RUSAGE_SELF, &ru);
             const double cpu = double(ru.ru_utime.tv_sec + ru.ru_stime.tv_sec) +
                                1e-6 * double(ru.ru_utime.tv_usec + ru.ru_stime.tv_usec);
             std::lock_guard<std::mutex> lock(v.mu);
-            res.set_content(json{{"cpu_seconds", cpu}, {"frames", v.frames_served}}.dump(),
-                            "application/json");
+            reply(res, json{{"cpu_seconds", cpu}, {"frames", v.frames_served}}.dump(),
+                  "application/json");
           }));
 }
 
@@ -508,7 +535,12 @@ void run_view(const ViewArgs& a) {
                  v.assets.string().c_str());
 
   svr.set_keep_alive_max_count(1 << 30);  // the page pulls every frame over one connection
-  svr.set_keep_alive_timeout(30);
+  // Short: an idle keep-alive connection costs a thread polling every 10 ms in cpp-httplib 0.11,
+  // and the page loads its files over several; the frame connection is never idle while playing.
+  svr.set_keep_alive_timeout(2);
+  // Headers and body go out in two writes: without TCP_NODELAY, Nagle's algorithm and delayed
+  // ACKs held every frame back by tens of milliseconds.
+  svr.set_tcp_nodelay(true);
   svr.set_payload_max_length(1 << 20);
   add_routes(svr, v);
   const int port = a.port == 0 ? svr.bind_to_any_port(a.host.c_str())

@@ -10,6 +10,8 @@ import {OrbitControls} from 'three/addons/controls/OrbitControls.js';
 
 const SLOW = 0.25;       // slow-motion factor
 const MAX_STEP = 0.1;    // s: a longer gap (a hidden tab, a stall) plays as this
+// Frames per request (cli/cmd_view.cpp: how frames reach the page); ?batch=N overrides it.
+const BATCH = Math.max(1, Math.min(16, Number(new URLSearchParams(location.search).get('batch')) || 4));
 const BACKGROUND = 0xdfe4ea;
 
 // Everything the page measures and shows; also read by the browser test and the benchmark
@@ -22,11 +24,14 @@ const state = {
   random: true,
   stepPending: false,
   inflight: false,
-  lastRequest: 0,
+  lastTick: 0,          // the previous animation frame's time
+  interval: 0,          // s between animation frames, smoothed
   framesDrawn: 0,       // animation frames drawn
   clothFrames: 0,       // frames received from the server
   fps: 0,               // animation frames drawn in the last whole second
   fpsSamples: [],       // one per second since the first cloth frame
+  clothFps: 0,          // new cloth frames shown in the last whole second
+  clothFpsSamples: [],
   loadMs: null,         // navigation start -> first cloth frame drawn
   runtimeUs: 0,         // server: advance + positions, smoothed
   errors: [],
@@ -104,7 +109,7 @@ function frameCamera(positions) {
   const size = box.getSize(new THREE.Vector3()).length() || 1;
   const height = Math.max(size, 1.8);  // a character is about this tall around its cloth
   orbit.target.set(center.x, center.y + 0.1 * height, center.z);
-  camera.position.set(center.x + 0.9 * height, center.y + 0.45 * height, center.z + 1.6 * height);
+  camera.position.set(center.x + 0.6 * height, center.y + 0.3 * height, center.z + 1.1 * height);
   orbit.update();
   grid = new THREE.GridHelper(4, 16, 0x9aa4ae, 0xbfc7cf);
   grid.position.set(center.x, box.min.y - (state.info.body ? 0.6 : 0.05), center.z);
@@ -159,34 +164,58 @@ function frameRate(id) {
   return c && c.frame_rate > 0 ? c.frame_rate : 30;
 }
 
-async function pull() {
-  if (state.inflight || (state.paused && !state.stepPending)) return;
-  const now = performance.now();
-  let dt;
-  if (state.stepPending) {
-    dt = state.frame ? 1 / frameRate(state.frame.primary_clip) : 0;
-    state.stepPending = false;
-  } else {
-    dt = state.frame ? Math.min(MAX_STEP, (now - state.lastRequest) / 1000) : 0;
-    if (state.slow) dt *= SLOW;
-  }
-  state.lastRequest = now;
+// Frames received and not yet shown, oldest first.
+const queue = [];
+
+async function request(dt, n) {
   state.inflight = true;
   try {
-    const r = await fetch(`/api/frame?dt=${dt.toFixed(6)}`);
-    if (!r.ok) throw new Error(`/api/frame: ${r.status} ${await r.text()}`);
-    const f = JSON.parse(r.headers.get('X-Clothdb-Frame'));
-    const positions = new Float32Array(await r.arrayBuffer());
-    applyFrame(f, positions);
+    const r = await fetch(`/api/frames?dt=${dt.toFixed(6)}&n=${n}`);
+    if (!r.ok) throw new Error(`/api/frames: ${r.status} ${await r.text()}`);
+    const states = JSON.parse(r.headers.get('X-Clothdb-Frames'));
+    const all = new Float32Array(await r.arrayBuffer());
+    const size = all.length / states.length;
+    states.forEach((f, k) => queue.push({f, positions: all.subarray(k * size, (k + 1) * size)}));
   } catch (e) {
     showError(`${e.message} (is clothdb view still running?)`);
-    state.paused = true;
+    setPaused(true);
   } finally {
     state.inflight = false;
   }
 }
 
-function applyFrame(f, positions) {
+// At every animation frame: show the next queued frame, and ask for the next batch when at most
+// two are left. dt is the page's own frame interval (smoothed), so the cloth plays in real time
+// whatever the frame rate; slow motion scales it.
+function pull(now) {
+  if (state.lastTick) {
+    const interval = Math.min(MAX_STEP, Math.max(1 / 240, (now - state.lastTick) / 1000));
+    state.interval = state.interval ? 0.9 * state.interval + 0.1 * interval : interval;
+  }
+  state.lastTick = now;
+  if (state.stepPending) {
+    // Single step: the next frame already received, or one stored frame of the clip.
+    state.stepPending = false;
+    if (queue.length) applyFrame(queue.shift());
+    else if (!state.inflight)
+      request(state.frame ? 1 / frameRate(state.frame.primary_clip) : 0, 1).then(() => {
+        if (queue.length) applyFrame(queue.shift());
+      });
+    return;
+  }
+  if (state.paused) return;
+  if (queue.length) applyFrame(queue.shift());
+  // Two frames of slack: the next batch arrives before the queue runs dry even when a request
+  // takes two animation frames.
+  if (queue.length <= 2 && !state.inflight)
+    request(state.frame ? (state.interval || 1 / 60) * (state.slow ? SLOW : 1) : 0,
+            state.frame ? BATCH : 1);
+}
+
+// After a jump the queued frames are from before it.
+function flush() { queue.length = 0; }
+
+function applyFrame({f, positions}) {
   const attr = geometry.attributes.position;
   if (!attr) {
     geometry.setAttribute('position', new THREE.BufferAttribute(positions, 3));
@@ -220,7 +249,7 @@ function overlay() {
                                       : `none (blend frames ${$('blend-frames').value})`;
   $('runtime').textContent =
       `${state.runtimeUs.toFixed(1)} µs per frame, ${f.stalls} stalls, ${f.transitions} transitions`;
-  $('fps').textContent = `${state.fps} FPS` +
+  $('fps').textContent = `${state.fps} FPS, ${state.clothFps} cloth frames/s` +
       (state.loadMs !== null ? `, loaded in ${Math.round(state.loadMs)} ms` : '');
   $('mode').textContent = (state.paused ? 'paused' : state.slow ? `slow x${SLOW}` : 'normal') +
       (state.random ? ', random walk' : '');
@@ -253,7 +282,6 @@ async function chooseNext(id) {
 
 function setPaused(paused) {
   state.paused = paused;
-  state.lastRequest = performance.now();
   $('pause').classList.toggle('on', paused);
   overlay();
 }
@@ -326,26 +354,32 @@ async function loadClips() {
     const cells = [row.id, row.primary_clip, row.frames,
       ...metrics.map((m) => row[m.key] === null ? '?' : Number(row[m.key]).toFixed(2))];
     cells.forEach((c) => { tr.insertCell().textContent = c; });
-    tr.onclick = () => control({action: 'jump', cloth_clip: row.id});
+    tr.onclick = () => control({action: 'jump', cloth_clip: row.id}).then(flush);
   }
   overlay();
 }
 
 // ---- start ------------------------------------------------------------------------------------
 
-let secondStart = 0, secondFrames = 0;
+let secondStart = 0, secondFrames = 0, secondCloth = 0;
 function animate(t) {
   requestAnimationFrame(animate);
-  pull();
+  pull(t);
   renderer.render(scene, camera);
   if (!state.clothFrames) return;
   ++state.framesDrawn;
   if (state.loadMs === null) state.loadMs = performance.now();
-  if (!secondStart) secondStart = t;
+  if (!secondStart) {
+    secondStart = t;
+    secondCloth = state.clothFrames;
+  }
   ++secondFrames;
   if (t - secondStart >= 1000) {
     state.fps = Math.round(secondFrames * 1000 / (t - secondStart));
     state.fpsSamples.push(state.fps);
+    state.clothFps = Math.round((state.clothFrames - secondCloth) * 1000 / (t - secondStart));
+    state.clothFpsSamples.push(state.clothFps);
+    secondCloth = state.clothFrames;
     secondStart = t;
     secondFrames = 0;
     overlay();
