@@ -3,12 +3,15 @@
 // and the clip table of `clothdb clips list` (issue 32, docs/guide/viewer.md).
 //
 // How frames reach the page: cpp-httplib 0.11 (Debian) has no WebSocket, so the page pulls, over
-// a keep-alive connection: `GET /api/frames?dt=SECONDS&n=4` advances the server's one player four
-// times by dt and answers with the four frames' positions (character space, float32) as the body
-// and the player's state at each as a JSON header. The page shows one per animation frame and asks
-// for the next batch while the last is still to be shown, so a request's fixed cost is shared by
-// four frames and its latency is hidden. The mesh's triangles, the clip table and the body
-// capsules of each primary clip are fetched once. Nobody asking (a paused page) costs nothing.
+// a keep-alive connection: `GET /api/frames?dt=SECONDS&n=4&wait=MS` advances the server's one
+// player four times by dt and answers with the four frames' positions (character space, float32)
+// and body capsules as the body and the player's state at each as a JSON header. The page shows one
+// per animation frame and always has the next request in flight, held by the server for `wait` ms
+// (until the page's queue runs low), so a request's fixed cost is shared by four frames, its
+// latency is hidden, and the connection never idles in cpp-httplib's polling keep-alive loop (the
+// body's capsules come with each frame for the same reason: no other connection is kept busy). The
+// mesh's triangles and the clip table are fetched once. Nobody asking (a paused page) costs
+// nothing.
 #include <pthread.h>
 #include <signal.h>
 #include <sys/resource.h>
@@ -61,6 +64,8 @@ constexpr double kMaxBlendFrames = 600;
 // Frames per request: the page asks for a few at a time, so the fixed cost of a request (thread
 // wake-ups, parsing) is shared; more than 16 would only add latency to the controls.
 constexpr int64_t kMaxBatch = 16;
+// How long the page may ask the server to hold a batch (wait=MS), milliseconds.
+constexpr int64_t kMaxWaitMs = 250;
 
 struct ViewArgs {
   std::string file, host = "127.0.0.1", assets, scene;
@@ -87,9 +92,10 @@ struct Viewer {
   std::vector<int64_t> clip_ids;        // primary clips, id order
   std::vector<int64_t> cloth_clip_ids;  // for validating jumps
   json info;                            // GET /api/info, built once
-  // Body capsules per primary clip as the JSON GET /api/capsules answers: {"clip", "frames":
-  // [[ax, ay, az, bx, by, bz, radius] x capsules, flattened] per frame}, character space.
-  std::map<int64_t, std::string> capsules;
+  // Body capsules per primary clip, character space: frames x capsule_count x (ax, ay, az, bx, by,
+  // bz, radius). Sent with each frame (7 floats a capsule after the positions).
+  std::map<int64_t, std::vector<float>> capsules;
+  size_t capsule_count = 0;
   std::string body_note;  // why the body is not drawn ("" when it is)
 
   std::mutex mu;
@@ -179,20 +185,22 @@ void load_body(Viewer& v, const std::string& scene_file) {
     db::Reader reader = open_reader(v.file);
     const DatabaseScene ds = load_database_scene(reader, scene_file);
     for (const ExploreEdge& e : ds.graph.edges) {
-      const auto caps = character_space_capsules(ds.scene, e.poses);
-      json frames = json::array();
-      for (const auto& frame : caps) {
-        std::vector<float> flat;
+      std::vector<float>& flat = v.capsules[e.db_clip];
+      for (const auto& frame : character_space_capsules(ds.scene, e.poses)) {
+        if (v.capsule_count == 0) v.capsule_count = frame.size();
+        if (frame.size() != v.capsule_count)
+          throw std::runtime_error("the body has " + std::to_string(frame.size()) +
+                                   " capsules in one frame and " + std::to_string(v.capsule_count) +
+                                   " in another");
         for (const CapsuleCollider& c : frame)
           flat.insert(flat.end(), {float(c.a.x()), float(c.a.y()), float(c.a.z()), float(c.b.x()),
                                    float(c.b.y()), float(c.b.z()), float(c.radius)});
-        frames.push_back(std::move(flat));
       }
-      v.capsules[e.db_clip] = json{{"clip", e.db_clip}, {"frames", frames}}.dump();
     }
   } catch (const std::exception& e) {
     v.body_note = std::string("drawing without the body: ") + e.what();
     v.capsules.clear();
+    v.capsule_count = 0;
   }
 }
 
@@ -250,7 +258,23 @@ void open_viewer(Viewer& v, const ViewArgs& a) {
             {"start_clip", clothrt_db_start_clip(v.db)},
             {"metrics", metrics},
             {"body", v.body_note.empty()},
+            {"capsules", v.capsule_count},
             {"body_note", v.body_note}};
+}
+
+// The body capsules at the player's primary clip and frame (the nearest stored pose), 7 floats
+// each; zeros (radius 0: not drawn) where the clip has no poses.
+void body_at(Viewer& v, float* out) {
+  if (v.capsule_count == 0) return;
+  const size_t floats = v.capsule_count * 7;
+  std::fill(out, out + floats, 0.0f);
+  clothrt_frame_info fi{};
+  clothrt_player_info(v.player, &fi);
+  auto it = v.capsules.find(fi.primary_clip);
+  if (it == v.capsules.end() || it->second.empty()) return;
+  const size_t frames = it->second.size() / floats;
+  const size_t f = std::min(frames - 1, size_t(std::max(0.0, std::round(fi.primary_frame))));
+  std::copy_n(it->second.data() + f * floats, floats, out);
 }
 
 // The player's state as the page shows it (the JSON header of each frame).
@@ -333,8 +357,8 @@ const char* content_type(const fs::path& p) {
 
 // Every answer goes out through a content provider, as it is: cpp-httplib compresses a plain body
 // of a text or JSON type with Brotli at its best (slowest) quality, which took seconds for
-// three.js (1.3 MB) and milliseconds of server CPU for each clip's capsules, for a page served
-// over loopback.
+// three.js (1.3 MB) and milliseconds of server CPU for each JSON table, for a page served over
+// loopback.
 void reply(httplib::Response& res, std::string body, const char* type) {
   auto data = std::make_shared<const std::string>(std::move(body));
   res.set_content_provider(data->size(), type,
@@ -411,18 +435,6 @@ void add_routes(httplib::Server& svr, Viewer& v) {
                               v.triangles.size() * sizeof(uint32_t)),
                   "application/octet-stream");
           }));
-  svr.Get("/api/capsules", guarded([&v](const httplib::Request& req, httplib::Response& res) {
-            if (!req.has_param("clip")) throw BadRequest(400, "missing parameter 'clip'");
-            const int64_t clip =
-                known_primary_clip(v, parse_int("clip", req.get_param_value("clip"), 1,
-                                                std::numeric_limits<int64_t>::max()));
-            auto it = v.capsules.find(clip);
-            if (it == v.capsules.end())
-              throw BadRequest(404, v.body_note.empty()
-                                        ? "no body poses for primary clip " + std::to_string(clip)
-                                        : v.body_note);
-            reply(res, it->second, "application/json");
-          }));
   svr.Get("/api/clips", guarded([&v](const httplib::Request& req, httplib::Response& res) {
             const std::string by = req.has_param("by") ? req.get_param_value("by") : "strain";
             const auto names = clip_metrics();
@@ -432,32 +444,43 @@ void add_routes(httplib::Server& svr, Viewer& v) {
             db::Reader reader = open_reader(v.file);
             reply(res, clips_list_json(reader, by, 0).dump(), "application/json");
           }));
-  // n frames, each dt seconds after the one before (dt 0: the current pose again): the positions
-  // of each, one after another, as the body; their states as a JSON array in a header.
-  svr.Get("/api/frames", guarded([&v](const httplib::Request& req, httplib::Response& res) {
-            const double dt = req.has_param("dt") ? parse_number("dt", req.get_param_value("dt"), 0,
-                                                                 kMaxStepSeconds)
-                                                  : 0.0;
-            const int64_t n =
-                req.has_param("n") ? parse_int("n", req.get_param_value("n"), 1, kMaxBatch) : 1;
-            const size_t floats = size_t(v.vertices) * 3;
-            std::string body(size_t(n) * floats * sizeof(float), '\0');
-            json states = json::array();
-            std::lock_guard<std::mutex> lock(v.mu);
-            for (int64_t k = 0; k < n; ++k) {
-              const auto t0 = Clock::now();
-              const int rc = clothrt_player_advance(v.player, dt);
-              float* out = reinterpret_cast<float*>(body.data()) + size_t(k) * floats;
-              clothrt_player_get_positions(v.player, out, 12, nullptr);
-              v.last_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
-              ++v.frames_served;
-              json state = frame_state(v);
-              if (rc != CLOTHRT_OK) state["error"] = clothrt_player_errmsg(v.player);
-              states.push_back(std::move(state));
-            }
-            res.set_header("X-Clothdb-Frames", states.dump());
-            reply(res, std::move(body), "application/octet-stream");
-          }));
+  // After `wait` ms, n frames, each dt seconds after the one before (dt 0: the current pose
+  // again): each frame's positions and body capsules, one frame after another, as the body; their
+  // states as a JSON array in a header.
+  svr.Get(
+      "/api/frames", guarded([&v](const httplib::Request& req, httplib::Response& res) {
+        const double dt = req.has_param("dt")
+                              ? parse_number("dt", req.get_param_value("dt"), 0, kMaxStepSeconds)
+                              : 0.0;
+        const int64_t n =
+            req.has_param("n") ? parse_int("n", req.get_param_value("n"), 1, kMaxBatch) : 1;
+        // The page asks for its next batch as soon as one arrives and says how long to hold
+        // the answer (until its queue runs low): its connection then waits in this handler
+        // instead of in cpp-httplib's keep-alive loop, which polls an idle connection every
+        // 10 ms (half the server's CPU when it did). Controls sent meanwhile apply to it.
+        const int64_t wait_ms = req.has_param("wait")
+                                    ? parse_int("wait", req.get_param_value("wait"), 0, kMaxWaitMs)
+                                    : 0;
+        if (wait_ms > 0) std::this_thread::sleep_for(std::chrono::milliseconds(wait_ms));
+        const size_t floats = size_t(v.vertices) * 3 + v.capsule_count * 7;  // one frame's
+        std::string body(size_t(n) * floats * sizeof(float), '\0');
+        json states = json::array();
+        std::lock_guard<std::mutex> lock(v.mu);
+        for (int64_t k = 0; k < n; ++k) {
+          const auto t0 = Clock::now();
+          const int rc = clothrt_player_advance(v.player, dt);
+          float* out = reinterpret_cast<float*>(body.data()) + size_t(k) * floats;
+          clothrt_player_get_positions(v.player, out, 12, nullptr);
+          body_at(v, out + size_t(v.vertices) * 3);
+          v.last_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
+          ++v.frames_served;
+          json state = frame_state(v);
+          if (rc != CLOTHRT_OK) state["error"] = clothrt_player_errmsg(v.player);
+          states.push_back(std::move(state));
+        }
+        res.set_header("X-Clothdb-Frames", states.dump());
+        reply(res, std::move(body), "application/octet-stream");
+      }));
   svr.Post("/api/control", guarded([&v](const httplib::Request& req, httplib::Response& res) {
              reply(res, control(v, req.body).dump(), "application/json");
            }));

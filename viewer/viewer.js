@@ -118,35 +118,23 @@ function frameCamera(positions) {
 
 // ---- body capsules ----------------------------------------------------------------------------
 
-const capsules = new Map();  // primary clip id -> Promise of frames (arrays of 7 floats each)
-let bodyClip = null;
+// The capsules come with each frame: 7 floats each (a, b, radius), character space.
 const up = new THREE.Vector3(0, 1, 0), dir = new THREE.Vector3();
-
-function capsulesOf(clip) {
-  if (!capsules.has(clip))
-    capsules.set(clip, getJson(`/api/capsules?clip=${clip}`).then((c) => c.frames).catch(() => null));
-  return capsules.get(clip);
-}
-
-async function drawBody(f) {
-  if (!state.info.body) return;
-  const frames = await capsulesOf(f.primary_clip);
-  if (!frames || !frames.length) return;
-  const k = Math.min(frames.length - 1, Math.max(0, Math.round(f.primary_frame)));
-  const caps = frames[k];
+function drawBody(caps) {
   const n = caps.length / 7;
-  if (bodyClip === null || body.children.length !== n) {
-    body.clear();
+  if (!n) return;
+  if (body.children.length !== n) {
+    if (caps[6] <= 0) return;  // no poses for this clip
     for (let i = 0; i < n; ++i) {
-      const c = caps.slice(7 * i, 7 * i + 7);
+      const c = caps.subarray(7 * i, 7 * i + 7);
       const length = Math.hypot(c[3] - c[0], c[4] - c[1], c[5] - c[2]);
       body.add(new THREE.Mesh(new THREE.CapsuleGeometry(c[6], length, 4, 10), bodyMaterial));
     }
   }
-  bodyClip = f.primary_clip;
   for (let i = 0; i < n; ++i) {
-    const c = caps.slice(7 * i, 7 * i + 7);
+    const c = caps.subarray(7 * i, 7 * i + 7);
     const mesh = body.children[i];
+    mesh.visible = c[6] > 0;
     mesh.position.set((c[0] + c[3]) / 2, (c[1] + c[4]) / 2, (c[2] + c[5]) / 2);
     dir.set(c[3] - c[0], c[4] - c[1], c[5] - c[2]);
     if (dir.lengthSq() > 0) mesh.quaternion.setFromUnitVectors(up, dir.normalize());
@@ -167,26 +155,39 @@ function frameRate(id) {
 // Frames received and not yet shown, oldest first.
 const queue = [];
 
-async function request(dt, n) {
+async function request(dt, n, wait) {
   state.inflight = true;
   try {
-    const r = await fetch(`/api/frames?dt=${dt.toFixed(6)}&n=${n}`);
+    const r = await fetch(`/api/frames?dt=${dt.toFixed(6)}&n=${n}&wait=${Math.round(wait)}`);
     if (!r.ok) throw new Error(`/api/frames: ${r.status} ${await r.text()}`);
     const states = JSON.parse(r.headers.get('X-Clothdb-Frames'));
     const all = new Float32Array(await r.arrayBuffer());
-    const size = all.length / states.length;
-    states.forEach((f, k) => queue.push({f, positions: all.subarray(k * size, (k + 1) * size)}));
+    const size = all.length / states.length, cloth = 3 * state.info.vertices;
+    states.forEach((f, k) => queue.push({f, positions: all.subarray(k * size, k * size + cloth),
+      capsules: all.subarray(k * size + cloth, (k + 1) * size)}));
   } catch (e) {
     showError(`${e.message} (is clothdb view still running?)`);
     setPaused(true);
   } finally {
     state.inflight = false;
   }
+  if (!state.paused) ask();
 }
 
-// At every animation frame: show the next queued frame, and ask for the next batch when at most
-// two are left. dt is the page's own frame interval (smoothed), so the cloth plays in real time
-// whatever the frame rate; slow motion scales it.
+// While playing, the next batch is always asked for: the server holds the answer until the queue
+// will be down to three frames (less 10 ms) (cli/cmd_view.cpp: how frames reach the page). dt is the page's own
+// frame interval (smoothed), so the cloth plays in real time whatever the frame rate; slow motion
+// scales it.
+function ask() {
+  if (state.inflight || state.paused) return;
+  if (!state.frame && !queue.length) return request(0, 1, 0);
+  const interval = state.interval || 1 / 60;
+  const wait = Math.max(0, Math.min(250, (queue.length - 3) * interval * 1000 - 10));
+  request(interval * (state.slow ? SLOW : 1), BATCH, wait);
+}
+
+// At every animation frame: show the next queued frame (or, for a single step while paused, the
+// next one received or one stored frame of the clip).
 function pull(now) {
   if (state.lastTick) {
     const interval = Math.min(MAX_STEP, Math.max(1 / 240, (now - state.lastTick) / 1000));
@@ -194,28 +195,23 @@ function pull(now) {
   }
   state.lastTick = now;
   if (state.stepPending) {
-    // Single step: the next frame already received, or one stored frame of the clip.
     state.stepPending = false;
     if (queue.length) applyFrame(queue.shift());
     else if (!state.inflight)
-      request(state.frame ? 1 / frameRate(state.frame.primary_clip) : 0, 1).then(() => {
+      request(state.frame ? 1 / frameRate(state.frame.primary_clip) : 0, 1, 0).then(() => {
         if (queue.length) applyFrame(queue.shift());
       });
     return;
   }
   if (state.paused) return;
   if (queue.length) applyFrame(queue.shift());
-  // Two frames of slack: the next batch arrives before the queue runs dry even when a request
-  // takes two animation frames.
-  if (queue.length <= 2 && !state.inflight)
-    request(state.frame ? (state.interval || 1 / 60) * (state.slow ? SLOW : 1) : 0,
-            state.frame ? BATCH : 1);
+  ask();
 }
 
 // After a jump the queued frames are from before it.
 function flush() { queue.length = 0; }
 
-function applyFrame({f, positions}) {
+function applyFrame({f, positions, capsules}) {
   const attr = geometry.attributes.position;
   if (!attr) {
     geometry.setAttribute('position', new THREE.BufferAttribute(positions, 3));
@@ -232,7 +228,7 @@ function applyFrame({f, positions}) {
   state.runtimeUs = state.runtimeUs ? 0.95 * state.runtimeUs + 0.05 * f.runtime_us : f.runtime_us;
   if (f.error) showError(`runtime: ${f.error}`);
   if (changed) nextButtons(f);
-  drawBody(f);
+  drawBody(capsules);
   overlay();
 }
 
@@ -282,6 +278,7 @@ async function chooseNext(id) {
 
 function setPaused(paused) {
   state.paused = paused;
+  if (!paused) ask();
   $('pause').classList.toggle('on', paused);
   overlay();
 }

@@ -140,7 +140,8 @@ try {
           !r.text.includes('root:'), `GET ${target}: ${r.status}, no file outside served`);
   }
   const bad = [['GET', 'api/frame?dt=-1'], ['GET', 'api/frame?dt=1e308'], ['GET', 'api/frame?dt=nan'],
-    ['GET', 'api/capsules?clip=99999999999999999999999'], ['GET', 'api/capsules?clip=424242'],
+    ['GET', 'api/frames?n=99999999999999999999999'], ['GET', 'api/frames?n=0'],
+    ['GET', 'api/frames?n=2&wait=-3'], ['GET', 'api/frames?wait=86400000'],
     ['GET', 'api/clips?by=nonsense'], ['POST', 'api/control', '{"action": "next", "clip": 424242}'],
     ['POST', 'api/control', '{"action": "jump", "cloth_clip": -7}'],
     ['POST', 'api/control', '{"action": "jump", "cloth_clip": 1e300}'],
