@@ -108,8 +108,11 @@ function frameCamera(positions) {
   const center = box.getCenter(new THREE.Vector3());
   const size = box.getSize(new THREE.Vector3()).length() || 1;
   const height = Math.max(size, 1.8);  // a character is about this tall around its cloth
-  orbit.target.set(center.x, center.y + 0.1 * height, center.z);
-  camera.position.set(center.x + 0.6 * height, center.y + 0.3 * height, center.z + 1.1 * height);
+  // The cloth hangs from the hips: the legs below it are in view too.
+  const lift = state.info.body ? -0.1 * height : 0;
+  orbit.target.set(center.x, center.y + lift, center.z);
+  camera.position.set(center.x + 0.7 * height, center.y + lift + 0.2 * height,
+                      center.z + 1.3 * height);
   orbit.update();
   grid = new THREE.GridHelper(4, 16, 0x9aa4ae, 0xbfc7cf);
   grid.position.set(center.x, box.min.y - (state.info.body ? 0.6 : 0.05), center.z);
