@@ -5,7 +5,10 @@
 // start to the first cloth frame drawn). Optionally saves a screenshot.
 //
 //   node viewer/bench.mjs CLOTHDB DB [--seconds 10] [--width 1280] [--height 720] [--png FILE]
-//                         [--batch N (frames per request; the page's default 4)]
+//                         [--batch N (frames per request; the page's default 4)] [--paused]
+//   node viewer/bench.mjs CLOTHDB DB --no-browser [--batch N] [--wait MS] [--frames 1200]
+// The second form measures the server alone: one keep-alive connection asking for the frames the
+// way the page does (N per request, each held MS ms), server CPU per frame served.
 import {launchBrowser, median, startViewer, stopViewer} from './driver.mjs';
 
 const args = process.argv.slice(2);
@@ -20,6 +23,18 @@ const png = opt('png', '');
 const batch = opt('batch', '');
 
 const viewer = await startViewer(clothdb, db);
+if (args.includes('--no-browser')) {
+  const n = Number(batch || 4), wait = Number(opt('wait', 0)), frames = Number(opt('frames', 1200));
+  const stats = async () => (await fetch(viewer.url + 'api/stats')).json();
+  const s0 = await stats();
+  for (let i = 0; i < frames / n; ++i)
+    await (await fetch(viewer.url + `api/frames?dt=0.016667&n=${n}&wait=${wait}`)).arrayBuffer();
+  const s1 = await stats();
+  console.log(JSON.stringify({db, batch: n, wait_ms: wait, frames_served: s1.frames - s0.frames,
+    server_cpu_ms_per_frame: 1e3 * (s1.cpu_seconds - s0.cpu_seconds) / (s1.frames - s0.frames)}));
+  await stopViewer(viewer);
+  process.exit(0);
+}
 const {context, close} = await launchBrowser(width, height);
 try {
   const page = await context.newPage();
@@ -29,6 +44,8 @@ try {
   const loadMs = await page.evaluate(() => window.viewer.loadMs);
   const resources = await page.evaluate(() => performance.getEntriesByType('resource').map((r) =>
     [r.name.replace(location.origin, ''), Math.round(r.startTime), Math.round(r.duration)]));
+  // --paused: the page draws without pulling frames (the browser's own ceiling for this page).
+  if (args.includes('--paused')) await page.keyboard.press(' ');
   // Skip the first two seconds (shader compilation, the first clips decoded).
   await page.waitForTimeout(2000);
   const stats = async () => (await fetch(viewer.url + 'api/stats')).json();
