@@ -7,8 +7,6 @@ import os from 'node:os';
 import path from 'node:path';
 import zlib from 'node:zlib';
 
-import {chromium} from 'playwright-core';
-
 export const CHROMIUM = process.env.CLOTHDB_CHROMIUM || '/usr/bin/chromium';
 
 // Starts `clothdb view DB --port 0 ...`; resolves with {url, proc, stderr()} once the first line
@@ -41,6 +39,8 @@ export function stopViewer(viewer) {
 // Headless Chromium with the flags this machine needs (docs/guide/viewer.md): no sandbox (root),
 // no GPU (WebGL through SwiftShader), nothing that reaches for the network.
 export async function launchBrowser(width = 1280, height = 720) {
+  // Imported here: the browser-less checks run without viewer/node_modules.
+  const {chromium} = await import('playwright-core');
   const userDataDir = fs.mkdtempSync(path.join(os.tmpdir(), 'clothdb-chromium-'));
   const context = await chromium.launchPersistentContext(userDataDir, {
     executablePath: CHROMIUM,
