@@ -355,6 +355,12 @@ const char* content_type(const fs::path& p) {
   return "application/octet-stream";
 }
 
+// JSON text of `j`, with bytes that are not UTF-8 (a request's own text quoted back in an error,
+// cut at 40 bytes) replaced instead of throwing.
+std::string text_of(const json& j) {
+  return j.dump(-1, ' ', false, json::error_handler_t::replace);
+}
+
 // Every answer goes out through a content provider, as it is: cpp-httplib compresses a plain body
 // of a text or JSON type with Brotli at its best (slowest) quality, which took seconds for
 // three.js (1.3 MB) and milliseconds of server CPU for each JSON table, for a page served over
@@ -402,10 +408,10 @@ httplib::Server::Handler guarded(F f) {
       f(req, res);
     } catch (const BadRequest& e) {
       res.status = e.status;
-      reply(res, json{{"error", e.what()}}.dump(), "application/json");
+      reply(res, text_of(json{{"error", e.what()}}), "application/json");
     } catch (const std::exception& e) {
       res.status = 500;
-      reply(res, json{{"error", e.what()}}.dump(), "application/json");
+      reply(res, text_of(json{{"error", e.what()}}), "application/json");
     }
   };
 }
@@ -427,7 +433,7 @@ void add_routes(httplib::Server& svr, Viewer& v) {
             serve_file(v.three_root, req.matches[1].str(), res);
           }));
   svr.Get("/api/info", guarded([&v](const httplib::Request&, httplib::Response& res) {
-            reply(res, v.info.dump(), "application/json");
+            reply(res, text_of(v.info), "application/json");
           }));
   svr.Get("/api/triangles", guarded([&v](const httplib::Request&, httplib::Response& res) {
             reply(res,
@@ -442,7 +448,7 @@ void add_routes(httplib::Server& svr, Viewer& v) {
                              [&](const ClipMetricName& m) { return m.name == by; }))
               throw BadRequest(400, "by: unknown metric '" + by.substr(0, 40) + "'");
             db::Reader reader = open_reader(v.file);
-            reply(res, clips_list_json(reader, by, 0).dump(), "application/json");
+            reply(res, text_of(clips_list_json(reader, by, 0)), "application/json");
           }));
   // After `wait` ms, n frames, each dt seconds after the one before (dt 0: the current pose
   // again): each frame's positions and body capsules, one frame after another, as the body; their
@@ -478,11 +484,11 @@ void add_routes(httplib::Server& svr, Viewer& v) {
           if (rc != CLOTHRT_OK) state["error"] = clothrt_player_errmsg(v.player);
           states.push_back(std::move(state));
         }
-        res.set_header("X-Clothdb-Frames", states.dump());
+        res.set_header("X-Clothdb-Frames", text_of(states));
         reply(res, std::move(body), "application/octet-stream");
       }));
   svr.Post("/api/control", guarded([&v](const httplib::Request& req, httplib::Response& res) {
-             reply(res, control(v, req.body).dump(), "application/json");
+             reply(res, text_of(control(v, req.body)), "application/json");
            }));
   // The server's own CPU time and frames served, for viewer/bench.mjs.
   svr.Get("/api/stats", guarded([&v](const httplib::Request&, httplib::Response& res) {
@@ -491,7 +497,7 @@ void add_routes(httplib::Server& svr, Viewer& v) {
             const double cpu = double(ru.ru_utime.tv_sec + ru.ru_stime.tv_sec) +
                                1e-6 * double(ru.ru_utime.tv_usec + ru.ru_stime.tv_usec);
             std::lock_guard<std::mutex> lock(v.mu);
-            reply(res, json{{"cpu_seconds", cpu}, {"frames", v.frames_served}}.dump(),
+            reply(res, text_of(json{{"cpu_seconds", cpu}, {"frames", v.frames_served}}),
                   "application/json");
           }));
 }

@@ -79,6 +79,7 @@ async function badRequests(viewer) {
   const bad = [['GET', 'api/frame?dt=-1'], ['GET', 'api/frame?dt=1e308'], ['GET', 'api/frame?dt=nan'],
     ['GET', 'api/frames?n=99999999999999999999999'], ['GET', 'api/frames?n=0'],
     ['GET', 'api/frames?n=2&wait=-3'], ['GET', 'api/frames?wait=86400000'],
+    ['GET', 'api/frames?dt=%ff%fe%c3'], ['GET', 'api/clips?by=%c3%28'],
     ['GET', 'api/clips?by=nonsense'], ['POST', 'api/control', '{"action": "next", "clip": 424242}'],
     ['POST', 'api/control', '{"action": "jump", "cloth_clip": -7}'],
     ['POST', 'api/control', '{"action": "jump", "cloth_clip": 1e300}'],
