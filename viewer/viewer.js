@@ -177,10 +177,10 @@ async function request(dt, n, wait) {
   if (!state.paused) ask();
 }
 
-// While playing, the next batch is always asked for: the server holds the answer until the queue
-// will be down to three frames (less 10 ms) (cli/cmd_view.cpp: how frames reach the page). dt is the page's own
-// frame interval (smoothed), so the cloth plays in real time whatever the frame rate; slow motion
-// scales it.
+// While playing, the next batch is always asked for, and the server holds the answer until the
+// queue will be down to three frames, less 10 ms (cli/cmd_view.cpp: how frames reach the page). dt
+// is the page's own frame interval (smoothed), so the cloth plays in real time whatever the frame
+// rate; slow motion scales it.
 function ask() {
   if (state.inflight || state.paused) return;
   if (!state.frame && !queue.length) return request(0, 1, 0);
