@@ -6,7 +6,7 @@
 #include <string>
 #include <vector>
 
-#include "database/schema.hpp"
+#include "database/format/reader.hpp"
 
 namespace clothdb::cli {
 
