@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "cli_util.hpp"
+#include "clips_list.hpp"
 #include "cloth/self_intersection.hpp"
 #include "commands.hpp"
 #include "database/codec/codec.hpp"
@@ -34,8 +35,8 @@ struct ClipTable {
   std::map<int64_t, std::vector<db::ClothEdge>> edges_from;  // clip id -> its out edges
   std::vector<db::StoredState> states;
   std::map<int64_t, db::ClipSteering> steering;  // clip id -> how its end was steered (issue 16)
-  // clip id -> the most edge-triangle crossings in one of its decoded frames; filled only for
-  // `--by self-intersections` (measured here, not stored: it decodes every clip).
+  // clip id -> the most edge-triangle crossings in one of its decoded frames; filled only when
+  // listing by self-intersections (measured here, not stored: it decodes every clip).
   std::map<int64_t, int> crossings;
 };
 
@@ -76,6 +77,17 @@ std::vector<int> clip_crossings(db::Reader& reader, const ClothMesh& mesh, int64
   for (int f = 0; f < count; ++f)
     out.push_back(count_self_intersections(mesh, frame_positions(frames, f, n)));
   return out;
+}
+
+// Fills t.crossings when `metric` is self-intersections (it decodes every clip).
+void measure_crossings_if_listed(db::Reader& reader, ClipTable& t, const char* metric) {
+  if (std::string(metric) != "self-intersections") return;
+  const ClothMesh mesh = garment_topology(reader);
+  for (const auto& c : t.clips) {
+    const std::vector<int> per_frame = clip_crossings(reader, mesh, c.id);
+    t.crossings[c.id] =
+        per_frame.empty() ? 0 : *std::max_element(per_frame.begin(), per_frame.end());
+  }
 }
 
 ClipTable read_table(db::Reader& reader) {
@@ -165,21 +177,11 @@ nlohmann::json number_or_null(double v) {
   return std::isnan(v) ? nlohmann::json(nullptr) : nlohmann::json(v);
 }
 
-void list_clips(const std::string& path, int worst, const std::string& by, bool json) {
-  const Metric& metric = find_metric(by);
-  db::Reader reader = open_reader(path);
-  ClipTable t = read_table(reader);
-  if (std::string(metric.name) == "self-intersections") {
-    const ClothMesh mesh = garment_topology(reader);
-    for (const auto& c : t.clips) {
-      const std::vector<int> per_frame = clip_crossings(reader, mesh, c.id);
-      t.crossings[c.id] =
-          per_frame.empty() ? 0 : *std::max_element(per_frame.begin(), per_frame.end());
-    }
-  }
+// The clips of `t`, worst `metric` first; unknown values last; ties by id so the listing is
+// stable. worst > 0: only that many.
+std::vector<const db::ClothClip*> worst_first(const ClipTable& t, const Metric& metric, int worst) {
   std::vector<const db::ClothClip*> order;
   for (const auto& c : t.clips) order.push_back(&c);
-  // Worst first; unknown values last; ties by id so the listing is stable.
   std::stable_sort(order.begin(), order.end(), [&](const db::ClothClip* a, const db::ClothClip* b) {
     const double va = metric.get(t, *a), vb = metric.get(t, *b);
     if (std::isnan(va) != std::isnan(vb)) return std::isnan(vb);
@@ -187,33 +189,45 @@ void list_clips(const std::string& path, int worst, const std::string& by, bool 
     return a->id < b->id;
   });
   if (worst > 0 && order.size() > size_t(worst)) order.resize(size_t(worst));
+  return order;
+}
 
-  if (json) {
-    nlohmann::json rows = nlohmann::json::array();
-    for (const db::ClothClip* c : order) {
-      nlohmann::json row = {
-          {"id", c->id},
-          {"primary_clip",
-           t.primary_name.count(c->primary_clip) ? t.primary_name.at(c->primary_clip) : ""},
-          {"start_state", c->start_state},
-          {"frames", c->frame_count},
-          {"status", db::clip_status_name(c->status)}};
-      for (const Metric& m : kMetrics) {
-        const double v = m.get(t, *c);
-        const bool whole =
-            std::string(m.name) == "halved" || std::string(m.name) == "self-intersections";
-        row[m.json] = whole ? (std::isnan(v) ? nlohmann::json(nullptr) : nlohmann::json(int(v)))
-                            : number_or_null(v * m.scale);
-      }
-      row["worst_frame"] =
-          c->worst_frame < 0 ? nlohmann::json(nullptr) : nlohmann::json(c->worst_frame);
-      rows.push_back(std::move(row));
+nlohmann::json list_json(const ClipTable& t, const Metric& metric, int worst) {
+  nlohmann::json rows = nlohmann::json::array();
+  for (const db::ClothClip* c : worst_first(t, metric, worst)) {
+    nlohmann::json row = {
+        {"id", c->id},
+        {"primary_clip",
+         t.primary_name.count(c->primary_clip) ? t.primary_name.at(c->primary_clip) : ""},
+        {"primary_clip_id", c->primary_clip},
+        {"start_state", c->start_state},
+        {"frames", c->frame_count},
+        {"status", db::clip_status_name(c->status)}};
+    for (const Metric& m : kMetrics) {
+      const double v = m.get(t, *c);
+      const bool whole =
+          std::string(m.name) == "halved" || std::string(m.name) == "self-intersections";
+      row[m.json] = whole ? (std::isnan(v) ? nlohmann::json(nullptr) : nlohmann::json(int(v)))
+                          : number_or_null(v * m.scale);
     }
-    nlohmann::json out = {
-        {"file", path}, {"by", metric.name}, {"clips_in_file", t.clips.size()}, {"clips", rows}};
-    std::printf("%s\n", out.dump(2).c_str());
+    row["worst_frame"] =
+        c->worst_frame < 0 ? nlohmann::json(nullptr) : nlohmann::json(c->worst_frame);
+    rows.push_back(std::move(row));
+  }
+  return {
+      {"file", t.path}, {"by", metric.name}, {"clips_in_file", t.clips.size()}, {"clips", rows}};
+}
+
+void list_clips(const std::string& path, int worst, const std::string& by, bool json) {
+  const Metric& metric = find_metric(by);
+  db::Reader reader = open_reader(path);
+  ClipTable t = read_table(reader);
+  measure_crossings_if_listed(reader, t, metric.name);
+  if (json) {
+    std::printf("%s\n", list_json(t, metric, worst).dump(2).c_str());
     return;
   }
+  const std::vector<const db::ClothClip*> order = worst_first(t, metric, worst);
   std::printf("%zu of %zu clips in %s, worst %s first (? = not measured)\n", order.size(),
               t.clips.size(), path.c_str(), metric.name);
   std::printf("%6s  %-34s %6s  %-7s %8s %8s %8s %8s %6s %8s %8s %6s %6s\n", "id", "primary clip",
@@ -461,6 +475,19 @@ void show_clip(const ShowArgs& a) {
 }
 
 }  // namespace
+
+nlohmann::json clips_list_json(db::Reader& reader, const std::string& by, int worst) {
+  const Metric& metric = find_metric(by);
+  ClipTable t = read_table(reader);
+  measure_crossings_if_listed(reader, t, metric.name);
+  return list_json(t, metric, worst);
+}
+
+std::vector<ClipMetricName> clip_metrics() {
+  std::vector<ClipMetricName> names;
+  for (const Metric& m : kMetrics) names.push_back({m.name, m.json});
+  return names;
+}
 
 void register_clip_quality_commands(CLI::App& app) {
   struct ListArgs {

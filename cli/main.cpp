@@ -38,6 +38,7 @@ int main(int argc, char** argv) {
   clothdb::cli::register_graph_commands(app);
   clothdb::cli::register_play_commands(app);
   clothdb::cli::register_clip_quality_commands(app);
+  clothdb::cli::register_view_command(app);
 
   try {
     app.parse(argc, argv);

@@ -35,3 +35,4 @@ if [ "${CLOTHDB_DEMO_FRESH:-0}" = 1 ]; then rm -f "$OUT"/skirt.db*; fi
 echo
 echo "demo: database $OUT/skirt.db; error curve $OUT/error_curve.svg (.csv);"
 echo "      motion graph $OUT/graph.svg; playback $OUT/play (PC2 + OBJ for Blender, PNG previews)"
+echo "      watch it play in the browser: $CLOTHDB view $OUT/skirt.db (docs/guide/viewer.md)"

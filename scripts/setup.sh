@@ -12,7 +12,10 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 PACKAGES=(cmake g++ make pkg-config libeigen3-dev libomp-dev libassimp-dev assimp-testmodels
   libsqlite3-dev libzstd-dev libcli11-dev nlohmann-json3-dev libsuitesparse-dev libpng-dev
   libgtest-dev libosmesa6-dev libglu1-mesa-dev clang-14 libclang-rt-14-dev libopenmpi-dev openmpi-bin
-  libmeshoptimizer-dev libopenblas0-serial python3)
+  libmeshoptimizer-dev libopenblas0-serial python3 libcpp-httplib-dev)
+# The browser test of `clothdb view` (tests/browser/) needs Debian's Chromium (about 100 MB more):
+# only when asked, as .ci/run does. Without it that test is skipped.
+if [ "${CLOTHDB_BROWSER:-0}" = 1 ]; then PACKAGES+=(chromium); fi
 missing=()
 for p in "${PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -26,6 +29,21 @@ if [ ${#missing[@]} -gt 0 ]; then
     echo "setup: missing Debian packages; install them with:" >&2
     echo "  sudo apt-get install ${missing[*]}" >&2
     exit 1
+  fi
+fi
+
+# The viewer's page (`clothdb view`) draws with three.js, and its browser test drives Chromium with
+# playwright-core: both from npm, pinned by viewer/package-lock.json, into viewer/node_modules.
+# `npm ci` runs only when the lock file changed since the last install; without npm the C++ build
+# goes on, the viewer serves a page saying three.js is missing, and the browser test is skipped.
+if [ -f viewer/package-lock.json ]; then
+  if ! command -v npm >/dev/null; then
+    echo "setup: npm not found: skipping viewer/node_modules (three.js for clothdb view)" >&2
+  elif ! cmp -s viewer/package-lock.json viewer/node_modules/.clothdb-installed-lock; then
+    echo "setup: npm ci in viewer/ (three.js, playwright-core)" >&2
+    (cd viewer && npm ci --no-audit --no-fund >/dev/null) &&
+      cp viewer/package-lock.json viewer/node_modules/.clothdb-installed-lock ||
+      echo "setup: npm ci in viewer/ failed: clothdb view will say three.js is missing" >&2
   fi
 fi
 
