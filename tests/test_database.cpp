@@ -23,29 +23,14 @@
 #include "database/schema.hpp"
 #include "database/writer_lock.hpp"
 #include "runtime/tools/synthetic_db.hpp"
+#include "support/temp_dir.hpp"
 
 namespace clothdb::db {
 namespace {
 
 namespace fs = std::filesystem;
 
-class TempDir {
- public:
-  TempDir() {
-    static int counter = 0;
-    path_ = fs::temp_directory_path() /
-            ("clothdb_test_" + std::to_string(getpid()) + "_" + std::to_string(counter++));
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string file(const std::string& name) const { return (path_ / name).string(); }
-
- private:
-  fs::path path_;
-};
+using clothdb::test::TempDir;
 
 constexpr uint32_t kSide = 12;
 constexpr uint32_t kVertices = kSide * kSide;

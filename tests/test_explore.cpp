@@ -18,7 +18,7 @@
 #include "explore/explorer.hpp"
 #include "explore/job_wire.hpp"
 #include "explore/precompute.hpp"
-#include "explore_fixture.hpp"
+#include "support/explore_fixture.hpp"
 
 using namespace clothdb;
 using namespace clothdb::test;

@@ -23,29 +23,14 @@
 #include "database/check.hpp"
 #include "database/schema.hpp"
 #include "runtime/tools/synthetic_db.hpp"
+#include "support/temp_dir.hpp"
 
 namespace clothdb {
 namespace {
 
 namespace fs = std::filesystem;
 
-class TempDir {
- public:
-  TempDir() {
-    std::random_device rd;
-    path_ = fs::temp_directory_path() /
-            ("clothdb_recode_" + std::to_string(::getpid()) + "_" + std::to_string(rd()));
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string file(const std::string& name) const { return (path_ / name).string(); }
-
- private:
-  fs::path path_;
-};
+using test::TempDir;
 
 synthetic::Spec spec() {
   synthetic::Spec s;

@@ -23,6 +23,7 @@
 #include "database/codec.hpp"
 #include "database/schema.hpp"
 #include "runtime/tools/synthetic_db.hpp"
+#include "support/temp_dir.hpp"
 
 // Counts every allocation made through operator new in this process, so a test can check that
 // playing frames allocates nothing once warm. The replacements pair malloc with free; GCC cannot
@@ -79,23 +80,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-class TempDir {
- public:
-  TempDir() {
-    static int counter = 0;
-    path_ = fs::temp_directory_path() /
-            ("clothrt_test_" + std::to_string(getpid()) + "_" + std::to_string(counter++));
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string file(const std::string& name) const { return (path_ / name).string(); }
-
- private:
-  fs::path path_;
-};
+using test::TempDir;
 
 constexpr uint32_t kSide = 16;  // 256 vertices
 constexpr double kRate = 30.0;

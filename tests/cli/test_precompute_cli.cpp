@@ -2,10 +2,8 @@
 // `precompute` explores on it, and a precompute killed with SIGKILL part-way and rerun with the
 // same command gives the same database content, row for row and blob for blob, as a run that
 // was never interrupted (issue 5). Run ids and timestamps are left out of the comparison.
-#include <fcntl.h>
 #include <gtest/gtest.h>
 #include <signal.h>
-#include <spawn.h>
 #include <sqlite3.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -18,13 +16,11 @@
 #include <vector>
 
 #include "database/schema.hpp"
-
-extern char** environ;
+#include "support/cli.hpp"
 
 namespace {
 
 const std::string kSource = CLOTHDB_SOURCE_DIR;
-const std::string kExe = CLOTHDB_EXE;
 
 std::filesystem::path work_dir() {
   const std::filesystem::path dir =
@@ -33,31 +29,16 @@ std::filesystem::path work_dir() {
   return dir;
 }
 
-void remove_db(const std::string& path) {
-  for (const char* suffix : {"", "-wal", "-shm"}) std::filesystem::remove(path + suffix);
-}
+using clothdb::test::read_text;
+using clothdb::test::remove_database;
 
-// Starts `clothdb args...` with stdout and stderr into `log`; returns its pid.
+// Starts `clothdb args...` with stdout and stderr appended to `log`; returns its pid.
 pid_t start(const std::vector<std::string>& args, const std::string& log) {
-  std::vector<std::string> all = {kExe};
-  all.insert(all.end(), args.begin(), args.end());
-  std::vector<char*> argv;
-  for (auto& a : all) argv.push_back(a.data());
-  argv.push_back(nullptr);
-  posix_spawn_file_actions_t actions;
-  posix_spawn_file_actions_init(&actions);
-  posix_spawn_file_actions_addopen(&actions, 1, log.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
-  posix_spawn_file_actions_adddup2(&actions, 1, 2);
-  pid_t pid = 0;
-  const int rc = posix_spawn(&pid, kExe.c_str(), &actions, nullptr, argv.data(), environ);
-  posix_spawn_file_actions_destroy(&actions);
-  EXPECT_EQ(rc, 0) << "cannot start " << kExe;
-  return pid;
+  return clothdb::test::start_clothdb(args, log);
 }
 
 std::string read_file(const std::string& path) {
-  std::ifstream in(path);
-  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  return read_text(path);
 }
 
 // Runs to the end; fails the test (with the output) unless it exits with 0.
@@ -134,8 +115,8 @@ TEST(PrecomputeCli, SigkillThenRerunGivesTheUninterruptedDatabase) {
   const std::string whole = (dir / "whole.db").string(), killed = (dir / "killed.db").string();
   const std::string log = (dir / "log.txt").string();
   std::filesystem::remove(log);
-  remove_db(whole);
-  remove_db(killed);
+  remove_database(whole);
+  remove_database(killed);
   const std::vector<std::string> graph = {
       "graph", "build", kSource + "/motions/cmu_walk.json", "--clips", "01_03_level_walk", "--db"};
   auto with = [](std::vector<std::string> args, const std::string& more) {
@@ -187,7 +168,7 @@ TEST(PrecomputeCli, RefusesADifferentGraphThanTheDatabaseHolds) {
   const std::string db = (dir / "graph_only.db").string(), json = (dir / "other.json").string();
   const std::string log = (dir / "refuse_log.txt").string();
   std::filesystem::remove(log);
-  remove_db(db);
+  remove_database(db);
   run({"graph", "build", kSource + "/motions/cmu_walk.json", "--clips", "01_03_level_walk", "--db",
        db},
       log);
@@ -216,8 +197,8 @@ TEST(PrecomputeCli, SecondWriterIsRefusedAndTheDatabaseEqualsOneRun) {
   const std::string log = (dir / "two_writers_log.txt").string(),
                     second_log = (dir / "second_writer_log.txt").string();
   for (const std::string& f : {log, second_log}) std::filesystem::remove(f);
-  remove_db(one);
-  remove_db(two);
+  remove_database(one);
+  remove_database(two);
   for (const std::string& db : {one, two})
     run({"graph", "build", kSource + "/motions/cmu_walk.json", "--clips", "01_03_level_walk",
          "--db", db},

@@ -22,6 +22,7 @@
 #include "database/schema.hpp"
 #include "edit/clip_edit.hpp"
 #include "exchange/point_cache.hpp"
+#include "support/cli.hpp"
 
 namespace clothdb {
 namespace {
@@ -47,17 +48,11 @@ class RemoveWorkFolder : public testing::Environment {
 const testing::Environment* const kRemoveWorkFolder =
     testing::AddGlobalTestEnvironment(new RemoveWorkFolder);
 
+// `clothdb args` (split at spaces); its output into *output.
 int run_cli(const std::string& args, std::string* output = nullptr) {
-  const std::string log = work("cli.log");
-  const int rc =
-      std::system((std::string(CLOTHDB_EXE) + " " + args + " > " + log + " 2>&1").c_str());
-  if (output) {
-    std::ifstream in(log);
-    std::stringstream s;
-    s << in.rdbuf();
-    *output = s.str();
-  }
-  return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+  const test::CliResult r = test::run_clothdb(args, work("cli.log"));
+  if (output) *output = r.output;
+  return r.code;
 }
 
 // The converged base database, made once (--no-floor: the edits do not depend on the garment's
@@ -65,7 +60,7 @@ int run_cli(const std::string& args, std::string* output = nullptr) {
 const std::string& base_db() {
   static const std::string path = [] {
     const std::string p = work("base.db");
-    for (const char* s : {"", "-wal", "-shm"}) std::filesystem::remove(p + s);
+    test::remove_database(p);
     std::string out;
     const int rc = run_cli("precompute " + kSource + "/tests/data/mpi_small.json --db " + p +
                                " --epsilon 10 --batch 4 --threads 1 --quiet --no-floor",
