@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <set>
 
 #include "clothrt.h"
 #include "database/check.hpp"
@@ -37,15 +38,20 @@ std::string temp_db(const std::string& name) {
   return path;
 }
 
-ExploreReport run(const CharacterScene& scene, const std::string& path, ExploreOptions options,
-                  double hold_reach = 1.0, const BatchRunner& runner = {}) {
-  ExploreGraph graph = small_graph(scene);
-  graph.edges[0].reach = hold_reach;
+ExploreReport run_graph(const CharacterScene& scene, ExploreGraph graph, const std::string& path,
+                        ExploreOptions options, const BatchRunner& runner = {}) {
   db::Writer writer =
       std::filesystem::exists(path) ? db::Writer::open(path) : db::Writer::create(path);
   prepare_database(writer, scene, graph, "{}");
   options.progress = std::getenv("CLOTHDB_PROGRESS") != nullptr;
   return explore(scene, graph, writer, options, runner);
+}
+
+ExploreReport run(const CharacterScene& scene, const std::string& path, ExploreOptions options,
+                  double hold_reach = 1.0, const BatchRunner& runner = {}) {
+  ExploreGraph graph = small_graph(scene);
+  graph.edges[0].reach = hold_reach;
+  return run_graph(scene, graph, path, options, runner);
 }
 
 // Every clip blob and every state blob, in id order: the database's cloth content, as one
@@ -524,6 +530,110 @@ TEST(Explore, UnresolvedErrorIsTheDistanceToTheNearestOtherStateAtItsNode) {
   EXPECT_NEAR(report.worst_error, worst, 1e-12);
   EXPECT_NEAR(report.weighted_worst_error, worst, 1e-12);  // every edge has reach 1 here
   EXPECT_EQ(report.linked_fraction, 0.0);
+}
+
+// Every edge's blend error recomputed (issue 34), on a graph of two nodes, independently of the
+// figure the explorer stored: each clip's job is run again from its stored start state (giving
+// the stored clip, blob for blob), and the state distance from its end to the state its edge
+// lands on is the recorded blend error, at most epsilon; the landing state is at the edge's end
+// node; and the stored clip's last frame is that near the state in position too (the position
+// part of the distance), within the codec's bound.
+TEST(Explore, EveryEdgeErrorRecomputedFromTheClipEndOnTwoNodes) {
+  const CharacterScene scene = small_scene();
+  const ExploreGraph graph = two_node_graph(scene);
+  const std::string path = temp_db("two_nodes");
+  ExploreOptions options;
+  options.epsilon = 0.02;
+  options.max_frames = 400;  // the turned node converges slowly; a few dozen clips are enough
+  const ExploreReport report = run_graph(scene, graph, path, options);
+  ASSERT_GT(report.clips, 10);
+  expect_checks(path);
+
+  db::Reader r;
+  db::Error err;
+  ASSERT_EQ(r.open(path, &err), db::Status::Ok);
+  std::vector<db::StoredState> states;
+  std::vector<db::ClothClip> clips;
+  std::vector<db::ClothEdge> edges;
+  std::vector<db::PrimaryClip> primary;
+  ASSERT_EQ(r.cloth_states(&states, &err), db::Status::Ok);
+  ASSERT_EQ(r.cloth_clips(&clips, &err), db::Status::Ok);
+  ASSERT_EQ(r.cloth_edges(&edges, &err), db::Status::Ok);
+  ASSERT_EQ(r.primary_clips(&primary, &err), db::Status::Ok);
+  // Graph edge of each primary clip (by name), and the node each state is at (node-anchor rule:
+  // a state is stored under the first edge leaving its node).
+  std::map<int64_t, int> edge_of;
+  for (const auto& p : primary)
+    for (size_t e = 0; e < graph.edges.size(); ++e)
+      if (graph.edges[e].name == p.name) edge_of[p.id] = static_cast<int>(e);
+  ASSERT_EQ(edge_of.size(), graph.edges.size());
+  std::map<int64_t, int> node_of;
+  std::map<int64_t, std::pair<std::vector<float>, std::vector<float>>> state;
+  codec::DecodeScratch scratch;
+  std::set<int> nodes;
+  for (const auto& s : states) {
+    node_of[s.id] = graph.edges[static_cast<size_t>(edge_of.at(s.primary_clip))].from_node;
+    nodes.insert(node_of[s.id]);
+    auto& [x, v] = state[s.id];
+    ASSERT_EQ(r.read_state(s.id, &x, &v, scratch, &err), db::Status::Ok);
+  }
+  EXPECT_EQ(nodes.size(), 2u) << "states at both nodes";
+  std::map<int64_t, const db::ClothClip*> clip_by_id;
+  for (const auto& c : clips) clip_by_id[c.id] = &c;
+  ASSERT_EQ(edges.size(), clips.size());
+  const double tau = 1.0 / graph.rate, bound = r.codec().position_bound;
+  int linked = 0;
+  for (const auto& e : edges) {
+    const db::ClothClip& c = *clip_by_id.at(e.from_clip);
+    const int g = edge_of.at(c.primary_clip);
+    EXPECT_EQ(node_of.at(c.start_state), graph.edges[static_cast<size_t>(g)].from_node);
+    EXPECT_EQ(node_of.at(e.to_state), graph.edges[static_cast<size_t>(g)].to_node)
+        << "clip " << c.id << " lands at a state of the other node";
+    JobInput job;
+    job.edge = g;
+    job.x = state.at(c.start_state).first;
+    job.v = state.at(c.start_state).second;
+    job.solver = scene.file.solver;
+    job.settings = scene.file.settings;
+    job.settings.threads = 1;
+    job.codec = r.codec();
+    job.epsilon = options.epsilon;
+    const JobResult again = run_job(scene, graph, job);
+    ASSERT_TRUE(again.stable) << again.message;
+    std::vector<uint8_t> stored;
+    ASSERT_EQ(r.clip_blob(c.id, &stored, &err), db::Status::Ok);
+    EXPECT_TRUE(again.clip_blob == stored) << "clip " << c.id << " is not what its job makes";
+    std::vector<float> end_x, end_v, frames;
+    ASSERT_EQ(
+        codec::decode_all(again.end_x_blob.data(), again.end_x_blob.size(), end_x, scratch, &err),
+        db::Status::Ok);
+    ASSERT_EQ(
+        codec::decode_all(again.end_v_blob.data(), again.end_v_blob.size(), end_v, scratch, &err),
+        db::Status::Ok);
+    const auto& [tx, tv] = state.at(e.to_state);
+    const double d = db::state_distance(end_x, end_v, tx, tv, tau);
+    EXPECT_NEAR(d, e.blend_error, 1e-12) << "clip " << c.id << " -> state " << e.to_state;
+    EXPECT_LE(d, options.epsilon) << "clip " << c.id;
+    linked += d > 0;
+    // The stored clip's last frame: its RMS position distance to the state is at most the state
+    // distance plus the codec's error on each side.
+    ASSERT_EQ(codec::decode_all(stored.data(), stored.size(), frames, scratch, &err),
+              db::Status::Ok);
+    const size_t n = tx.size();
+    ASSERT_GE(frames.size(), n);
+    double sum = 0;
+    for (size_t i = 0; i < n; i += 3) {
+      double v2 = 0;
+      for (size_t a = 0; a < 3; ++a) {
+        const double dx = static_cast<double>(frames[frames.size() - n + i + a]) - tx[i + a];
+        v2 += dx * dx;
+      }
+      sum += v2;
+    }
+    EXPECT_LE(std::sqrt(sum / static_cast<double>(n / 3)), d + 2 * std::sqrt(3.0) * bound)
+        << "clip " << c.id;
+  }
+  EXPECT_GT(linked, 0) << "no clip linked to an existing state: nothing recomputed";
 }
 
 // Issue 16, no runtime fallback: a run stopped by its budget links every dead end to the clip of
