@@ -23,6 +23,7 @@
 #include "edit/clip_edit.hpp"
 #include "exchange/point_cache.hpp"
 #include "support/cli.hpp"
+#include "support/db_rows.hpp"
 
 namespace clothdb {
 namespace {
@@ -81,40 +82,12 @@ std::string copy_db(const std::string& name) {
   return to;
 }
 
-// Every row of every table but the edit log, blobs by checksum: what "the database content" is.
+// Every row of every table but the edit log, blobs by checksum: what "the database content" is
+// (tests/support/db_rows.hpp; nothing else left out: an edit and its undo run in one process).
 std::vector<std::string> rows(const std::string& path) {
-  sqlite3* db = nullptr;
-  EXPECT_EQ(sqlite3_open_v2(path.c_str(), &db, SQLITE_OPEN_READONLY, nullptr), SQLITE_OK);
-  std::vector<std::string> tables, out;
-  sqlite3_stmt* s = nullptr;
-  sqlite3_prepare_v2(db,
-                     "SELECT name FROM sqlite_master WHERE type = 'table' AND name != 'edit_log' "
-                     "ORDER BY name",
-                     -1, &s, nullptr);
-  while (sqlite3_step(s) == SQLITE_ROW)
-    tables.push_back(reinterpret_cast<const char*>(sqlite3_column_text(s, 0)));
-  sqlite3_finalize(s);
-  for (const std::string& t : tables) {
-    const std::string sql =
-        "SELECT * FROM " + t + (t == "meta" ? " ORDER BY key" : " ORDER BY rowid");
-    sqlite3_prepare_v2(db, sql.c_str(), -1, &s, nullptr);
-    while (sqlite3_step(s) == SQLITE_ROW) {
-      std::string row = t + ":";
-      for (int c = 0; c < sqlite3_column_count(s); ++c) {
-        if (sqlite3_column_type(s, c) == SQLITE_BLOB) {
-          row += " blob" + std::to_string(db::xxh64(sqlite3_column_blob(s, c),
-                                                    size_t(sqlite3_column_bytes(s, c))));
-        } else {
-          const unsigned char* v = sqlite3_column_text(s, c);
-          row += std::string(" ") + (v ? reinterpret_cast<const char*>(v) : "NULL");
-        }
-      }
-      out.push_back(row);
-    }
-    sqlite3_finalize(s);
-  }
-  sqlite3_close(db);
-  return out;
+  test::RowsLeftOut left_out;
+  left_out.tables = {"edit_log"};
+  return test::every_row(path, left_out);
 }
 
 // The clip with the most frames (the one the tests edit): long enough to ramp.
