@@ -219,10 +219,9 @@ int main(int argc, char** argv) {
 // The default suite's sanitizer run (tests/CMakeLists.txt: codec_sanitized, built with
 // -fsanitize=address,undefined): every seed, then the damaged-file cases of test_codec's
 // DamagedBlob on every seed blob (each truncation, each byte flipped two ways, as stored and
-// resealed so
-// the damage gets past the checksums), through the same checks as the fuzzer. Extra arguments are
-// corpus files (e.g. a long fuzz run's) replayed as well. Any sanitizer report or failed check
-// aborts; the output counts the inputs run so a run that did nothing shows.
+// resealed so the damage gets past the checksums), through the same checks as the fuzzer. Extra
+// arguments are corpus files (e.g. a long fuzz run's) replayed as well. Any sanitizer report or
+// failed check aborts; the output counts the inputs run so a run that did nothing shows.
 int main(int argc, char** argv) {
   long inputs = 0;
   auto run = [&inputs](const std::vector<uint8_t>& input) {
