@@ -16,9 +16,9 @@
 
 #include "character_scene/character_space.hpp"
 #include "compress/recode.hpp"
-#include "database/basis_store.hpp"
-#include "database/checksum.hpp"
-#include "database/codec.hpp"
+#include "database/codec/codec.hpp"
+#include "database/format/checksum.hpp"
+#include "database/store/basis_store.hpp"
 #include "explore/auto_solver.hpp"
 #include "explore/primary_graph.hpp"
 #include "graph/motion_graph.hpp"
@@ -701,16 +701,20 @@ static int remove_unchosen_bases(db::Reader& reader, db::Writer& writer,
   };
   std::vector<db::ClothClip> clips;
   std::vector<db::StoredState> states;
-  reader.cloth_clips(&clips, &err);
-  reader.cloth_states(&states, &err);
+  // A read that fails here must stop the compaction: a basis missing from `named` would be
+  // deleted while blobs still name it.
+  db::throw_if_error(reader.cloth_clips(&clips, &err), err);
+  db::throw_if_error(reader.cloth_states(&states, &err), err);
   std::vector<uint8_t> blob, velocities;
-  for (const db::ClothClip& c : clips)
-    if (reader.clip_blob(c.id, &blob, &err) == db::Status::Ok) name(blob);
-  for (const db::StoredState& st : states)
-    if (reader.state_blobs(st.id, &blob, &velocities, &err) == db::Status::Ok) {
-      name(blob);
-      name(velocities);
-    }
+  for (const db::ClothClip& c : clips) {
+    db::throw_if_error(reader.clip_blob(c.id, &blob, &err), err);
+    name(blob);
+  }
+  for (const db::StoredState& st : states) {
+    db::throw_if_error(reader.state_blobs(st.id, &blob, &velocities, &err), err);
+    name(blob);
+    name(velocities);
+  }
   int removed = 0;
   for (int64_t id : candidates)
     if (!named.count(id)) {
@@ -749,14 +753,16 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
   // connection, so an edit that explores from a state it has just added (clip resim) sees it.
   db::Reader reader;
   db::Error err;
-  if (reader.open_on(writer, &err) != db::Status::Ok)
+  if (reader.open_borrowed(writer.handle(), writer.path(), &err) != db::Status::Ok)
     throw std::runtime_error(writer.path() + ": " + std::string(err.message));
   std::vector<db::StoredState> stored_states;
   std::vector<db::ClothClip> stored_clips;
   std::vector<db::ClothEdge> stored_edges;
-  reader.cloth_states(&stored_states, &err);
-  reader.cloth_clips(&stored_clips, &err);
-  reader.cloth_edges(&stored_edges, &err);
+  // A failed read must abort the resume: with no states read it would settle again and insert a
+  // second start state.
+  db::throw_if_error(reader.cloth_states(&stored_states, &err), err);
+  db::throw_if_error(reader.cloth_clips(&stored_clips, &err), err);
+  db::throw_if_error(reader.cloth_edges(&stored_edges, &err), err);
   codec::DecodeScratch scratch;
   for (const auto& s : stored_states) {
     StateRec rec;

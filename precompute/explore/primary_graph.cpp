@@ -7,7 +7,7 @@
 #include <nlohmann/json.hpp>
 #include <stdexcept>
 
-#include "database/checksum.hpp"
+#include "database/format/checksum.hpp"
 
 namespace clothdb {
 
@@ -131,7 +131,7 @@ bool attach_primary_graph(db::Reader& reader, ExploreGraph& graph, const std::st
 void check_motion_files(db::Reader& reader) {
   db::Error err;
   std::vector<db::MotionFile> files;
-  reader.motion_files(&files, &err);
+  db::throw_if_error(reader.motion_files(&files, &err), err);
   for (const auto& f : files) {
     const std::string now = file_content_hash(f.path);
     if (now != f.content_hash)

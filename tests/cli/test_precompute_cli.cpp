@@ -16,7 +16,7 @@
 #include <thread>
 #include <vector>
 
-#include "database/schema.hpp"
+#include "database/store/writer.hpp"
 #include "support/cli.hpp"
 #include "support/db_rows.hpp"
 

@@ -19,7 +19,7 @@
 #include <utility>
 #include <vector>
 
-#include "database/codec.hpp"
+#include "database/codec/codec.hpp"
 
 namespace {
 

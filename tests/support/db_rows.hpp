@@ -11,7 +11,7 @@
 #include <utility>
 #include <vector>
 
-#include "database/checksum.hpp"
+#include "database/format/checksum.hpp"
 
 namespace clothdb::test {
 
