@@ -11,7 +11,7 @@
 
 #include "bench/played_bench.hpp"
 #include "database/store/writer.hpp"
-#include "explore_fixture.hpp"
+#include "support/explore_fixture.hpp"
 
 using namespace clothdb;
 using namespace clothdb::test;

@@ -20,6 +20,7 @@
 #include "character/body.hpp"
 #include "character/manifest.hpp"
 #include "character/motion_loader.hpp"
+#include "support/temp_dir.hpp"
 
 namespace fs = std::filesystem;
 using namespace clothdb;
@@ -172,13 +173,6 @@ LoadedMotion load_at_source_rate(const fs::path& file, double scale, UpAxis up =
   o.scale = scale;
   o.up_axis = up;
   return load_motion(file, o);
-}
-
-fs::path temp_dir(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() / ("clothdb_test_character_" + name);
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
 }
 
 void write_text(const fs::path& file, const std::string& text) {
@@ -435,7 +429,8 @@ TEST(Motion, OtherFormatsLoad) {
 TEST(Motion, ColladaExportedFromRealBvhLoadsTheSameMotion) {
   // assimp-testmodels has no animated Collada skeleton: make one from 01_01.bvh with assimp's
   // Collada exporter (see export_collada for the two exporter defects worked around).
-  const fs::path dir = temp_dir("collada");
+  const test::TempDir scratch("clothdb_test_character_collada");
+  const fs::path dir = scratch.path();
   const fs::path bvh = testmodel("BVH/01_01.bvh");
   const fs::path dae = dir / "01_01.dae";
   export_collada(bvh, dae);
@@ -487,11 +482,11 @@ TEST(Motion, ColladaExportedFromRealBvhLoadsTheSameMotion) {
     const Vec3 p = a.clip.position(f, 0);
     EXPECT_LT((bz.clip.position(f, 0) - Vec3(p.x(), p.z(), -p.y())).norm(), 1e-5) << "frame " << f;
   }
-  fs::remove_all(dir);
 }
 
 TEST(Motion, BadFilesFailWithNamedErrors) {
-  const fs::path dir = temp_dir("bad");
+  const test::TempDir scratch("clothdb_test_character_bad");
+  const fs::path dir = scratch.path();
   const fs::path good = testmodel("BVH/01_01.bvh");
 
   const fs::path missing = dir / "missing.bvh";
@@ -557,7 +552,6 @@ TEST(Motion, BadFilesFailWithNamedErrors) {
   named.animation = "Dance";
   expect_motion_error([&] { load_motion(good, named); },
                       {good.string(), "no animation named 'Dance'", "'Motion'"});
-  fs::remove_all(dir);
 }
 
 TEST(Manifest, ProjectManifestsLoad) {
@@ -582,7 +576,8 @@ TEST(Manifest, ProjectManifestsLoad) {
 }
 
 TEST(Manifest, ErrorsNameTheFileAndField) {
-  const fs::path dir = temp_dir("manifest");
+  const test::TempDir scratch("clothdb_test_character_manifest");
+  const fs::path dir = scratch.path();
   const fs::path bvh = testmodel("BVH/01_01.bvh");
   auto manifest_with = [&](const std::string& name, const std::string& second_clip) {
     const fs::path file = dir / name;
@@ -621,7 +616,6 @@ TEST(Manifest, ErrorsNameTheFileAndField) {
                                       "\", \"first_frame\": 100, \"last_frame\": 9000}");
   expect_motion_error([&] { load_clip(load_manifest(range), 1); },
                       {bvh.string(), "frame range 100..9000", range.string()});
-  fs::remove_all(dir);
 }
 
 TEST(Body, CapsuleEndpointsAreJointPositions) {

@@ -222,12 +222,19 @@ TEST(RunSettings, EveryFieldSurvivesTheMpiWire) {
   job.solver = given.solver;
   job.settings = given.settings;
   job.codec = given.codec;
+  job.epsilon = 0.0125;
+  job.targets = {{77, {0.5f, -1, 2}, {3, 0.25f, -4}}};
   const std::vector<uint8_t> bytes = encode_job(9, job);
   uint64_t seq = 0;
   const JobInput back = decode_job(bytes.data(), bytes.size(), &seq);
   EXPECT_EQ(seq, 9u);
   expect_same_solver(back.solver, back.settings, given.solver, given.settings, true);
   expect_same_codec(back.codec, given.codec);
+  EXPECT_EQ(back.epsilon, job.epsilon);
+  ASSERT_EQ(back.targets.size(), 1u);
+  EXPECT_EQ(back.targets[0].state, 77);
+  EXPECT_EQ(back.targets[0].x, job.targets[0].x);
+  EXPECT_EQ(back.targets[0].v, job.targets[0].v);
 }
 
 TEST(RunSettings, EveryFieldSurvivesTheSceneFile) {

@@ -13,7 +13,7 @@
 #include "database/store/check.hpp"
 #include "explore/error_floor.hpp"
 #include "explore/precompute.hpp"
-#include "explore_fixture.hpp"
+#include "support/explore_fixture.hpp"
 
 using namespace clothdb;
 using namespace clothdb::test;

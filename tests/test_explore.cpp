@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <set>
 
 #include "clothrt.h"
 #include "database/codec/codec.hpp"
@@ -18,7 +19,8 @@
 #include "explore/explorer.hpp"
 #include "explore/job_wire.hpp"
 #include "explore/precompute.hpp"
-#include "explore_fixture.hpp"
+#include "support/db_rows.hpp"
+#include "support/explore_fixture.hpp"
 
 using namespace clothdb;
 using namespace clothdb::test;
@@ -36,15 +38,20 @@ std::string temp_db(const std::string& name) {
   return path;
 }
 
-ExploreReport run(const CharacterScene& scene, const std::string& path, ExploreOptions options,
-                  double hold_reach = 1.0, const BatchRunner& runner = {}) {
-  ExploreGraph graph = small_graph(scene);
-  graph.edges[0].reach = hold_reach;
+ExploreReport run_graph(const CharacterScene& scene, ExploreGraph graph, const std::string& path,
+                        ExploreOptions options, const BatchRunner& runner = {}) {
   db::Writer writer =
       std::filesystem::exists(path) ? db::Writer::open(path) : db::Writer::create(path);
   prepare_database(writer, scene, graph, "{}");
   options.progress = std::getenv("CLOTHDB_PROGRESS") != nullptr;
   return explore(scene, graph, writer, options, runner);
+}
+
+ExploreReport run(const CharacterScene& scene, const std::string& path, ExploreOptions options,
+                  double hold_reach = 1.0, const BatchRunner& runner = {}) {
+  ExploreGraph graph = small_graph(scene);
+  graph.edges[0].reach = hold_reach;
+  return run_graph(scene, graph, path, options, runner);
 }
 
 // Every clip blob and every state blob, in id order: the database's cloth content, as one
@@ -79,6 +86,22 @@ std::vector<uint64_t> content(const std::string& path) {
   for (const auto& e : edges)
     out.push_back(static_cast<uint64_t>(e.from_clip) << 32 | static_cast<uint64_t>(e.to_state));
   return out;
+}
+
+// `db check` finds nothing wrong with the file.
+void expect_checks(const std::string& path) {
+  const db::CheckReport check = db::check_database(path);
+  for (const auto& problem : check.problems) ADD_FAILURE() << path << ": " << problem;
+}
+
+// Two files made two ways (threads, resumed, through the wire) hold the same content, every
+// table compared (cloth_link, cloth_clip_steering, meta and codec_basis included) but the run
+// bookkeeping named in run_bookkeeping(), and both pass `db check`.
+void expect_same_file(const std::string& a, const std::string& b) {
+  EXPECT_EQ(content(a), content(b));
+  expect_same_rows(a, b);
+  expect_checks(a);
+  expect_checks(b);
 }
 
 }  // namespace
@@ -125,12 +148,12 @@ TEST(Explore, SameDatabaseForOneAndTwoThreads) {
   ExploreOptions options;
   options.epsilon = 0.02;
   options.threads = 1;
-  run(scene, temp_db("t1"), options);
+  ASSERT_TRUE(run(scene, temp_db("t1"), options).converged);
   options.threads = 2;
-  run(scene, temp_db("t2"), options);
+  ASSERT_TRUE(run(scene, temp_db("t2"), options).converged);
   const auto one = content(db_path("t1"));
   EXPECT_GT(one.size(), 4u);
-  EXPECT_EQ(one, content(db_path("t2")));
+  expect_same_file(db_path("t1"), db_path("t2"));
 }
 
 TEST(Explore, StoppedRunResumesToTheSameContent) {
@@ -138,17 +161,20 @@ TEST(Explore, StoppedRunResumesToTheSameContent) {
   ExploreOptions options;
   options.epsilon = 0.02;
   options.batch = 2;
-  run(scene, temp_db("whole"), options);
+  ASSERT_TRUE(run(scene, temp_db("whole"), options).converged);
   // Stop after a few batches (a frame budget), then run the same command again until done.
   const std::string path = temp_db("parts");
   options.max_frames = 30;
   const ExploreReport first = run(scene, path, options);
   EXPECT_FALSE(first.converged);
+  // The stopped run closed its dead ends with links (which the resumed run must replace).
+  EXPECT_GT(first.links, 0);
+  expect_checks(path);
   options.max_frames = 0;
   const ExploreReport second = run(scene, path, options);
   EXPECT_TRUE(second.resumed);
-  EXPECT_TRUE(second.converged);
-  EXPECT_EQ(content(db_path("whole")), content(path));
+  ASSERT_TRUE(second.converged);
+  expect_same_file(db_path("whole"), path);
 }
 
 // The same with codec version 2 and bases built as the file grows: a run stopped on its budget
@@ -178,14 +204,14 @@ TEST(Explore, StoppedRunWithCodecV2ResumesToTheSameContent) {
   EXPECT_GE(parts, 3);
   EXPECT_EQ(built, whole.bases_built);
   EXPECT_EQ(removed, whole.bases_removed);
-  EXPECT_EQ(content(db_path("v2_whole")), content(path));
+  expect_same_file(db_path("v2_whole"), path);
   EXPECT_EQ(db::read_database_info(path).bases.size(),
             static_cast<size_t>(whole.bases_built - whole.bases_removed));
   // Bases are built between batches, on the explorer's thread: two threads give the same file.
   options.max_frames = 0;
   options.threads = 2;
-  run(scene, temp_db("v2_two_threads"), options);
-  EXPECT_EQ(content(db_path("v2_whole")), content(db_path("v2_two_threads")));
+  ASSERT_TRUE(run(scene, temp_db("v2_two_threads"), options).converged);
+  expect_same_file(db_path("v2_whole"), db_path("v2_two_threads"));
 }
 
 // Clips in the order they were explored: (start state, primary clip) by clip id.
@@ -354,31 +380,50 @@ TEST(Explore, RefusesAChangedScene) {
 }
 
 // What an MPI worker does, without MPI: every job and result goes through the wire format, and
-// the jobs of a batch finish in reverse order. The database must be the OpenMP runner's.
+// the jobs of a batch finish in reverse order. The database must be the OpenMP runner's, every
+// table compared: without steering, and with it (the demo scene steers: the jobs then carry the
+// explorer's epsilon and the states at the end node, which the wire must keep).
 TEST(Explore, JobsThroughTheWireInAnyOrderGiveTheSameDatabase) {
-  const CharacterScene scene = small_scene();
-  const ExploreGraph graph = small_graph(scene);  // the same edges run() builds
-  ExploreOptions options;
-  options.epsilon = 0.02;
-  options.batch = 4;
-  run(scene, temp_db("omp"), options);
-  long wired = 0;
-  const BatchRunner reversed = [&](const std::vector<JobInput>& jobs,
-                                   std::vector<JobResult>& results) {
-    for (size_t k = jobs.size(); k-- > 0;) {
-      const std::vector<uint8_t> out = encode_job(1000 + k, jobs[k]);
-      uint64_t seq = 0;
-      const JobInput received = decode_job(out.data(), out.size(), &seq);
-      ASSERT_EQ(seq, 1000 + k);
-      const std::vector<uint8_t> back = encode_result(seq, run_job(scene, graph, received));
-      results[k] = decode_result(back.data(), back.size(), &seq);
-      ++wired;
+  for (bool steering : {false, true}) {
+    SCOPED_TRACE(steering ? "steering" : "no steering");
+    CharacterScene scene = small_scene();
+    ExploreOptions options;
+    options.epsilon = 0.02;
+    options.batch = 4;
+    if (steering) {
+      scene.file.steering.frames = 6;
+      scene.file.steering.max_distance = 0.2;
+      options.epsilon = 0.002;
+      options.max_frames = 500;
     }
-  };
-  const ExploreReport report = run(scene, temp_db("wire"), options, 1.0, reversed);
-  EXPECT_TRUE(report.converged);
-  EXPECT_GT(wired, 4);
-  EXPECT_EQ(content(db_path("omp")), content(db_path("wire")));
+    const ExploreGraph graph = small_graph(scene);  // the same edges run() builds
+    const std::string omp = temp_db(steering ? "omp_steered" : "omp");
+    const std::string wire = temp_db(steering ? "wire_steered" : "wire");
+    const ExploreReport direct = run(scene, omp, options);
+    ASSERT_TRUE(steering || direct.converged);
+    long wired = 0;
+    const BatchRunner reversed = [&](const std::vector<JobInput>& jobs,
+                                     std::vector<JobResult>& results) {
+      for (size_t k = jobs.size(); k-- > 0;) {
+        const std::vector<uint8_t> out = encode_job(1000 + k, jobs[k]);
+        uint64_t seq = 0;
+        const JobInput received = decode_job(out.data(), out.size(), &seq);
+        ASSERT_EQ(seq, 1000 + k);
+        const std::vector<uint8_t> back = encode_result(seq, run_job(scene, graph, received));
+        results[k] = decode_result(back.data(), back.size(), &seq);
+        ++wired;
+      }
+    };
+    const ExploreReport report = run(scene, wire, options, 1.0, reversed);
+    EXPECT_EQ(report.converged, direct.converged);
+    EXPECT_GE(wired, 4) << report.clips << " clips, " << report.frames << " frames, converged "
+                        << report.converged;
+    if (steering) {
+      ASSERT_GT(direct.steered, 0);
+      EXPECT_EQ(report.steered, direct.steered);
+    }
+    expect_same_file(omp, wire);
+  }
 }
 
 // The precompute's orchestration (explore/precompute.hpp), without the CLI.
@@ -485,6 +530,110 @@ TEST(Explore, UnresolvedErrorIsTheDistanceToTheNearestOtherStateAtItsNode) {
   EXPECT_NEAR(report.worst_error, worst, 1e-12);
   EXPECT_NEAR(report.weighted_worst_error, worst, 1e-12);  // every edge has reach 1 here
   EXPECT_EQ(report.linked_fraction, 0.0);
+}
+
+// Every edge's blend error recomputed (issue 34), on a graph of two nodes, independently of the
+// figure the explorer stored: each clip's job is run again from its stored start state (giving
+// the stored clip, blob for blob), and the state distance from its end to the state its edge
+// lands on is the recorded blend error, at most epsilon; the landing state is at the edge's end
+// node; and the stored clip's last frame is that near the state in position too (the position
+// part of the distance), within the codec's bound.
+TEST(Explore, EveryEdgeErrorRecomputedFromTheClipEndOnTwoNodes) {
+  const CharacterScene scene = small_scene();
+  const ExploreGraph graph = two_node_graph(scene);
+  const std::string path = temp_db("two_nodes");
+  ExploreOptions options;
+  options.epsilon = 0.02;
+  options.max_frames = 400;  // the turned node converges slowly; a few dozen clips are enough
+  const ExploreReport report = run_graph(scene, graph, path, options);
+  ASSERT_GT(report.clips, 10);
+  expect_checks(path);
+
+  db::Reader r;
+  db::Error err;
+  ASSERT_EQ(r.open(path, &err), db::Status::Ok);
+  std::vector<db::StoredState> states;
+  std::vector<db::ClothClip> clips;
+  std::vector<db::ClothEdge> edges;
+  std::vector<db::PrimaryClip> primary;
+  ASSERT_EQ(r.cloth_states(&states, &err), db::Status::Ok);
+  ASSERT_EQ(r.cloth_clips(&clips, &err), db::Status::Ok);
+  ASSERT_EQ(r.cloth_edges(&edges, &err), db::Status::Ok);
+  ASSERT_EQ(r.primary_clips(&primary, &err), db::Status::Ok);
+  // Graph edge of each primary clip (by name), and the node each state is at (node-anchor rule:
+  // a state is stored under the first edge leaving its node).
+  std::map<int64_t, int> edge_of;
+  for (const auto& p : primary)
+    for (size_t e = 0; e < graph.edges.size(); ++e)
+      if (graph.edges[e].name == p.name) edge_of[p.id] = static_cast<int>(e);
+  ASSERT_EQ(edge_of.size(), graph.edges.size());
+  std::map<int64_t, int> node_of;
+  std::map<int64_t, std::pair<std::vector<float>, std::vector<float>>> state;
+  codec::DecodeScratch scratch;
+  std::set<int> nodes;
+  for (const auto& s : states) {
+    node_of[s.id] = graph.edges[static_cast<size_t>(edge_of.at(s.primary_clip))].from_node;
+    nodes.insert(node_of[s.id]);
+    auto& [x, v] = state[s.id];
+    ASSERT_EQ(r.read_state(s.id, &x, &v, scratch, &err), db::Status::Ok);
+  }
+  EXPECT_EQ(nodes.size(), 2u) << "states at both nodes";
+  std::map<int64_t, const db::ClothClip*> clip_by_id;
+  for (const auto& c : clips) clip_by_id[c.id] = &c;
+  ASSERT_EQ(edges.size(), clips.size());
+  const double tau = 1.0 / graph.rate, bound = r.codec().position_bound;
+  int linked = 0;
+  for (const auto& e : edges) {
+    const db::ClothClip& c = *clip_by_id.at(e.from_clip);
+    const int g = edge_of.at(c.primary_clip);
+    EXPECT_EQ(node_of.at(c.start_state), graph.edges[static_cast<size_t>(g)].from_node);
+    EXPECT_EQ(node_of.at(e.to_state), graph.edges[static_cast<size_t>(g)].to_node)
+        << "clip " << c.id << " lands at a state of the other node";
+    JobInput job;
+    job.edge = g;
+    job.x = state.at(c.start_state).first;
+    job.v = state.at(c.start_state).second;
+    job.solver = scene.file.solver;
+    job.settings = scene.file.settings;
+    job.settings.threads = 1;
+    job.codec = r.codec();
+    job.epsilon = options.epsilon;
+    const JobResult again = run_job(scene, graph, job);
+    ASSERT_TRUE(again.stable) << again.message;
+    std::vector<uint8_t> stored;
+    ASSERT_EQ(r.clip_blob(c.id, &stored, &err), db::Status::Ok);
+    EXPECT_TRUE(again.clip_blob == stored) << "clip " << c.id << " is not what its job makes";
+    std::vector<float> end_x, end_v, frames;
+    ASSERT_EQ(
+        codec::decode_all(again.end_x_blob.data(), again.end_x_blob.size(), end_x, scratch, &err),
+        db::Status::Ok);
+    ASSERT_EQ(
+        codec::decode_all(again.end_v_blob.data(), again.end_v_blob.size(), end_v, scratch, &err),
+        db::Status::Ok);
+    const auto& [tx, tv] = state.at(e.to_state);
+    const double d = db::state_distance(end_x, end_v, tx, tv, tau);
+    EXPECT_NEAR(d, e.blend_error, 1e-12) << "clip " << c.id << " -> state " << e.to_state;
+    EXPECT_LE(d, options.epsilon) << "clip " << c.id;
+    linked += d > 0;
+    // The stored clip's last frame: its RMS position distance to the state is at most the state
+    // distance plus the codec's error on each side.
+    ASSERT_EQ(codec::decode_all(stored.data(), stored.size(), frames, scratch, &err),
+              db::Status::Ok);
+    const size_t n = tx.size();
+    ASSERT_GE(frames.size(), n);
+    double sum = 0;
+    for (size_t i = 0; i < n; i += 3) {
+      double v2 = 0;
+      for (size_t a = 0; a < 3; ++a) {
+        const double dx = static_cast<double>(frames[frames.size() - n + i + a]) - tx[i + a];
+        v2 += dx * dx;
+      }
+      sum += v2;
+    }
+    EXPECT_LE(std::sqrt(sum / static_cast<double>(n / 3)), d + 2 * std::sqrt(3.0) * bound)
+        << "clip " << c.id;
+  }
+  EXPECT_GT(linked, 0) << "no clip linked to an existing state: nothing recomputed";
 }
 
 // Issue 16, no runtime fallback: a run stopped by its budget links every dead end to the clip of
@@ -597,6 +746,91 @@ TEST(Explore, BudgetLimitedRunLinksEveryDeadEndSoPlaybackNeverFallsBack) {
   EXPECT_TRUE(named) << "db check did not report the missing link";
 }
 
+// The steered tail against the unsteered one (issue 34): the job that made a steered clip is run
+// again with and without its target, and over the last K frames each frame's movement (the
+// largest vertex displacement from the frame before) may exceed the unsteered tail's by at most
+// the share of the end's offset to the target that the pull's ramp brings in one frame: the
+// smoothstep over K frames rises by at most 1.5 / K a frame (measured on this scene: at most
+// half of that). A pull that arrives in one frame (the whole offset at
+// the last frame) exceeds it. Also: the job run again gives the stored clip, blob for blob.
+// Returns 1 when the tail was compared.
+int expect_steered_tail_moves_like_the_unsteered_one(const CharacterScene& scene, db::Reader& r,
+                                                     const db::ClothClip& clip,
+                                                     const db::ClipSteering& st, double epsilon) {
+  const ExploreGraph graph = small_graph(scene);
+  std::vector<db::PrimaryClip> primary;
+  db::Error err;
+  EXPECT_EQ(r.primary_clips(&primary, &err), db::Status::Ok);
+  JobInput job;
+  job.edge = -1;
+  for (const auto& p : primary)
+    if (p.id == clip.primary_clip)
+      for (size_t e = 0; e < graph.edges.size(); ++e)
+        if (graph.edges[e].name == p.name) job.edge = static_cast<int>(e);
+  EXPECT_GE(job.edge, 0) << "clip " << clip.id << ": primary clip " << clip.primary_clip;
+  if (job.edge < 0) return 0;
+  codec::DecodeScratch scratch;
+  SteerTarget target;
+  target.state = st.target_state;
+  EXPECT_EQ(r.read_state(clip.start_state, &job.x, &job.v, scratch, &err), db::Status::Ok);
+  EXPECT_EQ(r.read_state(st.target_state, &target.x, &target.v, scratch, &err), db::Status::Ok);
+  job.solver = scene.file.solver;
+  job.settings = scene.file.settings;
+  job.settings.threads = 1;
+  job.codec = r.codec();
+  job.epsilon = epsilon;
+  const JobResult unsteered = run_job(scene, graph, job);
+  job.targets = {target};
+  const JobResult steered = run_job(scene, graph, job);
+  EXPECT_TRUE(unsteered.stable) << unsteered.message;
+  EXPECT_TRUE(steered.stable) << steered.message;
+  EXPECT_EQ(steered.steer_target, st.target_state)
+      << "clip " << clip.id << " was not steered again";
+  EXPECT_EQ(unsteered.steer_target, 0);
+  std::vector<uint8_t> stored;
+  EXPECT_EQ(r.clip_blob(clip.id, &stored, &err), db::Status::Ok);
+  EXPECT_TRUE(steered.clip_blob == stored) << "clip " << clip.id << " is not what its job makes";
+  std::vector<float> s_frames, u_frames;
+  EXPECT_EQ(codec::decode_all(steered.clip_blob.data(), steered.clip_blob.size(), s_frames, scratch,
+                              &err),
+            db::Status::Ok);
+  EXPECT_EQ(codec::decode_all(unsteered.clip_blob.data(), unsteered.clip_blob.size(), u_frames,
+                              scratch, &err),
+            db::Status::Ok);
+  const size_t n = job.x.size();
+  if (s_frames.size() != u_frames.size() || s_frames.size() < 2 * n) {
+    ADD_FAILURE() << "clip " << clip.id << ": steered and unsteered clips differ in length";
+    return 0;
+  }
+  const size_t frames = s_frames.size() / n;
+  auto frame = [n](const std::vector<float>& f, size_t k) { return f.data() + k * n; };
+  auto largest = [n](const float* a, const float* b) {
+    double m = 0;
+    for (size_t i = 0; i < n; i += 3) {
+      const double dx = a[i] - b[i], dy = a[i + 1] - b[i + 1], dz = a[i + 2] - b[i + 2];
+      m = std::max(m, std::sqrt(dx * dx + dy * dy + dz * dz));
+    }
+    return m;
+  };
+  // The offset the pull closes: the unsteered end to the target, largest over vertices.
+  const double offset = largest(frame(u_frames, frames - 1), target.x.data());
+  const size_t k = std::min(static_cast<size_t>(scene.file.steering.frames), frames - 2);
+  const double per_frame = 1.5 / static_cast<double>(k) * offset;
+  const double codec = 4 * r.codec().position_bound;  // two frames, each side within the bound
+  for (size_t f = frames - k; f < frames; ++f) {
+    const double s_move = largest(frame(s_frames, f - 1), frame(s_frames, f));
+    const double u_move = largest(frame(u_frames, f - 1), frame(u_frames, f));
+    EXPECT_LE(s_move, u_move + per_frame + codec)
+        << "clip " << clip.id << ", frame " << f << " of " << frames << ": the steered tail moves "
+        << s_move * 1e3 << " mm, the unsteered " << u_move * 1e3 << " mm, the offset to the target "
+        << offset * 1e3 << " mm over " << k << " frames";
+    if (std::getenv("CLOTHDB_TEST_VERBOSE"))
+      std::printf("clip %lld frame %zu: steered %.2f mm unsteered %.2f mm offset %.2f mm\n",
+                  static_cast<long long>(clip.id), f, s_move * 1e3, u_move * 1e3, offset * 1e3);
+  }
+  return 1;
+}
+
 // Issue 16, steered clip ends: with steering on, a clip whose end lands farther than epsilon but
 // within max_mm of a state at its end node is pulled onto that state over its last frames, so it
 // links with a blend within epsilon instead of making a new state; what the pull did is recorded.
@@ -627,6 +861,7 @@ TEST(Explore, SteeredClipsEndWithinEpsilonOfTheirTargetState) {
   EXPECT_EQ(r.cloth_edges(&edges, &err), clothdb::Status::Ok);
   EXPECT_EQ(r.cloth_clips(&clips, &err), clothdb::Status::Ok);
   EXPECT_EQ(static_cast<int>(steering.size()), report.steered);
+  int tails = 0;
   for (const auto& st : steering) {
     EXPECT_GT(st.distance, options.epsilon);  // ends already within epsilon are not steered
     EXPECT_LE(st.distance, scene.file.steering.max_distance);
@@ -660,7 +895,9 @@ TEST(Explore, SteeredClipsEndWithinEpsilonOfTheirTargetState) {
     }
     EXPECT_LE(std::sqrt(sum / static_cast<double>(n / 3)), 2 * r.codec().position_bound)
         << "clip " << st.clip;
+    tails += expect_steered_tail_moves_like_the_unsteered_one(scene, r, *clip, st, options.epsilon);
   }
+  EXPECT_EQ(tails, static_cast<int>(steering.size()));
   r.close();
   const db::CheckReport check = db::check_database(path);
   for (const auto& problem : check.problems) ADD_FAILURE() << problem;

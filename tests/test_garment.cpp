@@ -13,6 +13,7 @@
 #include "bench/character_bench.hpp"
 #include "character_scene/character_scene.hpp"
 #include "garment/garment.hpp"
+#include "support/cli.hpp"
 
 using namespace clothdb;
 
@@ -334,24 +335,8 @@ TEST(Garment, ImportWarnsOfAnOpenSeamJustAboveTheWeldTolerance) {
 
 namespace {
 
-struct CliResult {
-  int exit_code = -1;
-  std::string output;  // stdout and stderr
-};
-
-// Runs the clothdb executable built next to this test.
-CliResult run_clothdb(const std::string& arguments) {
-  const std::string exe = std::string(CLOTHDB_BINARY_DIR) + "/cli/clothdb";
-  EXPECT_TRUE(std::filesystem::exists(exe)) << exe << " not built";
-  CliResult r;
-  FILE* pipe = popen((exe + " " + arguments + " 2>&1").c_str(), "r");
-  if (!pipe) return r;
-  std::array<char, 4096> buf{};
-  size_t n = 0;
-  while ((n = fread(buf.data(), 1, buf.size(), pipe)) > 0) r.output.append(buf.data(), n);
-  const int status = pclose(pipe);
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
+test::CliResult run_clothdb(const std::string& arguments) {
+  return test::run_clothdb(arguments, testing::TempDir() + "/clothdb_garment_cli.log");
 }
 
 }  // namespace
@@ -362,9 +347,9 @@ TEST(Garment, CommandLineRefusesBadScenesAndFilesAndWritesNothing) {
   const std::string out = testing::TempDir() + "/cli_bad_out";
   std::filesystem::remove_all(out);
   auto expect_refused = [&](const std::string& scene, const std::vector<std::string>& needles) {
-    const CliResult r =
+    const test::CliResult r =
         run_clothdb("simulate " + scene + " --frames 3 --preview-every 0 --out " + out);
-    EXPECT_EQ(r.exit_code, 1) << r.output;
+    EXPECT_EQ(r.code, 1) << r.output;
     EXPECT_NE(r.output.find("clothdb: error:"), std::string::npos) << r.output;
     for (const auto& n : needles)
       EXPECT_NE(r.output.find(n), std::string::npos) << "'" << n << "' not in: " << r.output;

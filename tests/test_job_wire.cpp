@@ -49,6 +49,9 @@ JobInput sample_job() {
   j.codec.velocity_bound = 3e-3;
   j.codec.key_interval = 9;
   j.codec.zstd_level = 7;
+  // Steering (the demo scene steers): the explorer's epsilon and the states at the end node.
+  j.epsilon = 0.0037;
+  j.targets = {{11, ramp(30, 0.75f), ramp(30, -1.5f)}, {-4, ramp(30, 0.125f), ramp(30, 3.0f)}};
   return j;
 }
 
@@ -103,6 +106,13 @@ TEST(JobWire, JobKeepsEveryField) {
   EXPECT_EQ(b.codec.velocity_bound, a.codec.velocity_bound);
   EXPECT_EQ(b.codec.key_interval, a.codec.key_interval);
   EXPECT_EQ(b.codec.zstd_level, a.codec.zstd_level);
+  EXPECT_EQ(b.epsilon, a.epsilon);
+  ASSERT_EQ(b.targets.size(), a.targets.size());
+  for (size_t k = 0; k < a.targets.size(); ++k) {
+    EXPECT_EQ(b.targets[k].state, a.targets[k].state) << "target " << k;
+    EXPECT_EQ(b.targets[k].x, a.targets[k].x) << "target " << k;
+    EXPECT_EQ(b.targets[k].v, a.targets[k].v) << "target " << k;
+  }
 }
 
 TEST(JobWire, ResultKeepsEveryField) {

@@ -20,6 +20,7 @@
 #include "database/store/writer.hpp"
 #include "explore/explorer.hpp"
 #include "quality/clip_quality.hpp"
+#include "support/cli.hpp"
 
 using namespace clothdb;
 
@@ -383,23 +384,13 @@ struct Output {
   std::string out, err;
 };
 
+// stdout and stderr apart: the --json output must parse on its own.
 Output run_cli(const std::string& args) {
-  const std::string dir = testing::TempDir();
-  const std::string stem = dir + "/clothdb_quality_cli_" + std::to_string(getpid());
-  const std::string out = stem + ".out", err = stem + ".err";
-  const std::string cmd = std::string(CLOTHDB_EXE) + " " + args + " > " + out + " 2> " + err;
-  Output o;
-  const int rc = std::system(cmd.c_str());
-  o.status = WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
-  auto slurp = [](const std::string& p) {
-    std::ifstream in(p);
-    std::stringstream s;
-    s << in.rdbuf();
-    return s.str();
-  };
-  o.out = slurp(out);
-  o.err = slurp(err);
-  return o;
+  const std::string stem = testing::TempDir() + "/clothdb_quality_cli_" + std::to_string(getpid());
+  const pid_t pid =
+      test::start_clothdb(test::split_arguments(args), stem + ".out", false, stem + ".err");
+  const test::CliResult r = test::wait_clothdb(pid, stem + ".out");
+  return {r.code, r.output, test::read_text(stem + ".err")};
 }
 
 }  // namespace

@@ -23,29 +23,14 @@
 #include "database/store/check.hpp"
 #include "database/store/writer.hpp"
 #include "runtime/tools/synthetic_db.hpp"
+#include "support/temp_dir.hpp"
 
 namespace clothdb {
 namespace {
 
 namespace fs = std::filesystem;
 
-class TempDir {
- public:
-  TempDir() {
-    std::random_device rd;
-    path_ = fs::temp_directory_path() /
-            ("clothdb_recode_" + std::to_string(::getpid()) + "_" + std::to_string(rd()));
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string file(const std::string& name) const { return (path_ / name).string(); }
-
- private:
-  fs::path path_;
-};
+using test::TempDir;
 
 synthetic::Spec spec() {
   synthetic::Spec s;
@@ -215,21 +200,30 @@ TEST(Recode, KilledAtAnyBatchLeavesAFileThatChecksAndPlays) {
 // The same with a real SIGKILL at moments spread over a whole recode (within a batch's
 // statements, during a commit, during the final VACUUM): SQLite's journal must leave each file
 // with every blob either the old or the new one. One row per transaction, so most moments fall
-// inside one. Where a kill lands depends on the machine's speed; the property must hold wherever.
+// inside one. Kills follow a count of committed batches the recode reports, spread over the whole
+// run; where exactly within the next batch each lands varies, and the property must hold wherever.
 TEST(Recode, SigkillAtAnyMomentLeavesAFileThatChecksAndPlays) {
   TempDir dir;
   const std::string original = dir.file("original.db");
   synthetic::build(original, spec());
   const Contents before = read_all(original);
-  // Forks a recode of `path`; kills it after `delay` seconds (< 0: lets it finish). Returns the
-  // wall time it ran and whether the kill ended it.
-  auto recode_in_child = [](const std::string& path, double delay, bool* killed) {
-    const auto t0 = std::chrono::steady_clock::now();
+  // Forks a recode of `path` that reports each committed batch on a pipe; kills it as soon as it
+  // has reported `kill_after` (< 0: lets it finish), so a committed-batch count, not a sleep,
+  // decides where the kill lands (the child carries on with the next batch meanwhile). Returns
+  // the batches it reported.
+  auto recode_in_child = [](const std::string& path, int kill_after, bool* killed) {
+    int fds[2];
+    if (pipe(fds) != 0) return -1;
     const pid_t child = fork();
     if (child == 0) {
+      close(fds[0]);
       Eigen::setNbThreads(1);  // OpenMP's thread pool does not survive fork()
       RecodeOptions o = options(0.0005);
       o.batch = 1;
+      o.after_batch = [fd = fds[1]](uint64_t batches) {
+        const int32_t n = static_cast<int32_t>(batches);
+        if (write(fd, &n, sizeof n) != sizeof n) _exit(4);
+      };
       try {
         recode_database(path, o);
       } catch (...) {
@@ -237,31 +231,36 @@ TEST(Recode, SigkillAtAnyMomentLeavesAFileThatChecksAndPlays) {
       }
       _exit(0);
     }
-    if (child < 0) return -1.0;
-    if (delay >= 0) {
-      std::this_thread::sleep_for(std::chrono::duration<double>(delay));
-      kill(child, SIGKILL);
-    }
+    close(fds[1]);
+    if (child < 0) return -1;
+    int reported = 0;
+    int32_t n = 0;
+    while ((kill_after < 0 || reported < kill_after) && read(fds[0], &n, sizeof n) == sizeof n)
+      reported = n;
+    if (kill_after >= 0) kill(child, SIGKILL);
+    while (read(fds[0], &n, sizeof n) == sizeof n) reported = n;
+    close(fds[0]);
     int status = 0;
     waitpid(child, &status, 0);
     *killed = WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL;
     if (!*killed) {
       EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0);
     }
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return reported;
   };
   bool killed = false;
   const std::string whole = dir.file("whole.db");
   fs::copy_file(original, whole);
-  const double seconds = recode_in_child(whole, -1, &killed);
-  ASSERT_GT(seconds, 0);
+  const int batches = recode_in_child(whole, -1, &killed);
+  ASSERT_GE(batches, 10) << "too few batches to kill the recode at spread moments";
   int kills = 0;
   for (int k = 1; k <= 9; ++k) {
-    const double delay = seconds * k / 10;
-    SCOPED_TRACE("SIGKILL after " + std::to_string(delay) + " s of " + std::to_string(seconds));
+    const int after = batches * k / 10;
+    SCOPED_TRACE("SIGKILL after " + std::to_string(after) + " of " + std::to_string(batches) +
+                 " batches");
     const std::string path = dir.file("sigkill" + std::to_string(k) + ".db");
     fs::copy_file(original, path);
-    recode_in_child(path, delay, &killed);
+    recode_in_child(path, after, &killed);
     kills += killed;
     expect_checks(path);
     expect_plays(path, 60);

@@ -23,6 +23,7 @@
 #include "database/codec/codec.hpp"
 #include "database/store/writer.hpp"
 #include "runtime/tools/synthetic_db.hpp"
+#include "support/temp_dir.hpp"
 
 // Counts every allocation made through operator new in this process, so a test can check that
 // playing frames allocates nothing once warm. The replacements pair malloc with free; GCC cannot
@@ -79,23 +80,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-class TempDir {
- public:
-  TempDir() {
-    static int counter = 0;
-    path_ = fs::temp_directory_path() /
-            ("clothrt_test_" + std::to_string(getpid()) + "_" + std::to_string(counter++));
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string file(const std::string& name) const { return (path_ / name).string(); }
-
- private:
-  fs::path path_;
-};
+using test::TempDir;
 
 constexpr uint32_t kSide = 16;  // 256 vertices
 constexpr double kRate = 30.0;
@@ -236,6 +221,159 @@ int check_no_pop(const Fixture& fx, const std::vector<Played>& played, double sl
     ++checked;
   }
   return checked;
+}
+
+// The player's blend rule, as docs/SECONDARY_GRAPH.md states it, restated here from the file's
+// recorded errors (not from the player's state): a blend starts at a transition onto another
+// state (the clip's recorded edge blend error > 0, a fallback, or a link) and fades the offset
+// linearly over max(blend_frames, min(60, link error / 1 mm)) stored frames, so a link blend
+// moves the cloth by at most about 1 mm of link error per frame.
+constexpr double kLinkErrorPerFrame = 1e-3;  // m
+constexpr double kMaxLinkBlendFrames = 60;
+
+// What the file records about how each clip continues: its edge's blend error and target state,
+// and the links (from state, primary clip) -> their blend error.
+struct Recorded {
+  std::map<int64_t, double> edge_error;                      // clip -> blend error
+  std::map<int64_t, int64_t> to_state;                       // clip -> state its edge lands on
+  std::map<std::pair<int64_t, int64_t>, double> link_error;  // (state, primary) -> error
+};
+
+Recorded recorded(const Fixture& fx) {
+  Recorded out;
+  db::Reader r;
+  Error err;
+  EXPECT_EQ(r.open(fx.path, &err), Status::Ok) << err.message;
+  std::vector<db::ClothEdge> edges;
+  std::vector<db::ClothLink> links;
+  EXPECT_EQ(r.cloth_edges(&edges, &err), Status::Ok);
+  EXPECT_EQ(r.cloth_links(&links, &err), Status::Ok);
+  for (const db::ClothEdge& e : edges) {
+    out.edge_error[e.from_clip] = e.blend_error;
+    out.to_state[e.from_clip] = e.to_state;
+  }
+  for (const db::ClothLink& l : links)
+    out.link_error[{l.from_state, l.primary_clip}] = l.blend_error;
+  return out;
+}
+
+// A clip's stored pose at (fractional) frame t, interpolated as the runtime's contract says.
+std::vector<double> clip_pose(const Fixture& fx, int64_t clip, double t) {
+  const size_t last = fx.frame_count(clip) - 1;
+  size_t f0 = size_t(std::clamp(std::floor(t), 0.0, double(last)));
+  double a = t - std::floor(t);
+  if (f0 >= last) f0 = last, a = 0;
+  const size_t f1 = std::min(f0 + 1, last);
+  std::vector<double> x(fx.n);
+  for (size_t i = 0; i < fx.n; ++i) {
+    const double x0 = fx.frame(clip, f0)[i], x1 = fx.frame(clip, f1)[i];
+    x[i] = x0 + a * (x1 - x0);
+  }
+  return x;
+}
+
+// RMS over vertices of a - b (the norm the blend error is recorded in).
+template <class A, class B>
+double rms(const A& a, const B& b, size_t n) {
+  double sum = 0;
+  for (size_t i = 0; i < n; ++i)
+    sum += (double(a[i]) - double(b[i])) * (double(a[i]) - double(b[i]));
+  return std::sqrt(sum / double(n / 3));
+}
+
+struct BlendReport {
+  int frames = 0;       // frame pairs checked (every one of the sequence)
+  int blends = 0;       // blends started
+  int link_blends = 0;  // of which through a link
+  int ended = 0;        // blends seen to end inside a clip (the first frame after checked too)
+  double worst = 0;     // largest measured / allowed
+};
+
+// Checks EVERY played frame against the blend rule above. The residual b = shown - stored pose
+// of the clip being played is the blend's r(t) * offset; between two frames of one clip it may
+// change by at most M * dt / span (M: an upper bound of the offset's RMS, measured from the
+// stored frames at the transition that started the blend; span from the recorded errors), and
+// once the span is over it must be zero. Across a transition the shown pose may move by the
+// clips' own motion to and from the node, plus what the old blend fades by then and the new one
+// by now (or, with no blend, the gap between the old clip's end and the new clip's start).
+BlendReport check_blend_continuity(const Fixture& fx, const std::vector<Played>& played,
+                                   double blend_frames, double slack = 2e-6) {
+  const Recorded rec = recorded(fx);
+  BlendReport out;
+  double M = 0, span = 1;  // the blend in progress (M = 0: none)
+  double start_t = 0;      // primary frame at which it started (0 for a blend from a transition)
+  std::vector<double> prev_b;
+  for (size_t k = 0; k < played.size(); ++k) {
+    const clothrt_frame_info& b = played[k].info;
+    if (b.holding || b.cloth_clip == 0) {
+      ADD_FAILURE() << "frame " << k << " holds: this check is for sequences that play";
+      return out;
+    }
+    const std::vector<double> c = clip_pose(fx, b.cloth_clip, b.primary_frame);
+    std::vector<double> res(fx.n);
+    for (size_t i = 0; i < fx.n; ++i) res[i] = double(played[k].x[i]) - c[i];
+    if (k == 0) {
+      EXPECT_LE(rms(res, std::vector<double>(fx.n, 0.0), fx.n), slack) << "the first frame";
+      prev_b = res;
+      continue;
+    }
+    const clothrt_frame_info& a = played[k - 1].info;
+    double measured = 0, allowed = 0;
+    if (a.transitions == b.transitions) {
+      const double dt = b.primary_frame - a.primary_frame;
+      measured = rms(res, prev_b, fx.n);
+      allowed = M * dt / span + slack;
+      // Over its span the blend has faded out completely, and stays out.
+      if (M > 0 && b.primary_frame - start_t >= span) {
+        EXPECT_LE(rms(res, std::vector<double>(fx.n, 0.0), fx.n), slack)
+            << "frame " << k << ": the blend is still showing " << span << " frames after it began";
+        if (a.primary_frame - start_t < span) ++out.ended;
+        M = 0;
+      }
+    } else {
+      EXPECT_EQ(b.transitions, a.transitions + 1) << "frame " << k << ": two nodes in one step";
+      const int64_t from = a.cloth_clip, to = b.cloth_clip;
+      const double end = double(fx.frame_count(from) - 1);
+      const std::vector<double> from_end = clip_pose(fx, from, end),
+                                to_start = clip_pose(fx, to, 0);
+      const double gap = rms(from_end, to_start, fx.n);
+      const double motion = rms(from_end, clip_pose(fx, from, a.primary_frame), fx.n) +
+                            rms(clip_pose(fx, to, b.primary_frame), to_start, fx.n);
+      const double old_fade = M * std::max(0.0, end - a.primary_frame) / span;
+      double link = 0;
+      if (auto s = rec.to_state.find(from); s != rec.to_state.end())
+        if (auto l = rec.link_error.find({s->second, b.primary_clip}); l != rec.link_error.end())
+          link = l->second;
+      const bool blend =
+          blend_frames > 0 && (b.fallback || rec.edge_error.at(from) > 0 || link > 0);
+      measured = rms(played[k].x, played[k - 1].x, fx.n);
+      // What is left of the blend in progress at the node (by the rule, not the player's word).
+      const double r_end = M > 0 ? std::clamp(1 - (end - start_t) / span, 0.0, 1.0) : 0.0;
+      if (blend) {
+        // The new offset: the pose at the node (old clip's end plus what is left of its blend)
+        // minus the new clip's first frame.
+        M = gap + M * r_end;
+        span = std::max(blend_frames, std::min(kMaxLinkBlendFrames, link / kLinkErrorPerFrame));
+        start_t = 0;
+        allowed = motion + old_fade + M * b.primary_frame / span + slack;
+        ++out.blends;
+        out.link_blends += link > 0;
+      } else {
+        // No new blend: one in progress carries on across the node, on the new clip's clock.
+        allowed = motion + gap + old_fade + M * b.primary_frame / span + slack;
+        start_t -= end;
+        if (r_end <= 0) M = 0;
+      }
+    }
+    out.worst = std::max(out.worst, measured / allowed);
+    EXPECT_LE(measured, allowed) << "frame " << k << ": clip " << a.cloth_clip << " -> "
+                                 << b.cloth_clip << ", primary frame " << a.primary_frame << " -> "
+                                 << b.primary_frame << ", blend span " << span << " frames"
+                                 << (b.blending ? " (blending)" : "");
+    prev_b = res;
+    ++out.frames;
+  }
+  return out;
 }
 
 TEST(Runtime, OpenReportsErrors) {
@@ -512,6 +650,11 @@ TEST(Runtime, NoPopAtTransitions) {
     blends += played[k].info.blending && !played[k - 1].info.blending;
   EXPECT_GE(blends, 3);
   EXPECT_GT(check_no_pop(fx, played), 20);
+  // Every frame, the first after each blend ends included.
+  const BlendReport report = check_blend_continuity(fx, played, 8);
+  EXPECT_EQ(report.frames, int(played.size()) - 1);
+  EXPECT_GE(report.blends, 3);
+  EXPECT_GE(report.ended, 3);
 
   // The same path snapping instead of blending pops: the check above has teeth.
   Handles snap;
@@ -543,7 +686,64 @@ TEST(Runtime, InterruptedBlendStaysContinuous) {
     // At the finer step the clips' own jumps (per stored frame) overstate the motion per game
     // frame, which makes the check stricter, not looser.
     EXPECT_GT(check_no_pop(fx, played), 50);
+    const BlendReport report = check_blend_continuity(fx, played, 50);
+    EXPECT_EQ(report.frames, int(played.size()) - 1);
+    EXPECT_GE(report.blends, 3);
   }
+}
+
+// A link (a dead end closed to the clip of another state, as a budget-limited precompute leaves
+// it) blends over its recorded error / 1 mm frames: on the unexplored pair (state 4 along e2),
+// linked to state 3's clip along e2 with their distance (about 5 cm) as its error, the cloth
+// moves by at most about 1 mm of that error per frame, not error / blend_frames.
+TEST(Runtime, LinkBlendsOverItsErrorPerMillimetre) {
+  Fixture fx;
+  const int64_t into = fx.built.clip.at({1, 0});  // ends at state 4 (node 1, local 1)
+  ASSERT_EQ(fx.built.clip.count({4, 2}), 0u);
+  double error = 0;
+  {
+    db::Reader r;
+    Error err;
+    ASSERT_EQ(r.open(fx.path, &err), Status::Ok);
+    codec::DecodeScratch scratch;
+    std::vector<float> x4, v4, x3, v3;
+    ASSERT_EQ(r.read_state(fx.built.states[4], &x4, &v4, scratch, &err), Status::Ok);
+    ASSERT_EQ(r.read_state(fx.built.states[3], &x3, &v3, scratch, &err), Status::Ok);
+    error = synthetic::rms_distance(x4.data(), x3.data(), x4.size());
+  }
+  ASSERT_GT(error, 0.02);  // so that error / 1 mm is well above blend_frames
+  {
+    db::Writer w = db::Writer::open(fx.path);
+    db::ClothLink link;
+    link.from_state = fx.built.states[4];
+    link.primary_clip = fx.built.primary[2];
+    link.to_clip = fx.built.clip.at({3, 2});
+    link.blend_error = error;
+    w.add_cloth_link(link);
+  }
+  Handles h;
+  open(fx, h);
+  ASSERT_EQ(clothrt_player_set_blend_frames(h.player, 8), CLOTHRT_OK);
+  ASSERT_EQ(clothrt_player_start_cloth_clip(h.player, into), CLOTHRT_OK);
+  ASSERT_EQ(clothrt_player_set_next(h.player, fx.built.primary[2]), CLOTHRT_OK);
+  std::vector<Played> played{play_frame(h.player, fx.n, 0)};
+  // Into the linked clip and on around the loop, past the end of the link's blend.
+  while (played.size() < 150) {
+    played.push_back(play_frame(h.player, fx.n, 1.0 / kRate));
+    ASSERT_EQ(played.back().code, CLOTHRT_OK);
+    if (played.back().info.next_clip == 0) {
+      ASSERT_EQ(clothrt_player_set_next(h.player, fx.built.primary[2]), CLOTHRT_OK);
+    }
+  }
+  bool linked = false;
+  for (const Played& p : played) {
+    EXPECT_FALSE(p.info.fallback);
+    linked |= p.info.cloth_clip == fx.built.clip.at({3, 2});
+  }
+  EXPECT_TRUE(linked);
+  const BlendReport report = check_blend_continuity(fx, played, 8);
+  EXPECT_EQ(report.frames, int(played.size()) - 1);
+  EXPECT_GE(report.link_blends, 1);
 }
 
 // Nearest state by the distance of docs/SECONDARY_GRAPH.md (velocities are at rest here).
@@ -591,6 +791,7 @@ TEST(Runtime, FallsBackToNearestStateForUnexploredTransition) {
     EXPECT_EQ(info.cloth_clip, fx.built.clip.at({expect_state, 2}));
     for (const Played& p : played) EXPECT_EQ(p.code, CLOTHRT_OK);
     EXPECT_GT(check_no_pop(fx, played), 5);
+    EXPECT_GE(check_blend_continuity(fx, played, 12).blends, 1);
     clothrt_stats stats;
     ASSERT_EQ(clothrt_db_stats(h.db, &stats), CLOTHRT_OK);
     // This one, and the prefetch of the next node's unexplored pair (s5 along e2 ends at s4).

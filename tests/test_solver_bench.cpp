@@ -14,6 +14,7 @@
 #include "bench/solver_bench.hpp"
 #include "hard_cases/hard_cases.hpp"
 #include "solvers/solver.hpp"
+#include "support/cli.hpp"
 
 using namespace clothdb;
 
@@ -221,11 +222,12 @@ TEST(SolverAccuracy, EnsembleSpreadBoundsItsMembers) {
 TEST(SolverAccuracy, CommandWritesItsTablesAndPlots) {
   const std::string out = std::string(CLOTHDB_BINARY_DIR) + "/test_bench_solvers_out";
   std::filesystem::remove_all(out);
-  const std::string cmd = std::string(CLOTHDB_EXE) +
-                          " bench solvers --quick --solvers xpbd --scenes hanging-sheet "
-                          "--resolution 5 --frames 4 --restart-every 2 --static-frames 3 --out " +
-                          out + " > " + out + ".log 2>&1";
-  ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
+  const test::CliResult run = test::run_clothdb(
+      "bench solvers --quick --solvers xpbd --scenes hanging-sheet --resolution 5 --frames 4 "
+      "--restart-every 2 --static-frames 3 --out " +
+          out,
+      out + ".log");
+  ASSERT_EQ(run.code, 0) << run.output;
   for (const char* f :
        {"accuracy.json", "rows.csv", "statics.csv", "accuracy.md", "hanging-sheet.svg"})
     EXPECT_TRUE(std::filesystem::exists(out + "/" + f)) << f;

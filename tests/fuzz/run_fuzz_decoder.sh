@@ -5,8 +5,8 @@
 set -euo pipefail
 CXX=$1 SRC=$2 WORK=$3 SECONDS_TO_RUN=$4
 mkdir -p "$WORK/corpus" "$WORK/artifacts"
-SOURCES=("$SRC/database/codec.cpp" "$SRC/database/codec_v2.cpp" "$SRC/database/checksum.cpp"
-  "$SRC/database/status.cpp")
+SOURCES=("$SRC/database/codec/codec.cpp" "$SRC/database/codec/codec_v2.cpp"
+  "$SRC/database/format/checksum.cpp" "$SRC/database/format/status.cpp")
 FLAGS=(-std=c++20 -g -O1 -ffp-contract=off -I"$SRC")
 "$CXX" "${FLAGS[@]}" -DCLOTHDB_FUZZ_SEEDS "$SRC/tests/fuzz/fuzz_decoder.cpp" "${SOURCES[@]}" \
   -lzstd -o "$WORK/fuzz_decoder_seeds"

@@ -13,12 +13,18 @@
 #   run_mpi_test.sh kill CLOTHDB MPIEXEC SOURCE_DIR WORK_DIR
 #     the same while worker rank 1 is SIGKILLed as soon as it has been handed its fifth job: rank 0
 #     must declare it lost, hand its job to the other worker, and still write the same rows.
+#   run_mpi_test.sh steer CLOTHDB MPIEXEC SOURCE_DIR WORK_DIR
+#     as `same` on a scene that steers clip ends (tests/data/mpi_steer.json; the demo scene steers):
+#     the jobs carry epsilon and the target states over the wire, and clips must be steered.
+# With a sixth argument (the db_rows helper, tests/support/db_rows_main.cpp) every table of the two
+# files is compared, run bookkeeping excluded by name, and `db check` must pass on both.
 set -euo pipefail
-mode=$1 clothdb=$2 mpiexec=$3 src=$4 work=$5
+mode=$1 clothdb=$2 mpiexec=$3 src=$4 work=$5 db_rows=${6:-}
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
 rm -rf "$work" && mkdir -p "$work" && cd "$work"
 
 scene=$src/tests/data/mpi_small.json
+[ "$mode" = steer ] && scene=$src/tests/data/mpi_steer.json
 # --force: the flared skirt's error floor (explore/error_floor.hpp) is above 10 mm; the floor is
 # still measured and stored (by rank 0 alone under MPI), so the meta must match too.
 args=(--epsilon 10 --batch 4 --quiet --force)
@@ -34,7 +40,7 @@ dump=(db dump --mask run.started,run.finished,run.cpu_seconds,run.host,run.setti
 "$clothdb" "${dump[@]}" single.db >single.dump
 [ "$(grep -c . single.dump)" -gt 50 ] || { echo "the single-process run stored too little"; exit 1; }
 
-if [ "$mode" = same ] || [ "$mode" = stored ]; then
+if [ "$mode" = same ] || [ "$mode" = stored ] || [ "$mode" = steer ]; then
   "${mpi[@]}" "$clothdb" precompute "$scene" --db mpi.db "${args[@]}" >mpi.out 2>mpi.err ||
     { cat mpi.err; exit 1; }
 elif [ "$mode" = kill ]; then
@@ -63,5 +69,21 @@ grep -q "converged" mpi.out || { echo "the MPI run did not converge"; cat mpi.ou
 "$clothdb" "${dump[@]}" mpi.db >mpi.dump
 if ! cmp -s single.dump mpi.dump; then
   echo "the MPI run stored different rows:"; diff single.dump mpi.dump | head -20; exit 1
+fi
+if [ -n "$db_rows" ]; then
+  "$db_rows" single.db >single.rows && "$db_rows" mpi.db >mpi.rows ||
+    { echo "db_rows could not read a file"; exit 1; }
+  if ! cmp -s single.rows mpi.rows; then
+    echo "the MPI run stored different rows (every table):"; diff single.rows mpi.rows | head -20; exit 1
+  fi
+  for f in single.db mpi.db; do
+    "$clothdb" db check "$f" >"$f.check" 2>&1 || { echo "db check failed on $f:"; cat "$f.check"; exit 1; }
+  done
+  if [ "$mode" = steer ]; then
+    steered=$(grep -c '^cloth_clip_steering:' mpi.rows || true)
+    [ "$steered" -gt 0 ] || { echo "no clip was steered: the steering scene tested nothing"; exit 1; }
+    echo "$steered steered clips"
+  fi
+  echo "same $(grep -c . mpi.rows) rows in every table as the single-process run"
 fi
 echo "same $(grep -c . mpi.dump) rows as the single-process run"

@@ -22,6 +22,8 @@
 #include "database/store/writer.hpp"
 #include "edit/clip_edit.hpp"
 #include "exchange/point_cache.hpp"
+#include "support/cli.hpp"
+#include "support/db_rows.hpp"
 
 namespace clothdb {
 namespace {
@@ -47,17 +49,11 @@ class RemoveWorkFolder : public testing::Environment {
 const testing::Environment* const kRemoveWorkFolder =
     testing::AddGlobalTestEnvironment(new RemoveWorkFolder);
 
+// `clothdb args` (split at spaces); its output into *output.
 int run_cli(const std::string& args, std::string* output = nullptr) {
-  const std::string log = work("cli.log");
-  const int rc =
-      std::system((std::string(CLOTHDB_EXE) + " " + args + " > " + log + " 2>&1").c_str());
-  if (output) {
-    std::ifstream in(log);
-    std::stringstream s;
-    s << in.rdbuf();
-    *output = s.str();
-  }
-  return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+  const test::CliResult r = test::run_clothdb(args, work("cli.log"));
+  if (output) *output = r.output;
+  return r.code;
 }
 
 // The converged base database, made once (--no-floor: the edits do not depend on the garment's
@@ -65,7 +61,7 @@ int run_cli(const std::string& args, std::string* output = nullptr) {
 const std::string& base_db() {
   static const std::string path = [] {
     const std::string p = work("base.db");
-    for (const char* s : {"", "-wal", "-shm"}) std::filesystem::remove(p + s);
+    test::remove_database(p);
     std::string out;
     const int rc = run_cli("precompute " + kSource + "/tests/data/mpi_small.json --db " + p +
                                " --epsilon 10 --batch 4 --threads 1 --quiet --no-floor",
@@ -86,40 +82,12 @@ std::string copy_db(const std::string& name) {
   return to;
 }
 
-// Every row of every table but the edit log, blobs by checksum: what "the database content" is.
+// Every row of every table but the edit log, blobs by checksum: what "the database content" is
+// (tests/support/db_rows.hpp; nothing else left out: an edit and its undo run in one process).
 std::vector<std::string> rows(const std::string& path) {
-  sqlite3* db = nullptr;
-  EXPECT_EQ(sqlite3_open_v2(path.c_str(), &db, SQLITE_OPEN_READONLY, nullptr), SQLITE_OK);
-  std::vector<std::string> tables, out;
-  sqlite3_stmt* s = nullptr;
-  sqlite3_prepare_v2(db,
-                     "SELECT name FROM sqlite_master WHERE type = 'table' AND name != 'edit_log' "
-                     "ORDER BY name",
-                     -1, &s, nullptr);
-  while (sqlite3_step(s) == SQLITE_ROW)
-    tables.push_back(reinterpret_cast<const char*>(sqlite3_column_text(s, 0)));
-  sqlite3_finalize(s);
-  for (const std::string& t : tables) {
-    const std::string sql =
-        "SELECT * FROM " + t + (t == "meta" ? " ORDER BY key" : " ORDER BY rowid");
-    sqlite3_prepare_v2(db, sql.c_str(), -1, &s, nullptr);
-    while (sqlite3_step(s) == SQLITE_ROW) {
-      std::string row = t + ":";
-      for (int c = 0; c < sqlite3_column_count(s); ++c) {
-        if (sqlite3_column_type(s, c) == SQLITE_BLOB) {
-          row += " blob" + std::to_string(db::xxh64(sqlite3_column_blob(s, c),
-                                                    size_t(sqlite3_column_bytes(s, c))));
-        } else {
-          const unsigned char* v = sqlite3_column_text(s, c);
-          row += std::string(" ") + (v ? reinterpret_cast<const char*>(v) : "NULL");
-        }
-      }
-      out.push_back(row);
-    }
-    sqlite3_finalize(s);
-  }
-  sqlite3_close(db);
-  return out;
+  test::RowsLeftOut left_out;
+  left_out.tables = {"edit_log"};
+  return test::every_row(path, left_out);
 }
 
 // The clip with the most frames (the one the tests edit): long enough to ramp.

@@ -1,6 +1,6 @@
 // A small cloth graph shared by the explorer's and the played benchmark's tests: a 200-vertex
 // skirt with heavy air drag (contractive: it forgets its history within about two edges) on a
-// one-node graph of two loops, holding still and swaying.
+// one-node graph of two loops, holding still and swaying, or on a two-node graph.
 #pragma once
 
 #include <cmath>
@@ -59,6 +59,38 @@ inline ExploreGraph small_graph(const CharacterScene& scene) {
   g.rate = 30;
   g.edges.push_back({0, 0, "hold", std::vector<std::vector<JointPose>>(12, pose), 0});
   g.edges.push_back({0, 0, "sway", sway(pose, 0.6, 16), 0});
+  return g;
+}
+
+// The character turning about its root from angle a0 to a1 (radians), eased in and out.
+inline std::vector<std::vector<JointPose>> turn(const std::vector<JointPose>& pose, double a0,
+                                                double a1, int frames) {
+  std::vector<std::vector<JointPose>> out;
+  for (int k = 0; k < frames; ++k) {
+    const double s = double(k) / (frames - 1), h = s * s * (3 - 2 * s);
+    const Eigen::Quaterniond q(Eigen::AngleAxisd(a0 + (a1 - a0) * h, Vec3::UnitY()));
+    std::vector<JointPose> p = pose;
+    for (auto& j : p) {
+      j.position = pose[0].position + q * (j.position - pose[0].position);
+      j.rotation = q * j.rotation;
+    }
+    out.push_back(std::move(p));
+  }
+  return out;
+}
+
+// A graph of two nodes (standing, and standing turned by 0.5 rad): turn there, turn back, a sway
+// at node 0 and a hold at node 1. Every edge's end node has states the explorer must find among
+// those of its own node, not the other's.
+inline ExploreGraph two_node_graph(const CharacterScene& scene) {
+  const auto pose = clip_pose(scene.clips.front(), 0);
+  ExploreGraph g;
+  g.node_count = 2;
+  g.rate = 30;
+  g.edges.push_back({0, 1, "turn", turn(pose, 0, 0.5, 14), 0});
+  g.edges.push_back({1, 0, "back", turn(pose, 0.5, 0, 14), 0});
+  g.edges.push_back({0, 0, "sway", sway(pose, 0.6, 16), 0});
+  g.edges.push_back({1, 1, "hold", turn(pose, 0.5, 0.5, 12), 0});
   return g;
 }
 

@@ -1,9 +1,6 @@
 // Hostile inputs to the `clothdb` command (issue 18): every case exits non-zero with a message
 // naming the argument, field or file and what is allowed, and creates or changes no file.
-#include <fcntl.h>
 #include <gtest/gtest.h>
-#include <spawn.h>
-#include <sys/wait.h>
 #include <unistd.h>
 
 #include <filesystem>
@@ -12,19 +9,13 @@
 #include <vector>
 
 #include "runtime/tools/synthetic_db.hpp"
-
-extern char** environ;
+#include "support/cli.hpp"
 
 namespace {
 
 namespace fs = std::filesystem;
+using Result = clothdb::test::CliResult;
 const std::string kSource = CLOTHDB_SOURCE_DIR;
-const std::string kExe = CLOTHDB_EXE;
-
-struct Result {
-  int code = -1;  // exit code; -1: killed by a signal
-  std::string output;
-};
 
 fs::path work_dir() {
   const fs::path dir =
@@ -34,31 +25,11 @@ fs::path work_dir() {
 }
 
 std::string read_file(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  return clothdb::test::read_text(path);
 }
 
 Result clothdb(const std::vector<std::string>& args) {
-  const std::string log = (work_dir() / "log.txt").string();
-  fs::remove(log);
-  std::vector<std::string> all = {kExe};
-  all.insert(all.end(), args.begin(), args.end());
-  std::vector<char*> argv;
-  for (auto& a : all) argv.push_back(a.data());
-  argv.push_back(nullptr);
-  posix_spawn_file_actions_t actions;
-  posix_spawn_file_actions_init(&actions);
-  posix_spawn_file_actions_addopen(&actions, 1, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-  posix_spawn_file_actions_adddup2(&actions, 1, 2);
-  pid_t pid = 0;
-  EXPECT_EQ(posix_spawn(&pid, kExe.c_str(), &actions, nullptr, argv.data(), environ), 0);
-  posix_spawn_file_actions_destroy(&actions);
-  int status = 0;
-  waitpid(pid, &status, 0);
-  Result r;
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  r.output = read_file(log);
-  return r;
+  return clothdb::test::run_clothdb(args, (work_dir() / "log.txt").string());
 }
 
 // Every file under `dir` with its bytes: what a refused command must leave as it was.
