@@ -99,7 +99,8 @@ void write_graph_db(const MotionGraph& g, const GraphInput& input, const std::st
     return;
   }
   std::vector<db::StoredState> states;
-  reader.cloth_states(&states, &err);
+  if (reader.cloth_states(&states, &err) != db::Status::Ok)
+    throw std::runtime_error(path + ": reading cloth_state: " + std::string(err.message));
   if (!states.empty())
     throw std::runtime_error(path + ": holds cloth states but no motion graph; use a new database");
   write_primary_graph(writer, eg, json, input.files);

@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <map>
 
 #include "clothrt.h"
@@ -664,4 +665,67 @@ TEST(Explore, SteeredClipsEndWithinEpsilonOfTheirTargetState) {
   r.close();
   const db::CheckReport check = db::check_database(path);
   for (const auto& problem : check.problems) ADD_FAILURE() << problem;
+}
+
+namespace {
+
+std::vector<char> file_bytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::vector<char>(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+// Makes every read of `table` fail (SQLITE_CORRUPT) and nothing else: the first byte of its root
+// page, the b-tree page type, becomes 0, which no page type has. The schema, meta and the other
+// tables still read.
+void corrupt_table(const std::string& path, const char* table) {
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open_v2(path.c_str(), &db, SQLITE_OPEN_READONLY, nullptr), SQLITE_OK);
+  sqlite3_stmt* s = nullptr;
+  const std::string sql =
+      std::string("SELECT rootpage FROM sqlite_master WHERE type = 'table' AND name = '") + table +
+      "'";
+  ASSERT_EQ(sqlite3_prepare_v2(db, sql.c_str(), -1, &s, nullptr), SQLITE_OK);
+  ASSERT_EQ(sqlite3_step(s), SQLITE_ROW);
+  const int64_t root = sqlite3_column_int64(s, 0);
+  sqlite3_finalize(s);
+  ASSERT_EQ(sqlite3_prepare_v2(db, "PRAGMA page_size", -1, &s, nullptr), SQLITE_OK);
+  ASSERT_EQ(sqlite3_step(s), SQLITE_ROW);
+  const int64_t page_size = sqlite3_column_int64(s, 0);
+  sqlite3_finalize(s);
+  sqlite3_close(db);
+  ASSERT_GT(root, 1);  // page 1 starts with the file header
+  std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+  f.seekp((root - 1) * page_size);
+  f.put(0);
+  ASSERT_TRUE(f.good());
+}
+
+}  // namespace
+
+// Every read error surfaces: a resumed run that cannot read the states it must continue from
+// stops with an error naming the file and the table, and writes nothing (a run that took the
+// failed read for an empty table would settle again and store a second start state).
+TEST(Explore, ResumeThatCannotReadTheStatesFailsAndLeavesTheFileAsItWas) {
+  const CharacterScene scene = small_scene();
+  const std::string path = temp_db("unreadable");
+  ExploreOptions options;
+  options.epsilon = 0.02;
+  options.batch = 2;
+  options.max_frames = 30;
+  ASSERT_FALSE(run(scene, path, options).converged);
+  ASSERT_FALSE(std::filesystem::exists(path + "-wal"));  // checkpointed: the file is all there is
+  corrupt_table(path, "cloth_state");
+  const std::vector<char> before = file_bytes(path);
+  options.max_frames = 0;
+  try {
+    run(scene, path, options);
+    ADD_FAILURE() << "a resume that could not read cloth_state ran";
+  } catch (const std::exception& e) {
+    const std::string message = e.what();
+    EXPECT_NE(message.find(path), std::string::npos) << message;
+    EXPECT_NE(message.find("cloth_state"), std::string::npos) << message;
+  }
+  EXPECT_EQ(file_bytes(path), before);
+  EXPECT_TRUE(!std::filesystem::exists(path + "-wal") ||
+              std::filesystem::file_size(path + "-wal") == 0);
 }

@@ -131,7 +131,9 @@ bool attach_primary_graph(db::Reader& reader, ExploreGraph& graph, const std::st
 void check_motion_files(db::Reader& reader) {
   db::Error err;
   std::vector<db::MotionFile> files;
-  reader.motion_files(&files, &err);
+  if (reader.motion_files(&files, &err) != db::Status::Ok)
+    throw std::runtime_error(
+        reader.path() + ": reading motion_file to check the motions: " + std::string(err.message));
   for (const auto& f : files) {
     const std::string now = file_content_hash(f.path);
     if (now != f.content_hash)
