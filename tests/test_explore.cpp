@@ -10,6 +10,7 @@
 #include <fstream>
 #include <iterator>
 #include <map>
+#include <sstream>
 
 #include "clothrt.h"
 #include "database/check.hpp"
@@ -728,4 +729,78 @@ TEST(Explore, ResumeThatCannotReadTheStatesFailsAndLeavesTheFileAsItWas) {
   EXPECT_EQ(file_bytes(path), before);
   EXPECT_TRUE(!std::filesystem::exists(path + "-wal") ||
               std::filesystem::file_size(path + "-wal") == 0);
+}
+
+// A dead end whose state is alone at its node has no unresolved error yet (Kim et al.'s error is a
+// distance to another state there): the curve counts it as unexplored and never as 0 mm, which
+// made the curve rise from 0 over a run. On a graph of two nodes (0 -> 1, 1 -> 0, 1 -> 1), the
+// first clip's end is the first state at node 1: both its ways out are unexplored.
+TEST(Explore, UnexploredWaysOutAreCountedAndNeverReportedAsZero) {
+  const CharacterScene scene = small_scene();
+  const auto pose = clip_pose(scene.clips.front(), 0);
+  ExploreGraph graph;
+  graph.node_count = 2;
+  graph.rate = 30;
+  graph.edges.push_back({0, 1, "hold", std::vector<std::vector<JointPose>>(12, pose), 0});
+  graph.edges.push_back({1, 0, "sway", sway(pose, 0.6, 16), 0});
+  graph.edges.push_back({1, 1, "hold again", std::vector<std::vector<JointPose>>(10, pose), 0});
+  const std::string path = temp_db("unexplored");
+  ExploreOptions options;
+  options.epsilon = 0.02;
+  options.batch = 1;
+  options.max_frames = 1;  // one clip
+  options.progress = false;
+  std::vector<CurvePoint> curve;
+  {
+    db::Writer writer = db::Writer::create(path);
+    prepare_database(writer, scene, graph, "{}");
+    curve = explore(scene, graph, writer, options).curve;
+  }
+  ASSERT_EQ(curve.size(), 2u);
+  // The start state alone at node 0 with its one way out, then the clip's end alone at node 1.
+  EXPECT_EQ(curve[0].dead_ends, 1);
+  EXPECT_EQ(curve[0].unexplored, 1);
+  EXPECT_EQ(curve[1].dead_ends, 2);
+  EXPECT_EQ(curve[1].unexplored, 2);
+  for (const CurvePoint& p : curve) {
+    EXPECT_TRUE(std::isnan(p.worst_error)) << p.worst_error;
+    EXPECT_TRUE(std::isnan(p.mean_error)) << p.mean_error;
+  }
+  // The CSV leaves the error cells empty (unknown), not 0.
+  std::istringstream csv(curve_csv(curve));
+  std::string header, row;
+  std::getline(csv, header);
+  EXPECT_NE(header.find("dead_ends,unexplored,worst_error_mm"), std::string::npos) << header;
+  while (std::getline(csv, row)) {
+    std::vector<std::string> cells;
+    std::istringstream fields(row);
+    for (std::string c; std::getline(fields, c, ',');) cells.push_back(c);
+    cells.resize(10);
+    EXPECT_EQ(cells[3], cells[4]) << row;  // dead_ends == unexplored on both points
+    for (size_t k : {5u, 6u, 7u}) EXPECT_EQ(cells[k], "") << row;
+  }
+
+  // Resumed to convergence: every point's count of unexplored ways out is within its dead ends,
+  // a point whose dead ends are all unexplored has no error (NaN), and a point with a measured
+  // dead end has a positive one (a state distance between two different states).
+  options.max_frames = 0;
+  ExploreReport done;
+  {
+    db::Writer writer = db::Writer::open(path);
+    prepare_database(writer, scene, graph, "{}");
+    done = explore(scene, graph, writer, options);
+  }
+  ASSERT_TRUE(done.converged);
+  for (const CurvePoint& p : done.curve) {
+    EXPECT_LE(p.unexplored, p.dead_ends);
+    if (p.dead_ends == 0) {
+      EXPECT_EQ(p.worst_error, 0.0);
+    } else if (p.unexplored == p.dead_ends) {
+      EXPECT_TRUE(std::isnan(p.worst_error));
+    } else {
+      EXPECT_GT(p.worst_error, 0.0);
+      EXPECT_GT(p.mean_error, 0.0);
+    }
+  }
+  EXPECT_EQ(done.curve.back().unexplored, 0);
 }

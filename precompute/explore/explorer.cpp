@@ -12,6 +12,7 @@
 #include "database/codec.hpp"
 #include "explore/codec_schedule.hpp"
 #include "explore/dead_ends.hpp"
+#include "explore/forecast.hpp"
 #include "explore/jobs.hpp"
 #include "explore/primary_graph.hpp"
 #include "explore/progress.hpp"
@@ -115,6 +116,17 @@ void integrate_batch(SecondaryGraph& sg, db::Writer& writer, const ExploreGraph&
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
+// Simulation CPU seconds of the file's earlier runs (a killed run recorded none).
+double earlier_cpu_seconds(db::Reader& reader, const std::string& path) {
+  std::vector<db::Run> runs;
+  db::Error err;
+  if (reader.runs(&runs, &err) != db::Status::Ok)
+    throw std::runtime_error(path + ": reading run to resume: " + std::string(err.message));
+  double seconds = 0;
+  for (const db::Run& r : runs) seconds += r.cpu_seconds;
+  return seconds;
+}
+
 bool budget_spent(const ExploreOptions& options, const ExploreReport& report) {
   return (options.cpu_hours > 0 && report.cpu_seconds >= options.cpu_hours * 3600) ||
          (options.max_frames > 0 && report.frames_this_run >= options.max_frames);
@@ -144,6 +156,11 @@ void close_run(const SecondaryGraph& sg, const ExploreGraph& graph, db::Writer& 
     report.worst_link_error = std::max(report.worst_link_error, l.blend_error);
     report.mean_link_error += l.blend_error / static_cast<double>(links.size());
   }
+  // This project's: the forecast of the CPU time to converge, from this run's curve (an edit's
+  // exploration from its own states says nothing about the file's).
+  report.forecast = forecast_convergence(report.curve, report.cpu_seconds_before);
+  if (options.min_state_id == 0)
+    db::set_meta_text(writer, db::meta::kForecast, forecast_text(report.forecast));
   writer.finish_run(run_id, report.cpu_seconds, run_notes(report, dead_ends_left));
   if (report.bases_removed > 0) {
     // The removed bases' pages (a few MB each) would otherwise stay in the file as free pages.
@@ -318,6 +335,7 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
   SecondaryGraph sg =
       load_secondary_graph(reader, writer.path(), graph, &report.frames, &report.worst_blend_error);
   report.resumed = !sg.states.empty();
+  report.cpu_seconds_before = earlier_cpu_seconds(reader, writer.path());
   CodecSchedule bases = load_codec_schedule(reader, writer.path(), options, vertex_count);
   const int64_t run_id = writer.begin_run(db::run_settings_json(run));
   if (sg.states.empty()) add_start_state(scene, graph, writer, run_id, sg);
@@ -325,7 +343,7 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
   FailedDeadEnds failed;
   const ProgressBar progress(options);
   std::vector<Job> queue = dead_ends(sg, graph, options.min_state_id);
-  report.curve.push_back(curve_point(sg, graph, queue, report));
+  add_curve_point(report, curve_point(sg, graph, queue, report));
   while (true) {
     // Kim et al.: the dead ends whose unresolved error is largest (this project: times the edge's
     // reach, and a batch of fixed size, so the result does not depend on the thread count).
@@ -340,7 +358,7 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
     // This project's: codec version 2 bases built from the clips stored so far.
     maybe_build_basis(bases, reader, writer, options, vertex_count, report);
     queue = dead_ends(sg, graph, options.min_state_id);
-    report.curve.push_back(curve_point(sg, graph, queue, report));
+    add_curve_point(report, curve_point(sg, graph, queue, report));
     progress.update(report, sg.done.size(), queue.size());
   }
   progress.end();

@@ -16,6 +16,9 @@ namespace clothdb {
 CurvePoint curve_point(const SecondaryGraph& sg, const ExploreGraph& graph,
                        const std::vector<Job>& queue, const ExploreReport& report);
 
+// Appends a curve point with the forecast made from the curve so far (explore/forecast.hpp).
+void add_curve_point(ExploreReport& report, const CurvePoint& point);
+
 // The progress bar on stderr (when options.progress): frames, states, dead ends, worst error, CPU
 // time and the time left, from the budget or, without one, from the dead ends at the current pace.
 class ProgressBar {
