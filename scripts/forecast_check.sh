@@ -36,7 +36,7 @@ awk -F, -v fraction="$fraction" -v file="$csv" '
     total = t[n]; want = fraction * total; best = 1
     for (i = 1; i <= n; ++i) if ((t[i] - want)^2 < (t[best] - want)^2) best = i
     if (f[best] == "") {
-      printf "forecast check: at %.0f %% of the run (%.0f of %.0f CPU-s) there was no forecast (none: not converging)\n",
+      printf "forecast check: at %.0f %% of the run (%.0f of %.0f CPU-s) there was no forecast (none: fewer than 4 batches in the last half of the curve, or dead ends + unexplored ways out not falling)\n",
         100 * t[best] / total, t[best], total
       exit 0
     }
