@@ -42,8 +42,8 @@ TEST(Forecast, RefusesAFlatTrend) {
 }
 
 TEST(Forecast, FallingTrendGivesTheTimeTheDecayReachesHalfAWayOut) {
-  // 400 e^(-t / 200 s): below 0.5 at t = 300 s + 200 s ln 800 = 1637 s. Rounding to whole dead ends moves
-  // it a little; a rise in the first half (new nodes reached) must not matter.
+  // 400 e^(-t / 200 s): below 0.5 at t = 300 s + 200 s ln 800 = 1637 s. Rounding to whole dead ends
+  // moves it a little; a rise in the first half (new nodes reached) must not matter.
   const double tau = 200, made_at = 900;
   const auto falling = curve(90, made_at, [&](double t) {
     return t < made_at / 3 ? 400 * t / (made_at / 3) : 400 * std::exp(-(t - made_at / 3) / tau);
