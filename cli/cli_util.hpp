@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "database/schema.hpp"
+#include "database/store/writer.hpp"
 #include "solvers/solver.hpp"
 
 namespace clothdb::cli {

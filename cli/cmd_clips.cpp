@@ -13,8 +13,8 @@
 
 #include "cli_util.hpp"
 #include "commands.hpp"
-#include "database/codec.hpp"
-#include "database/schema.hpp"
+#include "database/codec/codec.hpp"
+#include "database/store/writer.hpp"
 #include "explore/explorer.hpp"
 #include "quality/clip_quality.hpp"
 #include "render/preview.hpp"

@@ -9,8 +9,8 @@
 #include "cli_util.hpp"
 #include "commands.hpp"
 #include "compress/recode.hpp"
-#include "database/check.hpp"
-#include "database/cloth_graph.hpp"
+#include "database/format/cloth_graph.hpp"
+#include "database/store/check.hpp"
 
 namespace clothdb::cli {
 

@@ -12,7 +12,7 @@
 
 #include "cli_util.hpp"
 #include "commands.hpp"
-#include "database/schema.hpp"
+#include "database/store/writer.hpp"
 #include "explore/primary_graph.hpp"
 #include "graph/graph_svg.hpp"
 #include "graph/motion_graph.hpp"
@@ -99,8 +99,7 @@ void write_graph_db(const MotionGraph& g, const GraphInput& input, const std::st
     return;
   }
   std::vector<db::StoredState> states;
-  if (reader.cloth_states(&states, &err) != db::Status::Ok)
-    throw std::runtime_error(path + ": reading cloth_state: " + std::string(err.message));
+  db::throw_if_error(reader.cloth_states(&states, &err), err);
   if (!states.empty())
     throw std::runtime_error(path + ": holds cloth states but no motion graph; use a new database");
   write_primary_graph(writer, eg, json, input.files);
@@ -143,7 +142,7 @@ MotionGraph load_graph_or_database(const std::string& path) {
   if (reader.open(path, &err) != db::Status::Ok)
     throw std::runtime_error(path + ": " + std::string(err.message));
   std::string text;
-  if (reader.meta("motion_graph", &text, &err) != db::Status::Ok)
+  if (reader.meta(db::meta::kMotionGraph, &text, &err) != db::Status::Ok)
     throw std::runtime_error(path +
                              ": holds no motion graph (run `clothdb precompute` on it first)");
   return motion_graph_from_json(nlohmann::json::parse(text), path + ": meta motion_graph");

@@ -23,11 +23,12 @@
 #include "clothrt.h"
 #include "commands.hpp"
 #include "compress/recode.hpp"
-#include "database/codec.hpp"
-#include "database/schema.hpp"
+#include "database/codec/codec.hpp"
+#include "database/store/writer.hpp"
 #include "exchange/point_cache.hpp"
 #include "render/preview.hpp"
 #include "report/output.hpp"
+#include "report/stats.hpp"
 #include "runtime/tools/synthetic_db.hpp"
 
 namespace clothdb::cli {
@@ -87,9 +88,8 @@ Summary summarise(std::vector<double> us) {
   double sum = 0;
   for (double v : us) sum += v;
   s.mean = sum / double(us.size());
-  std::sort(us.begin(), us.end());
-  s.median = us[us.size() / 2];
-  s.p99 = us[std::min(us.size() - 1, size_t(double(us.size()) * 0.99))];
+  s.median = report::median(us);
+  s.p99 = report::percentile(std::move(us), 0.99);
   return s;
 }
 
@@ -319,35 +319,28 @@ double zstd_fraction(const std::string& path, size_t max_clips) {
   Error err;
   if (r.open(path, &err) != Status::Ok) return 0;
   std::vector<db::ClothClip> clips;
-  r.cloth_clips(&clips, &err);
+  if (r.cloth_clips(&clips, &err) != Status::Ok) return 0;
   std::vector<uint8_t> blob;
   std::vector<float> out;
   std::vector<uint8_t> raw;
+  std::vector<codec::ChunkSpan> spans;
   codec::DecodeScratch scratch;
   ZSTD_DCtx* dctx = ZSTD_createDCtx();
   double zstd_us = 0, decode_us = 0;
   for (size_t c = 0; c < clips.size() && c < max_clips; ++c) {
     if (r.clip_blob(clips[c].id, &blob, &err) != Status::Ok) continue;
-    codec::BlobInfo info;
-    if (codec::read_info(blob.data(), blob.size(), &info, &err) != Status::Ok) continue;
-    // Layout (docs/DATABASE.md): an 88-byte header (version 1) or 112 (version 2), then 16 bytes
-    // per chunk (u32 compressed size first), then the compressed chunks back to back.
-    const size_t header = info.version >= codec::kFormatVersionV2 ? 112 : 88;
-    size_t offset = header + 16 * size_t(info.chunk_count);
+    if (codec::chunk_spans(blob.data(), blob.size(), &spans, &err) != Status::Ok) continue;
     auto t0 = Clock::now();
-    for (uint32_t k = 0; k < info.chunk_count; ++k) {
-      const uint8_t* e = blob.data() + header + 16 * size_t(k);
-      const size_t csize =
-          size_t(e[0]) | size_t(e[1]) << 8 | size_t(e[2]) << 16 | size_t(e[3]) << 24;
-      const unsigned long long raw_size = ZSTD_getFrameContentSize(blob.data() + offset, csize);
+    for (const codec::ChunkSpan& span : spans) {
+      const unsigned long long raw_size =
+          ZSTD_getFrameContentSize(blob.data() + span.offset, span.size);
       if (raw_size == ZSTD_CONTENTSIZE_ERROR || raw_size == ZSTD_CONTENTSIZE_UNKNOWN) break;
       raw.resize(size_t(raw_size));
-      ZSTD_decompressDCtx(dctx, raw.data(), raw.size(), blob.data() + offset, csize);
-      offset += csize;
+      ZSTD_decompressDCtx(dctx, raw.data(), raw.size(), blob.data() + span.offset, span.size);
     }
     zstd_us += us_since(t0);
     t0 = Clock::now();
-    r.decode_all(blob, &out, scratch, &err);  // with its basis (codec version 2)
+    if (r.decode_all(blob, &out, scratch, &err) != Status::Ok) continue;  // with its basis (v2)
     decode_us += us_since(t0);
   }
   ZSTD_freeDCtx(dctx);

@@ -9,8 +9,9 @@
 #include <new>
 #include <numeric>
 
-#include "database/basis_store.hpp"
-#include "database/cloth_graph.hpp"
+#include "database/format/bases.hpp"
+#include "database/format/cloth_graph.hpp"
+#include "database/format/graph_index.hpp"
 #include "internal.hpp"
 
 namespace clothrt {
@@ -21,14 +22,6 @@ using Clock = std::chrono::steady_clock;
 
 uint64_t ns_since(Clock::time_point t) {
   return uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now() - t).count());
-}
-
-int find_root(std::vector<int>& parent, int i) {
-  while (parent[size_t(i)] != i) {
-    parent[size_t(i)] = parent[size_t(parent[size_t(i)])];
-    i = parent[size_t(i)];
-  }
-  return i;
 }
 
 // Decoded floats back to the codec's integers. The decoder produced x = origin + q * step, so
@@ -128,138 +121,49 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
         st != Status::Ok)
       return st;
 
-  std::vector<PrimaryClip> pcs;
-  std::vector<PrimaryTransition> transitions;
-  std::vector<StoredState> cstates;
-  std::vector<ClothClip> cclips;
-  std::vector<ClothEdge> cedges;
-  if (Status st = reader.primary_clips(&pcs, err); st != Status::Ok) return st;
-  if (Status st = reader.primary_transitions(&transitions, err); st != Status::Ok) return st;
-  if (Status st = reader.cloth_states(&cstates, err); st != Status::Ok) return st;
-  if (Status st = reader.cloth_clips(&cclips, err); st != Status::Ok) return st;
-  if (Status st = reader.cloth_edges(&cedges, err); st != Status::Ok) return st;
-  std::vector<ClothLink> clinks;
-  if (Status st = reader.cloth_links(&clinks, err); st != Status::Ok) return st;
-  if (pcs.empty()) return err->set(Status::NotFound, "%s: no primary clips", file.c_str());
-  if (cclips.empty()) return err->set(Status::NotFound, "%s: no cloth clips", file.c_str());
+  GraphRows rows;
+  if (Status st = rows.read(reader, err); st != Status::Ok) return st;
+  if (rows.primary_clips.empty())
+    return err->set(Status::NotFound, "%s: no primary clips", file.c_str());
+  if (rows.clips.empty()) return err->set(Status::NotFound, "%s: no cloth clips", file.c_str());
+  // The graph's rules (database/format/graph_index.hpp): the first broken one refuses the file.
+  GraphIndex index;
+  if (!index.build(rows, [&](const GraphFinding& f) {
+        err->set(Status::Corrupt, "%s: %s %s", file.c_str(), f.kind, f.message.c_str());
+        return false;
+      }))
+    return Status::Corrupt;
 
-  // Primary clips, and the implicit nodes: edge A's target and edge B's source are one node for
-  // every transition A -> B (union-find over 2 endpoints per clip).
-  const int np = int(pcs.size());
+  const int np = int(index.primaries.size());
   primaries.resize(size_t(np));
   for (int i = 0; i < np; ++i) {
-    const PrimaryClip& p = pcs[size_t(i)];
-    // A graph edge spans at least two poses; a shorter one would make a zero-length clip.
-    if (p.frame_count < 2 || !(p.frame_rate > 0) || !std::isfinite(p.frame_rate))
-      return err->set(Status::Corrupt, "%s: primary clip %lld has %d frames at %g Hz", file.c_str(),
-                      (long long)p.id, p.frame_count, p.frame_rate);
-    primaries[size_t(i)].id = p.id;
-    primaries[size_t(i)].name = p.name;
-    primaries[size_t(i)].frames = p.frame_count;
-    primaries[size_t(i)].rate = p.frame_rate;
-    primary_by_id[p.id] = i;
-  }
-  std::vector<int> parent(size_t(2 * np));
-  std::iota(parent.begin(), parent.end(), 0);
-  std::vector<std::vector<int>> succ(static_cast<size_t>(np));
-  for (const PrimaryTransition& t : transitions) {
-    auto a = primary_by_id.find(t.from_clip), b = primary_by_id.find(t.to_clip);
-    if (a == primary_by_id.end() || b == primary_by_id.end())
-      return err->set(Status::Corrupt, "%s: primary transition %lld names a missing clip",
-                      file.c_str(), (long long)t.id);
-    if (t.from_frame != pcs[size_t(a->second)].frame_count - 1 || t.to_frame != 0)
-      return err->set(Status::Corrupt,
-                      "%s: primary transition %lld joins frame %d of clip %lld to frame %d of "
-                      "clip %lld, not a clip's last frame to the next one's first",
-                      file.c_str(), (long long)t.id, t.from_frame, (long long)t.from_clip,
-                      t.to_frame, (long long)t.to_clip);
-    const int ra = find_root(parent, 2 * a->second + 1), rb = find_root(parent, 2 * b->second);
-    parent[size_t(ra)] = rb;
-    succ[size_t(a->second)].push_back(b->second);
-  }
-  std::vector<int> node_of(size_t(2 * np), -1);
-  int nodes = 0;
-  for (int i = 0; i < 2 * np; ++i) {
-    const int r = find_root(parent, i);
-    if (node_of[size_t(r)] < 0) node_of[size_t(r)] = nodes++;
-  }
-  for (int i = 0; i < np; ++i) {
+    const GraphIndex::Primary& g = index.primaries[size_t(i)];
     PrimaryInfo& p = primaries[size_t(i)];
-    p.src_node = node_of[size_t(find_root(parent, 2 * i))];
-    p.tgt_node = node_of[size_t(find_root(parent, 2 * i + 1))];
-    std::vector<int>& s = succ[size_t(i)];
-    std::sort(s.begin(), s.end());
-    s.erase(std::unique(s.begin(), s.end()), s.end());
+    p.id = g.id;
+    p.name = rows.primary_clips[size_t(i)].name;
+    p.frames = g.frames;
+    p.rate = g.rate;
+    p.src_node = g.src_node;
+    p.tgt_node = g.tgt_node;
     p.succ_begin = uint32_t(successors.size());
-    successors.insert(successors.end(), s.begin(), s.end());
+    successors.insert(successors.end(), g.successors.begin(), g.successors.end());
     p.succ_end = uint32_t(successors.size());
     max_successors = std::max(max_successors, p.succ_end - p.succ_begin);
   }
-  // At a node every clip in continues with every clip out: fewer successors than clips leaving
-  // the node means a transition row was lost (the game could not take that way).
-  std::vector<uint32_t> leaving(size_t(nodes), 0);
-  for (const PrimaryInfo& p : primaries) ++leaving[size_t(p.src_node)];
-  for (const PrimaryInfo& p : primaries)
-    if (p.succ_end - p.succ_begin != leaving[size_t(p.tgt_node)])
-      return err->set(Status::Corrupt,
-                      "%s: primary clip %lld continues with %u of the %u clips leaving its end "
-                      "node (a primary transition is missing)",
-                      file.c_str(), (long long)p.id, p.succ_end - p.succ_begin,
-                      leaving[size_t(p.tgt_node)]);
-
-  std::unordered_map<int64_t, int> state_by_id;
-  states.resize(cstates.size());
-  for (size_t i = 0; i < cstates.size(); ++i) {
-    auto p = primary_by_id.find(cstates[i].primary_clip);
-    if (p == primary_by_id.end())
-      return err->set(Status::Corrupt, "%s: cloth state %lld names a missing primary clip",
-                      file.c_str(), (long long)cstates[i].id);
-    states[i] = {cstates[i].id, p->second};
-    state_by_id[cstates[i].id] = int(i);
-  }
-
-  clips.resize(cclips.size());
-  for (size_t i = 0; i < cclips.size(); ++i) {
-    const ClothClip& c = cclips[i];
-    auto s = state_by_id.find(c.start_state);
-    auto p = primary_by_id.find(c.primary_clip);
-    if (s == state_by_id.end() || p == primary_by_id.end())
-      return err->set(Status::Corrupt, "%s: cloth clip %lld names a missing state or primary clip",
-                      file.c_str(), (long long)c.id);
-    const PrimaryInfo& pi = primaries[size_t(p->second)];
-    if (c.first_frame != 0 || c.frame_count != pi.frames)
-      return err->set(Status::Corrupt,
-                      "%s: cloth clip %lld covers frames %d..+%d of primary clip %lld (%d frames); "
-                      "clips span whole edges",
-                      file.c_str(), (long long)c.id, c.first_frame, c.frame_count, (long long)pi.id,
-                      pi.frames);
-    if (primaries[size_t(states[size_t(s->second)].primary)].src_node != pi.src_node)
-      return err->set(Status::Corrupt,
-                      "%s: cloth clip %lld starts from state %lld at a different node",
-                      file.c_str(), (long long)c.id, (long long)c.start_state);
-    clips[i].id = c.id;
-    clips[i].state = s->second;
-    clips[i].primary = p->second;
-    clips[i].frames = c.frame_count;
-    clip_by_id[c.id] = int(i);
-  }
-  for (const ClothEdge& e : cedges) {
-    auto c = clip_by_id.find(e.from_clip);
-    auto s = state_by_id.find(e.to_state);
-    if (c == clip_by_id.end() || s == state_by_id.end())
-      return err->set(Status::Corrupt, "%s: cloth edge %lld names a missing clip or state",
-                      file.c_str(), (long long)e.id);
-    ClipInfo& ci = clips[size_t(c->second)];
-    if (primaries[size_t(states[size_t(s->second)].primary)].src_node !=
-        primaries[size_t(ci.primary)].tgt_node)
-      return err->set(Status::Corrupt,
-                      "%s: cloth edge %lld leads to a state that is not at its clip's end node",
-                      file.c_str(), (long long)e.id);
-    // One edge per clip by convention; if there are several, the closest continuation wins.
-    if (ci.to_state < 0 || e.blend_error < ci.blend_error) {
-      ci.to_state = s->second;
-      ci.blend_error = std::isfinite(e.blend_error) ? e.blend_error : 1.0;
-    }
+  primary_by_id = index.primary_by_id;
+  clip_by_id = index.clip_by_id;
+  states.resize(index.states.size());
+  for (size_t i = 0; i < states.size(); ++i)
+    states[i] = {index.states[i].id, index.states[i].primary};
+  clips.resize(index.clips.size());
+  for (size_t i = 0; i < clips.size(); ++i) {
+    const GraphIndex::Clip& g = index.clips[i];
+    clips[i].id = g.id;
+    clips[i].state = g.state;
+    clips[i].primary = g.primary;
+    clips[i].frames = g.frames;
+    clips[i].to_state = g.to_state;
+    clips[i].blend_error = g.blend_error;
   }
 
   // Clips along each primary clip, by start state id (states are listed in id order, clips too).
@@ -281,25 +185,8 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
   // A dead end's precomputed continuation (schema 4, ClothLink): state and primary clip -> the
   // clip to take and the blend it needs.
   std::unordered_map<uint64_t, std::pair<int, double>> link_of;
-  for (const ClothLink& l : clinks) {
-    auto s = state_by_id.find(l.from_state);
-    auto p = primary_by_id.find(l.primary_clip);
-    auto c = clip_by_id.find(l.to_clip);
-    if (s == state_by_id.end() || p == primary_by_id.end() || c == clip_by_id.end())
-      return err->set(Status::Corrupt,
-                      "%s: cloth link %lld names a missing state, primary clip "
-                      "or cloth clip",
-                      file.c_str(), (long long)l.id);
-    if (clips[size_t(c->second)].primary != p->second ||
-        primaries[size_t(states[size_t(s->second)].primary)].src_node !=
-            primaries[size_t(p->second)].src_node)
-      return err->set(Status::Corrupt,
-                      "%s: cloth link %lld continues with a clip that is not along its primary "
-                      "clip, or from a state at another node",
-                      file.c_str(), (long long)l.id);
-    link_of[uint64_t(s->second) << 32 | uint32_t(p->second)] = {
-        c->second, std::isfinite(l.blend_error) ? l.blend_error : 1.0};
-  }
+  for (const GraphIndex::Link& l : index.links)
+    link_of[uint64_t(l.state) << 32 | uint32_t(l.primary)] = {l.clip, l.blend_error};
 
   // Slots: where each clip continues for each successor, known now unless a fallback search is
   // needed.
@@ -337,7 +224,7 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
   std::string start;
   Error ignore;
   if (reader.meta(clothdb::db::meta::kStartClip, &start, &ignore) == Status::Ok) {
-    const int i = clothdb::db::parse_start_clip(start, pcs);
+    const int i = clothdb::db::parse_start_clip(start, rows.primary_clips);
     if (i >= 0) start_primary = i;
   }
 

@@ -14,9 +14,9 @@
 #include <vector>
 
 #include "clothrt.h"
-#include "database/codec.hpp"
-#include "database/schema.hpp"
-#include "database/status.hpp"
+#include "database/codec/codec.hpp"
+#include "database/format/reader.hpp"
+#include "database/format/status.hpp"
 
 namespace clothrt {
 

@@ -8,7 +8,7 @@
 #include <cstdio>
 #include <filesystem>
 
-#include "database/codec.hpp"
+#include "database/codec/codec.hpp"
 #include "explore/explorer.hpp"
 using namespace clothdb;
 namespace {
@@ -101,14 +101,14 @@ TEST(Probe, Explore) {
     // Distances of every state to its nearest other state, and pinned/tether info.
     db::Reader rd;
     db::Error err;
-    rd.open(path, &err);
+    db::throw_if_error(rd.open(path, &err), err);
     std::vector<db::StoredState> st;
-    rd.cloth_states(&st, &err);
+    db::throw_if_error(rd.cloth_states(&st, &err), err);
     codec::DecodeScratch sc;
     std::vector<std::vector<float>> X, V;
     for (auto& s : st) {
       std::vector<float> x, v;
-      rd.read_state(s.id, &x, &v, sc, &err);
+      db::throw_if_error(rd.read_state(s.id, &x, &v, sc, &err), err);
       X.push_back(x);
       V.push_back(v);
     }
@@ -149,14 +149,14 @@ TEST(Probe, Contraction) {
     const std::string path = testing::TempDir() + "/probe_" + std::to_string(tethers) + ".db";
     db::Reader rd;
     db::Error err;
-    rd.open(path, &err);
+    db::throw_if_error(rd.open(path, &err), err);
     std::vector<db::StoredState> st;
-    rd.cloth_states(&st, &err);
+    db::throw_if_error(rd.cloth_states(&st, &err), err);
     codec::DecodeScratch sc;
     const Eigen::Isometry3d fr = character_frame(scene, pose);
     auto load = [&](int64_t id) {
       std::vector<float> x, v;
-      rd.read_state(id, &x, &v, sc, &err);
+      db::throw_if_error(rd.read_state(id, &x, &v, sc, &err), err);
       ClothState s;
       s.x.resize(3, x.size() / 3);
       s.v.resize(3, x.size() / 3);

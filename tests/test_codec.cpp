@@ -11,8 +11,8 @@
 #include <random>
 #include <vector>
 
-#include "database/checksum.hpp"
-#include "database/codec.hpp"
+#include "database/codec/codec.hpp"
+#include "database/format/checksum.hpp"
 #include "hard_cases/hard_cases.hpp"
 #include "solvers/solver.hpp"
 

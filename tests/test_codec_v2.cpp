@@ -15,8 +15,8 @@
 #include "compress/body_frame.hpp"
 #include "compress/predictability.hpp"
 #include "compress/subspace.hpp"
-#include "database/checksum.hpp"
-#include "database/codec.hpp"
+#include "database/codec/codec.hpp"
+#include "database/format/checksum.hpp"
 
 namespace clothdb::codec {
 namespace {

@@ -12,10 +12,10 @@
 #include <nlohmann/json.hpp>
 
 #include "clothrt.h"
-#include "database/check.hpp"
-#include "database/cloth_graph.hpp"
-#include "database/run_settings.hpp"
-#include "database/schema.hpp"
+#include "database/format/cloth_graph.hpp"
+#include "database/store/check.hpp"
+#include "database/store/run_settings.hpp"
+#include "database/store/writer.hpp"
 #include "explore/job_wire.hpp"
 
 using namespace clothdb;

@@ -18,10 +18,13 @@
 #include <vector>
 
 #include "clothrt.h"
-#include "database/check.hpp"
-#include "database/codec.hpp"
-#include "database/schema.hpp"
-#include "database/writer_lock.hpp"
+#include "database/codec/codec.hpp"
+#include "database/format/graph_index.hpp"
+#include "database/store/basis_store.hpp"
+#include "database/store/check.hpp"
+#include "database/store/dump.hpp"
+#include "database/store/writer.hpp"
+#include "database/store/writer_lock.hpp"
 #include "runtime/tools/synthetic_db.hpp"
 
 namespace clothdb::db {
@@ -699,7 +702,7 @@ TEST(DatabaseCheck, TriangleIndexOutOfRange) {
 TEST(DatabaseCheck, DeletedPrimaryTransition) {
   // walk -> run -> walk: without run -> walk, clip1's edge no longer lands at run's end node.
   expect_refused("DELETE FROM primary_transition WHERE from_frame = 29;",
-                 "which is not at the end node of clip", "not at its clip's end node");
+                 "which is not at the end node of clip", "which is not at the end node of clip");
 }
 
 TEST(DatabaseCheck, TransitionNotAtTheClipsEnds) {
@@ -712,7 +715,7 @@ TEST(DatabaseCheck, EdgeNotLandingAtItsClipsEndNode) {
   expect_refused(
       "UPDATE cloth_edge SET to_state = (SELECT start_state FROM cloth_clip WHERE id = "
       "cloth_edge.from_clip) WHERE blend_error = 0.004;",
-      "which is not at the end node of clip", "not at its clip's end node");
+      "which is not at the end node of clip", "which is not at the end node of clip");
 }
 
 TEST(DatabaseCheck, ClipWithoutAnEdgeOut) {
@@ -762,7 +765,10 @@ TEST(DatabaseCheck, MissingTransitionAtANodeAndUnexploredStates) {
   report = check_database(path);
   clothrt_db* db = nullptr;
   EXPECT_EQ(clothrt_db_open(path.c_str(), nullptr, &db), CLOTHRT_ERR_CORRUPT);
-  EXPECT_NE(std::string(clothrt_last_open_errmsg()).find("a primary transition is missing"),
+  // The runtime and check share the rule and its words (database/format/graph_index.hpp).
+  EXPECT_NE(std::string(clothrt_last_open_errmsg())
+                .find("primary transition missing from clip " + std::to_string(built.primary[0]) +
+                      " to clip " + std::to_string(built.primary[1])),
             std::string::npos)
       << clothrt_last_open_errmsg();
   clothrt_db_close(db);
@@ -870,6 +876,136 @@ TEST(WriterLock, WritersInOneProcessShareTheLock) {
   }
   EXPECT_TRUE(fs::exists(WriterLock::lock_path(path))) << "still held by the first writer";
   a.set_meta("note", "first writer again");
+}
+
+// ---- one owner per fact (issue 26) -------------------------------------------------------------
+
+// Storing a version 2 blob raises meta codec.format_version in the same transaction, so a runtime
+// that reads only version 1 refuses the file at open (UnknownMetaVersions pins that refusal)
+// instead of failing clip by clip.
+TEST(Database, StoringAVersion2BlobRaisesTheFilesCodecVersion) {
+  TempDir dir;
+  const std::string path = dir.file("v2.clothdb");
+  Writer w = Writer::create(path);
+  const Fixture f = populate(w);
+  auto codec_version = [&] {
+    Reader r;
+    Error err;
+    EXPECT_EQ(r.open_borrowed(w.handle(), path, &err), Status::Ok) << err.message;
+    return meta_text(r, meta::kCodecFormatVersion).value_or("");
+  };
+  EXPECT_EQ(codec_version(), "1");
+  // A two-mode basis around the clip's first frame.
+  std::vector<float> modes(2 * kVertices * 3, 0.0f);
+  for (size_t i = 0; i < kVertices * 3; ++i) {
+    modes[i] = float(std::sin(0.1 * double(i)));
+    modes[kVertices * 3 + i] = float(std::cos(0.07 * double(i)));
+  }
+  codec::Basis basis = codec::make_basis(0, kVertices, f.frames0.data(), modes.data(), 2);
+  basis.id = store_basis(w, basis, "test");
+  codec::EncodeSettings settings = encode_settings(w.codec(), w.codec().position_bound);
+  const std::vector<uint8_t> blob =
+      codec::encode_v2(f.frames0.data(), 40, kVertices, basis, settings);
+  codec::BlobInfo info;
+  ASSERT_EQ(codec::read_info(blob.data(), blob.size(), &info, nullptr), Status::Ok);
+  ASSERT_EQ(info.version, codec::kFormatVersionV2);
+  w.add_cloth_clip_blob({f.state0, f.walk, 0, 0.02, 0.001, ClipStatus::Ok, 0}, blob, 0.0);
+  EXPECT_EQ(codec_version(), "2");
+  // A version 1 blob stored later does not lower it: the file still holds a version 2 blob.
+  w.add_cloth_clip({f.state1, f.run_clip, 0, 0.03, 0.0, ClipStatus::Ok, 0}, f.frames1.data(), 30,
+                   kVertices);
+  EXPECT_EQ(codec_version(), "2");
+}
+
+std::string dump_text(const std::string& path, const DumpOptions& options) {
+  std::FILE* out = std::tmpfile();
+  dump_database(path, options, out);
+  std::string text(size_t(std::ftell(out)), '\0');
+  std::rewind(out);
+  const size_t n = std::fread(text.data(), 1, text.size(), out);
+  std::fclose(out);
+  text.resize(n);
+  return text;
+}
+
+// db dump prints every table of the registry that the file has, by default, and masks exactly
+// the columns and meta values it is told to.
+TEST(Dump, CoversEveryTableOfTheRegistryAndMasksByName) {
+  TempDir dir;
+  const std::string path = dir.file("dump.clothdb");
+  {
+    Writer w = Writer::create(path);
+    populate(w);
+    std::vector<float> mean(kVertices * 3, 0.0f), modes(kVertices * 3, 1.0f);
+    store_basis(w, codec::make_basis(0, kVertices, mean.data(), modes.data(), 1), "test");
+  }
+  const std::string all = dump_text(path, {});
+  for (const TableInfo& t : tables()) {
+    std::string header = t.name;
+    header.insert(header.begin(), '[');
+    header.push_back(']');
+    EXPECT_NE(all.find(header), std::string::npos) << t.name;
+  }
+  EXPECT_NE(all.find("'test-host'"), std::string::npos);
+  EXPECT_NE(all.find("'created' '20"), std::string::npos);
+  const std::string masked = dump_text(path, {{}, {"run.host", "meta.created"}});
+  EXPECT_EQ(masked.find("'test-host'"), std::string::npos);
+  EXPECT_NE(masked.find("'created' masked"), std::string::npos);
+  EXPECT_NE(masked.find("'format' 'clothdb'"), std::string::npos) << "only the named key";
+  EXPECT_THROW(dump_text(path, {{}, {"nosuchtable.x"}}), ClothdbError);
+  EXPECT_THROW(dump_text(path, {{"nosuchtable"}, {}}), ClothdbError);
+}
+
+// The graph's rules have one owner: built from the same rows, the runtime's use (stop at the
+// first finding) and check's (collect them all) see the same index and the same findings.
+TEST(GraphIndex, StopsAtTheFirstFindingOrCollectsThemAll) {
+  TempDir dir;
+  const std::string path = dir.file("graph.clothdb");
+  {
+    Writer w = Writer::create(path);
+    populate(w);
+  }
+  Reader r;
+  Error err;
+  ASSERT_EQ(r.open(path, &err), Status::Ok) << err.message;
+  GraphRows rows;
+  ASSERT_EQ(rows.read(r, &err), Status::Ok) << err.message;
+  std::vector<std::string> found;
+  auto collect = [&](const GraphFinding& f) {
+    found.push_back(std::string(f.kind) + ": " + f.message);
+    return true;
+  };
+  GraphIndex index;
+  ASSERT_TRUE(index.build(rows, collect));
+  EXPECT_TRUE(found.empty()) << found[0];
+  EXPECT_EQ(index.nodes, 2);  // walk -> run -> walk
+  ASSERT_EQ(index.primaries.size(), 2u);
+  EXPECT_EQ(index.primaries[0].tgt_node, index.primaries[1].src_node);
+  EXPECT_EQ(index.primaries[1].tgt_node, index.primaries[0].src_node);
+  EXPECT_EQ(index.primaries[0].successors, std::vector<int>{1});
+  EXPECT_EQ(index.clips[0].to_state, 1);
+  // Two broken rules: a clip that does not span its primary clip (it is left out of the index,
+  // so its edge then names a clip the index lacks: a third, dangling finding), and an edge that
+  // lands away from its clip's end node.
+  rows.clips[0].first_frame = 1;
+  rows.edges[1].to_state = rows.states[1].id;  // clip1 ends at walk's start, state1 is at run's
+  found.clear();
+  std::vector<bool> dangling;
+  EXPECT_TRUE(index.build(rows, [&](const GraphFinding& f) {
+    found.push_back(std::string(f.kind) + ": " + f.message);
+    dangling.push_back(f.dangling);
+    return true;
+  }));
+  ASSERT_EQ(found.size(), 3u);
+  EXPECT_NE(found[0].find("cloth clip: " + std::to_string(rows.clips[0].id) + ": covers frames 1"),
+            std::string::npos)
+      << found[0];
+  EXPECT_TRUE(dangling[1]) << found[1];
+  EXPECT_NE(found[2].find("which is not at the end node of clip"), std::string::npos) << found[2];
+  EXPECT_FALSE(dangling[0] || dangling[2]);
+  int seen = 0;
+  EXPECT_FALSE(index.build(rows, [&](const GraphFinding&) { return ++seen, false; }));
+  EXPECT_EQ(seen, 1);
 }
 
 }  // namespace

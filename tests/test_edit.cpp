@@ -17,9 +17,9 @@
 #include <vector>
 
 #include "clothrt.h"
-#include "database/check.hpp"
-#include "database/checksum.hpp"
-#include "database/schema.hpp"
+#include "database/format/checksum.hpp"
+#include "database/store/check.hpp"
+#include "database/store/writer.hpp"
 #include "edit/clip_edit.hpp"
 #include "exchange/point_cache.hpp"
 
@@ -128,7 +128,7 @@ int64_t long_clip(const std::string& path) {
   db::Error err;
   EXPECT_EQ(r.open(path, &err), db::Status::Ok);
   std::vector<db::ClothClip> clips;
-  r.cloth_clips(&clips, &err);
+  EXPECT_EQ(r.cloth_clips(&clips, &err), clothdb::Status::Ok);
   int64_t best = 0;
   int frames = 0;
   for (const auto& c : clips)

@@ -9,8 +9,8 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
-#include "database/check.hpp"
-#include "database/cloth_graph.hpp"
+#include "database/format/cloth_graph.hpp"
+#include "database/store/check.hpp"
 #include "explore/error_floor.hpp"
 #include "explore/precompute.hpp"
 #include "explore_fixture.hpp"

@@ -13,10 +13,10 @@
 #include <sstream>
 
 #include "clothrt.h"
-#include "database/check.hpp"
-#include "database/checksum.hpp"
-#include "database/codec.hpp"
-#include "database/schema.hpp"
+#include "database/codec/codec.hpp"
+#include "database/format/checksum.hpp"
+#include "database/store/check.hpp"
+#include "database/store/writer.hpp"
 #include "explore/explorer.hpp"
 #include "explore/job_wire.hpp"
 #include "explore/precompute.hpp"
@@ -60,24 +60,24 @@ std::vector<uint64_t> content(const std::string& path) {
     out.push_back(db::xxh64(bytes.data(), bytes.size()));
   };
   std::vector<db::ClothClip> clips;
-  r.cloth_clips(&clips, &err);
+  EXPECT_EQ(r.cloth_clips(&clips, &err), clothdb::Status::Ok);
   for (const auto& c : clips) {
     std::vector<uint8_t> blob;
-    r.clip_blob(c.id, &blob, &err);
+    EXPECT_EQ(r.clip_blob(c.id, &blob, &err), clothdb::Status::Ok);
     add(blob);
     out.push_back(static_cast<uint64_t>(c.start_state) << 32 |
                   static_cast<uint64_t>(c.primary_clip));
   }
   std::vector<db::StoredState> states;
-  r.cloth_states(&states, &err);
+  EXPECT_EQ(r.cloth_states(&states, &err), clothdb::Status::Ok);
   for (const auto& s : states) {
     std::vector<uint8_t> p, v;
-    r.state_blobs(s.id, &p, &v, &err);
+    EXPECT_EQ(r.state_blobs(s.id, &p, &v, &err), clothdb::Status::Ok);
     add(p);
     add(v);
   }
   std::vector<db::ClothEdge> edges;
-  r.cloth_edges(&edges, &err);
+  EXPECT_EQ(r.cloth_edges(&edges, &err), clothdb::Status::Ok);
   for (const auto& e : edges)
     out.push_back(static_cast<uint64_t>(e.from_clip) << 32 | static_cast<uint64_t>(e.to_state));
   return out;
@@ -102,10 +102,10 @@ TEST(Explore, ConvergesWithinEpsilonAndCoversEveryWayOut) {
   std::vector<db::ClothClip> clips;
   std::vector<db::ClothEdge> edges;
   std::vector<db::PrimaryClip> primary;
-  r.cloth_states(&states, &err);
-  r.cloth_clips(&clips, &err);
-  r.cloth_edges(&edges, &err);
-  r.primary_clips(&primary, &err);
+  EXPECT_EQ(r.cloth_states(&states, &err), clothdb::Status::Ok);
+  EXPECT_EQ(r.cloth_clips(&clips, &err), clothdb::Status::Ok);
+  EXPECT_EQ(r.cloth_edges(&edges, &err), clothdb::Status::Ok);
+  EXPECT_EQ(r.primary_clips(&primary, &err), clothdb::Status::Ok);
   // Every state at the node has a clip along both primary edges leaving it.
   for (const auto& s : states)
     for (const auto& p : primary) {
@@ -196,7 +196,7 @@ std::vector<std::pair<int64_t, int64_t>> clip_order(const std::string& path) {
   db::Error err;
   EXPECT_EQ(r.open(path, &err), db::Status::Ok) << err.message;
   std::vector<db::ClothClip> clips;
-  r.cloth_clips(&clips, &err);
+  EXPECT_EQ(r.cloth_clips(&clips, &err), clothdb::Status::Ok);
   std::vector<std::pair<int64_t, int64_t>> out;
   for (const auto& c : clips) out.emplace_back(c.start_state, c.primary_clip);
   return out;
@@ -224,8 +224,8 @@ static int expect_same_clips_within_twice_the_bound(const std::string& v1_path,
   EXPECT_EQ(r1.open(v1_path, &err), db::Status::Ok);
   EXPECT_EQ(r2.open(v2_path, &err), db::Status::Ok);
   std::vector<db::ClothClip> clips1, clips2;
-  r1.cloth_clips(&clips1, &err);
-  r2.cloth_clips(&clips2, &err);
+  EXPECT_EQ(r1.cloth_clips(&clips1, &err), clothdb::Status::Ok);
+  EXPECT_EQ(r2.cloth_clips(&clips2, &err), clothdb::Status::Ok);
   EXPECT_EQ(clips1.size(), clips2.size());
   const double bound = r2.codec().position_bound;
   codec::DecodeScratch scratch;
@@ -304,7 +304,7 @@ TEST(Explore, CodecV2BasesFromTheStoredClipsKeepTheGraphAndTheBound) {
   db::Error err;
   ASSERT_EQ(r3.open(smaller_path, &err), db::Status::Ok);
   std::vector<db::ClothClip> clips3;
-  r3.cloth_clips(&clips3, &err);
+  EXPECT_EQ(r3.cloth_clips(&clips3, &err), clothdb::Status::Ok);
   std::vector<uint8_t> blob;
   for (const auto& row : kept.bases) {
     bool named = false;
@@ -468,8 +468,8 @@ TEST(Explore, UnresolvedErrorIsTheDistanceToTheNearestOtherStateAtItsNode) {
   ASSERT_EQ(r.open(path, &err), db::Status::Ok);
   std::vector<db::StoredState> states;
   std::vector<db::ClothClip> clips;
-  r.cloth_states(&states, &err);
-  r.cloth_clips(&clips, &err);
+  EXPECT_EQ(r.cloth_states(&states, &err), clothdb::Status::Ok);
+  EXPECT_EQ(r.cloth_clips(&clips, &err), clothdb::Status::Ok);
   std::vector<std::vector<float>> x(states.size()), v(states.size());
   codec::DecodeScratch scratch;
   for (size_t i = 0; i < states.size(); ++i)
@@ -510,10 +510,10 @@ TEST(Explore, BudgetLimitedRunLinksEveryDeadEndSoPlaybackNeverFallsBack) {
   std::vector<db::ClothClip> clips;
   std::vector<db::ClothLink> links;
   std::vector<db::PrimaryClip> primary;
-  r.cloth_states(&states, &err);
-  r.cloth_clips(&clips, &err);
-  r.cloth_links(&links, &err);
-  r.primary_clips(&primary, &err);
+  EXPECT_EQ(r.cloth_states(&states, &err), clothdb::Status::Ok);
+  EXPECT_EQ(r.cloth_clips(&clips, &err), clothdb::Status::Ok);
+  EXPECT_EQ(r.cloth_links(&links, &err), clothdb::Status::Ok);
+  EXPECT_EQ(r.primary_clips(&primary, &err), clothdb::Status::Ok);
   ASSERT_EQ(static_cast<int>(links.size()), report.dead_ends);
   std::map<int64_t, size_t> index;
   std::vector<std::vector<float>> x(states.size()), v(states.size());
@@ -626,8 +626,8 @@ TEST(Explore, SteeredClipsEndWithinEpsilonOfTheirTargetState) {
   std::vector<db::ClothEdge> edges;
   std::vector<db::ClothClip> clips;
   ASSERT_EQ(r.clip_steering(&steering, &err), db::Status::Ok);
-  r.cloth_edges(&edges, &err);
-  r.cloth_clips(&clips, &err);
+  EXPECT_EQ(r.cloth_edges(&edges, &err), clothdb::Status::Ok);
+  EXPECT_EQ(r.cloth_clips(&clips, &err), clothdb::Status::Ok);
   EXPECT_EQ(static_cast<int>(steering.size()), report.steered);
   for (const auto& st : steering) {
     EXPECT_GT(st.distance, options.epsilon);  // ends already within epsilon are not steered

@@ -5,7 +5,7 @@
 #include <cmath>
 #include <cstring>
 
-#include "database/codec.hpp"
+#include "database/codec/codec.hpp"
 #include "explore/job_wire.hpp"
 
 using namespace clothdb;

@@ -17,7 +17,7 @@
 #include <thread>
 #include <vector>
 
-#include "database/schema.hpp"
+#include "database/store/writer.hpp"
 
 extern char** environ;
 

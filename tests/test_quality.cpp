@@ -15,9 +15,9 @@
 #include <sstream>
 
 #include "clothrt.h"
-#include "database/check.hpp"
-#include "database/codec.hpp"
-#include "database/schema.hpp"
+#include "database/codec/codec.hpp"
+#include "database/store/check.hpp"
+#include "database/store/writer.hpp"
 #include "explore/explorer.hpp"
 #include "quality/clip_quality.hpp"
 
@@ -428,7 +428,7 @@ TEST(Quality, ClipsListSortsByTheMetricAndExplainsBadInput) {
   db::Error err;
   ASSERT_EQ(r.open(path, &err), db::Status::Ok);
   std::vector<db::ClothClip> clips;
-  r.cloth_clips(&clips, &err);
+  EXPECT_EQ(r.cloth_clips(&clips, &err), clothdb::Status::Ok);
   const auto worst = std::max_element(
       clips.begin(), clips.end(), [](const auto& a, const auto& b) { return a.jitter < b.jitter; });
   const Output table = run_cli("clips list " + path + " --by jitter --worst 1");

@@ -20,8 +20,8 @@
 #include <vector>
 
 #include "clothrt.h"
-#include "database/codec.hpp"
-#include "database/schema.hpp"
+#include "database/codec/codec.hpp"
+#include "database/store/writer.hpp"
 #include "runtime/tools/synthetic_db.hpp"
 
 // Counts every allocation made through operator new in this process, so a test can check that
@@ -145,7 +145,7 @@ struct Fixture {
     Error err;
     EXPECT_EQ(r.open(path, &err), Status::Ok);
     std::vector<db::ClothEdge> edges;
-    r.cloth_edges(&edges, &err);
+    EXPECT_EQ(r.cloth_edges(&edges, &err), clothdb::Status::Ok);
     for (const db::ClothEdge& e : edges)
       if (e.from_clip == from)
         for (const auto& [key, id] : built.clip)

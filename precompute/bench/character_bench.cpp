@@ -8,6 +8,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "report/stats.hpp"
+
 namespace clothdb {
 
 CapsuleSpeed fastest_capsule(const CharacterScene& scene, const MotionClip& clip, int frames) {
@@ -137,9 +139,7 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
     }
   }
   if (!strains.empty()) {
-    const auto k = static_cast<std::ptrdiff_t>(0.99 * static_cast<double>(strains.size() - 1));
-    std::nth_element(strains.begin(), strains.begin() + k, strains.end());
-    row.p99_strain = strains[static_cast<size_t>(k)];
+    row.p99_strain = report::percentile(std::move(strains), 0.99);
   }
   if (row.frames > 0) {
     row.ms_per_frame = 1e3 * wall / row.frames;

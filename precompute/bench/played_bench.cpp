@@ -17,8 +17,9 @@
 
 #include "character_scene/character_space.hpp"
 #include "clothrt.h"
-#include "database/cloth_graph.hpp"
+#include "database/format/cloth_graph.hpp"
 #include "report/cpu_time.hpp"
+#include "report/stats.hpp"
 #include "report/svg_plot.hpp"
 
 namespace clothdb {
@@ -121,11 +122,9 @@ Simulated simulate_walk(const CharacterScene& scene, const ExploreGraph& graph, 
   return out;
 }
 
-double percentile(std::vector<double> v, double p) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  const size_t k = static_cast<size_t>(std::floor(p * static_cast<double>(v.size() - 1) + 0.5));
-  return v[std::min(k, v.size() - 1)];
+// No samples (no played frame) reads as 0 mm, as before the shared definition.
+double percentile(const std::vector<double>& v, double p) {
+  return v.empty() ? 0 : report::percentile(v, p);
 }
 
 struct RtDb {

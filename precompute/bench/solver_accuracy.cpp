@@ -11,6 +11,7 @@
 
 #include "bench/solver_bench.hpp"
 #include "report/cpu_time.hpp"
+#include "report/stats.hpp"
 
 namespace clothdb {
 
@@ -53,13 +54,6 @@ SolverBenchOptions cap_options(const AccuracyOptions& options) {
   SolverBenchOptions o;
   o.max_mass_spring_substeps = options.max_mass_spring_substeps;
   return o;
-}
-
-double percentile(std::vector<double> v, double p) {
-  if (v.empty()) return NAN;
-  const size_t k = std::min(v.size() - 1, static_cast<size_t>(p * static_cast<double>(v.size())));
-  std::nth_element(v.begin(), v.begin() + static_cast<long>(k), v.end());
-  return v[k];
 }
 
 nlohmann::json stats_json(const EnsembleStats& s) {
@@ -224,7 +218,7 @@ EnsembleStats ensemble_stats(const ClothScene& scene, const Trajectory& run) {
     }
   }
   s.sag_mm = sag_count > 0 ? 1e3 * sag_sum / static_cast<double>(sag_count) : NAN;
-  s.strain_p99 = percentile(strains, 0.99);
+  s.strain_p99 = report::percentile(std::move(strains), 0.99);
   // Kinetic-energy decay: mean over the last quarter of the frames / the run's peak.
   double peak = 0, tail = 0;
   int tail_count = 0;

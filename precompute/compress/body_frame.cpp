@@ -7,7 +7,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "database/codec.hpp"
+#include "database/codec/codec.hpp"
 
 namespace clothdb {
 

@@ -7,9 +7,9 @@
 #include <stdexcept>
 
 #include "compress/subspace.hpp"
-#include "database/basis_store.hpp"
-#include "database/codec.hpp"
-#include "database/schema.hpp"
+#include "database/codec/codec.hpp"
+#include "database/store/basis_store.hpp"
+#include "database/store/writer.hpp"
 
 namespace clothdb {
 namespace {
@@ -100,7 +100,7 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
   db::Writer writer = db::Writer::open(path);
   db::Reader reader;  // reads through the writer's connection: sees each batch as written
   db::Error err;
-  check(reader.open_on(writer, &err), err);
+  check(reader.open_borrowed(writer.handle(), writer.path(), &err), err);
   const db::CodecSettings file_codec = writer.codec();
   const double bound = o.bound > 0 ? o.bound : file_codec.position_bound;
   const double velocity_bound = o.velocity_bound > 0 ? o.velocity_bound : file_codec.velocity_bound;
@@ -203,10 +203,11 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
       // basis no blob took is removed again: it would only cost its bytes.
       const bool basis_used = report.clips_replaced + report.states_replaced > 0;
       if (o.codec == 1 || basis_used) {
-        writer.set_meta("codec.format_version", std::to_string(o.codec));
-        writer.set_meta("codec.recoded_bound", text(bound));
+        writer.set_meta(db::meta::kCodecFormatVersion, std::to_string(o.codec));
+        writer.set_meta(db::meta::kCodecRecodedBound, text(bound));
       }
-      if (o.codec == 2 && basis_used) writer.set_meta("codec.basis", std::to_string(basis.id));
+      if (o.codec == 2 && basis_used)
+        writer.set_meta(db::meta::kCodecBasis, std::to_string(basis.id));
       if (o.codec == 2 && !basis_used) {
         db::remove_basis(writer, basis.id);
         say("no blob got smaller with the subspace: basis " + std::to_string(basis.id) +

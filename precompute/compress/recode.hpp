@@ -9,8 +9,8 @@
 #include <string>
 
 #include "compress/body_frame.hpp"
-#include "database/codec.hpp"
-#include "database/schema.hpp"
+#include "database/codec/codec.hpp"
+#include "database/store/writer.hpp"
 
 namespace clothdb {
 

@@ -12,7 +12,7 @@
 #include <set>
 #include <stdexcept>
 
-#include "database/codec.hpp"
+#include "database/codec/codec.hpp"
 #include "exchange/body_mesh.hpp"
 #include "exchange/point_cache.hpp"
 #include "explore/auto_solver.hpp"
@@ -163,7 +163,7 @@ EditContext open_edit(const std::string& path, const std::string& scene_file, do
   if (!std::filesystem::exists(path)) fail("cannot open " + path + ": no such file");
   EditContext ctx{path, db::Writer::open(path), {}, {}, 0, author};
   db::Error err;
-  check(ctx.reader.open_on(ctx.writer, &err), err);
+  check(ctx.reader.open_borrowed(ctx.writer.handle(), ctx.writer.path(), &err), err);
   ctx.scene = load_database_scene(ctx.reader, scene_file);
   db::Garment garment;
   check(ctx.reader.garment(&garment, &err), err);

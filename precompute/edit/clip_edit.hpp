@@ -16,7 +16,7 @@
 #include <string>
 #include <vector>
 
-#include "database/schema.hpp"
+#include "database/store/writer.hpp"
 #include "explore/explorer.hpp"
 
 namespace clothdb {

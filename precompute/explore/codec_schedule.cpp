@@ -6,7 +6,8 @@
 #include <stdexcept>
 
 #include "compress/recode.hpp"
-#include "database/basis_store.hpp"
+#include "database/format/bases.hpp"
+#include "database/store/basis_store.hpp"
 
 namespace clothdb {
 

@@ -10,8 +10,8 @@
 #include <set>
 
 #include "compress/body_frame.hpp"
-#include "database/codec.hpp"
-#include "database/schema.hpp"
+#include "database/codec/codec.hpp"
+#include "database/store/writer.hpp"
 #include "explore/explorer.hpp"
 
 namespace clothdb {

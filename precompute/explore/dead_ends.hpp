@@ -10,7 +10,7 @@
 #include <utility>
 #include <vector>
 
-#include "database/cloth_graph.hpp"
+#include "database/format/cloth_graph.hpp"
 #include "explore/secondary_graph.hpp"
 
 namespace clothdb {

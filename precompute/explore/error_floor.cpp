@@ -14,7 +14,7 @@
 #include <stdexcept>
 
 #include "character_scene/character_space.hpp"
-#include "database/cloth_graph.hpp"
+#include "database/format/cloth_graph.hpp"
 #include "report/cpu_time.hpp"
 
 namespace clothdb {

@@ -12,7 +12,7 @@
 #include <map>
 #include <thread>
 
-#include "database/checksum.hpp"
+#include "database/format/checksum.hpp"
 #include "explore/job_wire.hpp"
 
 namespace clothdb::mpi {

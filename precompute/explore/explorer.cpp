@@ -7,9 +7,9 @@
 #include <stdexcept>
 
 #include "character_scene/character_space.hpp"
-#include "database/basis_store.hpp"
-#include "database/checksum.hpp"
-#include "database/codec.hpp"
+#include "database/codec/codec.hpp"
+#include "database/format/checksum.hpp"
+#include "database/store/basis_store.hpp"
 #include "explore/codec_schedule.hpp"
 #include "explore/dead_ends.hpp"
 #include "explore/forecast.hpp"
@@ -330,7 +330,7 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
   // state it has just added (clip resim) sees it.
   db::Reader reader;
   db::Error err;
-  if (reader.open_on(writer, &err) != db::Status::Ok)
+  if (reader.open_borrowed(writer.handle(), writer.path(), &err) != db::Status::Ok)
     throw std::runtime_error(writer.path() + ": " + std::string(err.message));
   SecondaryGraph sg =
       load_secondary_graph(reader, writer.path(), graph, &report.frames, &report.worst_blend_error);

@@ -28,9 +28,9 @@
 
 #include "character_scene/character_scene.hpp"
 #include "compress/body_frame.hpp"
-#include "database/cloth_graph.hpp"
-#include "database/run_settings.hpp"
-#include "database/schema.hpp"
+#include "database/format/cloth_graph.hpp"
+#include "database/store/run_settings.hpp"
+#include "database/store/writer.hpp"
 #include "quality/clip_quality.hpp"
 
 namespace clothdb {

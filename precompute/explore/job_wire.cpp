@@ -3,8 +3,8 @@
 #include <bit>
 #include <cstring>
 
-#include "database/checksum.hpp"
-#include "database/codec.hpp"
+#include "database/codec/codec.hpp"
+#include "database/format/checksum.hpp"
 
 namespace clothdb {
 

@@ -8,7 +8,7 @@
 
 #include "character_scene/character_space.hpp"
 #include "compress/body_frame.hpp"
-#include "database/codec.hpp"
+#include "database/codec/codec.hpp"
 #include "report/cpu_time.hpp"
 
 namespace clothdb {

@@ -9,8 +9,8 @@
 #include <sstream>
 #include <thread>
 
-#include "database/cloth_graph.hpp"
-#include "database/writer_lock.hpp"
+#include "database/format/cloth_graph.hpp"
+#include "database/store/writer_lock.hpp"
 #include "explore/auto_solver.hpp"
 #include "explore/primary_graph.hpp"
 #include "report/output.hpp"

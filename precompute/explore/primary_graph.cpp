@@ -7,7 +7,7 @@
 #include <nlohmann/json.hpp>
 #include <stdexcept>
 
-#include "database/checksum.hpp"
+#include "database/format/checksum.hpp"
 
 namespace clothdb {
 
@@ -131,9 +131,7 @@ bool attach_primary_graph(db::Reader& reader, ExploreGraph& graph, const std::st
 void check_motion_files(db::Reader& reader) {
   db::Error err;
   std::vector<db::MotionFile> files;
-  if (reader.motion_files(&files, &err) != db::Status::Ok)
-    throw std::runtime_error(
-        reader.path() + ": reading motion_file to check the motions: " + std::string(err.message));
+  db::throw_if_error(reader.motion_files(&files, &err), err);
   for (const auto& f : files) {
     const std::string now = file_content_hash(f.path);
     if (now != f.content_hash)

@@ -7,7 +7,7 @@
 #include <string>
 #include <vector>
 
-#include "database/schema.hpp"
+#include "database/store/writer.hpp"
 #include "explore/explorer.hpp"
 #include "graph/motion_graph.hpp"
 

@@ -5,8 +5,8 @@
 #include <stdexcept>
 
 #include "character_scene/character_space.hpp"
-#include "database/cloth_graph.hpp"
-#include "database/codec.hpp"
+#include "database/format/cloth_graph.hpp"
+#include "database/codec/codec.hpp"
 
 namespace clothdb {
 

@@ -11,7 +11,7 @@
 #include <utility>
 #include <vector>
 
-#include "database/schema.hpp"
+#include "database/store/writer.hpp"
 #include "explore/explorer.hpp"
 
 namespace clothdb {

@@ -47,7 +47,7 @@
 #include "character_scene/character_scene.hpp"
 #include "cloth/collision.hpp"
 #include "cloth/model.hpp"
-#include "database/schema.hpp"
+#include "database/store/writer.hpp"
 
 namespace clothdb {
 

@@ -9,7 +9,7 @@
 
 #include "cloth/collision.hpp"
 #include "cloth/model.hpp"
-#include "database/run_settings.hpp"  // SolverKind, SolverSettings: what a database records
+#include "database/store/run_settings.hpp"  // SolverKind, SolverSettings: what a database records
 
 namespace clothdb {
 

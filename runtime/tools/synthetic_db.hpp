@@ -10,7 +10,7 @@
 #include <utility>
 #include <vector>
 
-#include "database/schema.hpp"
+#include "database/store/writer.hpp"
 
 namespace clothdb::synthetic {
 
@@ -139,9 +139,9 @@ inline Built build(const std::string& path, const Spec& spec) {
         w.add_primary_transition(t);
       }
     }
-    w.set_meta("motion_graph", graph + "]}");
-    w.set_meta("start_clip", std::to_string(out.primary[0]));
-    w.set_meta("scene", "synthetic sheet");
+    w.set_meta(db::meta::kMotionGraph, graph + "]}");
+    w.set_meta(db::meta::kStartClip, std::to_string(out.primary[0]));
+    w.set_meta(db::meta::kScene, "synthetic sheet");
     // States at each node, stored with the lowest-id edge leaving it.
     const std::vector<float> rest_velocity(size_t(vertices) * 3, 0.0f);
     for (int n = 0; n < spec.nodes; ++n) {

@@ -17,7 +17,7 @@
 #include <cstring>
 #include <vector>
 
-#include "database/codec.hpp"
+#include "database/codec/codec.hpp"
 
 namespace {
 

@@ -1,4 +1,4 @@
-#include "database/status.hpp"
+#include "database/format/status.hpp"
 
 #include <cstdarg>
 #include <cstdio>
@@ -31,16 +31,16 @@ const char* status_name(Status status) {
   return "unknown";
 }
 
-Status Error::set(Status s, const char* format, ...) {
+Recorded Error::set(Status s, const char* format, ...) {
   status = s;
   va_list args;
   va_start(args, format);
   std::vsnprintf(message, sizeof message, format, args);
   va_end(args);
-  return s;
+  return {s};
 }
 
-Status fail(Error* err, Status s, const char* format, ...) {
+Recorded fail(Error* err, Status s, const char* format, ...) {
   if (err) {
     err->status = s;
     va_list args;
@@ -48,7 +48,7 @@ Status fail(Error* err, Status s, const char* format, ...) {
     std::vsnprintf(err->message, sizeof err->message, format, args);
     va_end(args);
   }
-  return s;
+  return {s};
 }
 
 }  // namespace clothdb

@@ -1,4 +1,4 @@
-#include "database/cloth_graph.hpp"
+#include "database/format/cloth_graph.hpp"
 
 #include <cerrno>
 #include <cmath>
@@ -50,31 +50,6 @@ int64_t start_state(const std::vector<StoredState>& states, const std::vector<No
   return start;
 }
 
-namespace meta {
-const std::vector<std::string>& known_keys() {
-  static const std::vector<std::string> keys = {kFormat,
-                                                kFormatVersion,
-                                                kCreated,
-                                                kUnits,
-                                                kCodecPositionBound,
-                                                kCodecVelocityBound,
-                                                kCodecKeyInterval,
-                                                kCodecZstdLevel,
-                                                kCodecFormatVersion,
-                                                kScene,
-                                                kScenePath,
-                                                kSceneHash,
-                                                kMotionGraph,
-                                                kStartClip,
-                                                kAutoSolver,
-                                                kErrorFloor,
-                                                kErrorFloorDetail,
-                                                kDeadEndsLinked,
-                                                kForecast};
-  return keys;
-}
-}  // namespace meta
-
 std::optional<std::string> meta_text(Reader& reader, const char* key) {
   std::string value;
   Error err;
@@ -105,20 +80,6 @@ std::optional<double> meta_number(Reader& reader, const char* key) {
     throw ClothdbError(Status::Corrupt, reader.path() + ": meta " + key + ": '" + *text +
                                             "' is not a finite number");
   return v;
-}
-
-void set_meta_text(Writer& writer, const char* key, const std::string& value) {
-  writer.set_meta(key, value);
-}
-
-void set_meta_integer(Writer& writer, const char* key, int64_t value) {
-  writer.set_meta(key, std::to_string(value));
-}
-
-void set_meta_number(Writer& writer, const char* key, double value) {
-  char text[32];
-  std::snprintf(text, sizeof text, "%.17g", value);
-  writer.set_meta(key, text);
 }
 
 int parse_start_clip(const std::string& value, const std::vector<PrimaryClip>& clips) {

@@ -1,6 +1,4 @@
-#include "database/check.hpp"
-
-#include <sqlite3.h>
+#include "database/store/check.hpp"
 
 #include <cmath>
 #include <cstdarg>
@@ -9,13 +7,19 @@
 #include <cstring>
 #include <filesystem>
 #include <map>
+#include <memory>
 #include <set>
 
-#include "database/cloth_graph.hpp"
-#include "database/codec.hpp"
+#include "database/codec/codec.hpp"
+#include "database/format/cloth_graph.hpp"
+#include "database/format/graph_index.hpp"
+#include "database/format/meta_keys.hpp"
+#include "database/sqlite/statement.hpp"
 
 namespace clothdb::db {
 namespace {
+
+using sql::Stmt;
 
 std::string format(const char* fmt, ...) __attribute__((format(printf, 1, 2)));
 std::string format(const char* fmt, ...) {
@@ -29,20 +33,16 @@ std::string format(const char* fmt, ...) {
 
 // Runs a query whose rows each describe one problem (first column text) or a count.
 void collect(sqlite3* db, const char* sql, CheckReport& report, const char* prefix) {
-  sqlite3_stmt* s = nullptr;
-  if (sqlite3_prepare_v2(db, sql, -1, &s, nullptr) != SQLITE_OK) {
+  Stmt s(db, sql);
+  if (!s.ok()) {
     report.problems.push_back(format("%s: cannot run check: %s", prefix, sqlite3_errmsg(db)));
     return;
   }
   int rc;
-  while ((rc = sqlite3_step(s)) == SQLITE_ROW) {
-    const unsigned char* t = sqlite3_column_text(s, 0);
-    report.problems.push_back(std::string(prefix) + ": " +
-                              (t ? reinterpret_cast<const char*>(t) : "?"));
-  }
+  while ((rc = s.step()) == SQLITE_ROW)
+    report.problems.push_back(std::string(prefix) + ": " + (s.is_null(0) ? "?" : s.text(0)));
   if (rc != SQLITE_DONE)
     report.problems.push_back(format("%s: check failed: %s", prefix, sqlite3_errmsg(db)));
-  sqlite3_finalize(s);
 }
 
 // One check of a blob against its row. `frames`/`vertices`: what the row says (0: unknown).
@@ -70,13 +70,9 @@ codec::BlobInfo check_blob(const void* data, size_t size, const std::string& wha
   return info;
 }
 
-uint64_t count(sqlite3* db, const char* sql) {
-  sqlite3_stmt* s = nullptr;
-  uint64_t n = 0;
-  if (sqlite3_prepare_v2(db, sql, -1, &s, nullptr) == SQLITE_OK && sqlite3_step(s) == SQLITE_ROW)
-    n = uint64_t(sqlite3_column_int64(s, 0));
-  sqlite3_finalize(s);
-  return n;
+uint64_t count(sqlite3* db, const std::string& sql) {
+  Stmt s(db, sql);
+  return s.ok() && s.step() == SQLITE_ROW ? uint64_t(s.i64(0)) : 0;
 }
 
 // A clip whose end became a new state (an edge with blend error 0) must end where that state is:
@@ -136,11 +132,6 @@ struct Findings {
   }
 };
 
-int find_root(std::vector<int>& parent, int i) {
-  while (parent[size_t(i)] != i) i = parent[size_t(i)] = parent[size_t(parent[size_t(i)])];
-  return i;
-}
-
 // The garment row and its arrays, as the runtime reads them.
 void check_garment(sqlite3* db, CheckReport& report) {
   Findings f(&report.problems, "garment");
@@ -150,19 +141,16 @@ void check_garment(sqlite3* db, CheckReport& report) {
                     : format("%llu garment rows, expected one", (unsigned long long)rows));
     if (rows == 0) return;
   }
-  sqlite3_stmt* s = nullptr;
-  if (sqlite3_prepare_v2(db,
-                         "SELECT vertex_count, triangle_count, triangles, "
-                         "length(rest_positions) FROM garment LIMIT 1",
-                         -1, &s, nullptr) != SQLITE_OK ||
-      sqlite3_step(s) != SQLITE_ROW) {
+  Stmt s(db,
+         "SELECT vertex_count, triangle_count, triangles, length(rest_positions) FROM garment "
+         "LIMIT 1");
+  if (!s.ok() || s.step() != SQLITE_ROW) {
     f.add(std::string("cannot read: ") + sqlite3_errmsg(db));
-    sqlite3_finalize(s);
     return;
   }
-  const int64_t vertices = sqlite3_column_int64(s, 0), triangles = sqlite3_column_int64(s, 1);
-  const uint8_t* tri = static_cast<const uint8_t*>(sqlite3_column_blob(s, 2));
-  const int64_t tri_bytes = sqlite3_column_bytes(s, 2), rest_bytes = sqlite3_column_int64(s, 3);
+  const int64_t vertices = s.i64(0), triangles = s.i64(1);
+  const uint8_t* tri = static_cast<const uint8_t*>(s.blob(2));
+  const int64_t tri_bytes = int64_t(s.bytes(2)), rest_bytes = s.i64(3);
   if (vertices <= 0) f.add(format("vertex_count %lld", (long long)vertices));
   if (triangles < 0) f.add(format("triangle_count %lld", (long long)triangles));
   if (rest_bytes != vertices * 12)
@@ -182,168 +170,51 @@ void check_garment(sqlite3* db, CheckReport& report) {
                          (long long)t, v, (long long)vertices));
       }
   }
-  sqlite3_finalize(s);
 }
 
-// The primary and cloth graphs as the runtime joins them (runtime/db.cpp): nodes are the classes
-// of clip ends joined by transitions.
+// The primary and cloth graphs by the rules the runtime refuses a file on (GraphIndex, shared
+// with runtime/db.cpp), then what only the check asks: every clip with a way on has an edge, and
+// every way out of a state has a clip or a link.
 void check_graph(Reader& reader, CheckReport& report) {
-  std::vector<PrimaryClip> pcs;
-  std::vector<PrimaryTransition> transitions;
-  std::vector<StoredState> states;
-  std::vector<ClothClip> clips;
-  std::vector<ClothEdge> edges;
+  GraphRows rows;
   Error err;
-  if (reader.primary_clips(&pcs, &err) != Status::Ok ||
-      reader.primary_transitions(&transitions, &err) != Status::Ok ||
-      reader.cloth_states(&states, &err) != Status::Ok ||
-      reader.cloth_clips(&clips, &err) != Status::Ok ||
-      reader.cloth_edges(&edges, &err) != Status::Ok) {
+  if (rows.read(reader, &err) != Status::Ok) {
     report.problems.push_back(std::string("graph: cannot read: ") + err.message);
     return;
   }
-  std::map<int64_t, int> primary;
-  for (size_t i = 0; i < pcs.size(); ++i) primary[pcs[i].id] = int(i);
-  {
-    Findings f(&report.problems, "primary clip");
-    for (const PrimaryClip& p : pcs)
-      if (p.frame_count < 2 || !(p.frame_rate > 0) || !std::isfinite(p.frame_rate))
-        f.add(format("%lld: %d frames at %g Hz (needs >= 2 frames at a positive rate)",
-                     (long long)p.id, p.frame_count, p.frame_rate));
+  std::map<std::string, std::unique_ptr<Findings>> by_kind;
+  auto findings = [&](const std::string& kind) -> Findings& {
+    auto& f = by_kind[kind];
+    if (!f) f = std::make_unique<Findings>(&report.problems, kind);
+    return *f;
+  };
+  GraphIndex index;
+  index.build(rows, [&](const GraphFinding& f) {
+    // Rows naming missing rows are reported by the SQL checks above (clearer messages), links
+    // excepted, which those do not cover.
+    if (!f.dangling || std::string(f.kind) == "cloth link") findings(f.kind).add(f.message);
+    return true;  // collect them all
+  });
+  by_kind.clear();  // flushes the "... and N more" lines in kind order
+  std::set<std::pair<int, int>> explored, linked;  // (state, primary) with a clip / a link
+  std::set<int> with_cloth;                        // primary indices with some cloth clip
+  for (const GraphIndex::Clip& c : index.clips) {
+    explored.insert({c.state, c.primary});
+    with_cloth.insert(c.primary);
   }
-  const int np = int(pcs.size());
-  std::vector<int> parent(size_t(2 * np));
-  for (int i = 0; i < 2 * np; ++i) parent[size_t(i)] = i;
-  std::set<std::pair<int, int>> joined;
-  {
-    Findings f(&report.problems, "primary transition");
-    for (const PrimaryTransition& t : transitions) {
-      auto a = primary.find(t.from_clip), b = primary.find(t.to_clip);
-      if (a == primary.end() || b == primary.end()) continue;  // reported above
-      const PrimaryClip& from = pcs[size_t(a->second)];
-      if (t.from_frame != from.frame_count - 1 || t.to_frame != 0)
-        f.add(
-            format("%lld: joins frame %d of clip %lld (last %d) to frame %d of clip %lld; "
-                   "transitions join a clip's last frame to the next clip's first",
-                   (long long)t.id, t.from_frame, (long long)t.from_clip, from.frame_count - 1,
-                   t.to_frame, (long long)t.to_clip));
-      parent[size_t(find_root(parent, 2 * a->second + 1))] = find_root(parent, 2 * b->second);
-      joined.insert({a->second, b->second});
-    }
-  }
-  auto src = [&](int p) { return find_root(parent, 2 * p); };
-  auto tgt = [&](int p) { return find_root(parent, 2 * p + 1); };
-  std::map<int, std::vector<int>> into, out_of;  // node -> primary clips
-  for (int i = 0; i < np; ++i) {
-    into[tgt(i)].push_back(i);
-    out_of[src(i)].push_back(i);
-  }
-  {
-    // A node is where every clip into it may continue with every clip out of it; a missing pair
-    // means a transition row was lost.
-    Findings f(&report.problems, "primary transition");
-    for (const auto& [node, ins] : into)
-      for (int a : ins)
-        for (int b : out_of[node])
-          if (!joined.count({a, b}))
-            f.add(format("missing from clip %lld to clip %lld (both meet at one node)",
-                         (long long)pcs[size_t(a)].id, (long long)pcs[size_t(b)].id));
-  }
-  std::map<int64_t, int> state_node;  // state id -> node
-  for (const StoredState& s : states) {
-    auto p = primary.find(s.primary_clip);
-    if (p != primary.end()) state_node[s.id] = src(p->second);
-  }
-  std::map<int64_t, size_t> clip_index;
-  std::set<std::pair<int64_t, int>> explored;  // (state, primary index)
-  std::set<int> with_cloth;                    // primary indices with some cloth clip
+  for (const GraphIndex::Link& l : index.links) linked.insert({l.state, l.primary});
   {
     Findings f(&report.problems, "cloth clip");
-    for (size_t i = 0; i < clips.size(); ++i) {
-      const ClothClip& c = clips[i];
-      clip_index[c.id] = i;
-      auto p = primary.find(c.primary_clip);
-      auto s = state_node.find(c.start_state);
-      if (p == primary.end() || s == state_node.end()) continue;  // reported above
-      const PrimaryClip& pc = pcs[size_t(p->second)];
-      if (c.first_frame != 0 || c.frame_count != pc.frame_count)
-        f.add(format(
-            "%lld: covers frames %d..+%d of primary clip %lld (%d frames); clips span "
-            "whole primary clips",
-            (long long)c.id, c.first_frame, c.frame_count, (long long)pc.id, pc.frame_count));
-      if (s->second != src(p->second))
-        f.add(
-            format("%lld: starts from state %lld, which is not at primary clip %lld's source "
-                   "node",
-                   (long long)c.id, (long long)c.start_state, (long long)pc.id));
-      explored.insert({c.start_state, p->second});
-      with_cloth.insert(p->second);
-    }
-  }
-  std::set<int64_t> has_edge;
-  {
-    Findings f(&report.problems, "cloth edge");
-    for (const ClothEdge& e : edges) {
-      auto c = clip_index.find(e.from_clip);
-      auto s = state_node.find(e.to_state);
-      if (c == clip_index.end() || s == state_node.end()) continue;  // reported above
-      has_edge.insert(e.from_clip);
-      auto p = primary.find(clips[c->second].primary_clip);
-      if (p != primary.end() && s->second != tgt(p->second))
-        f.add(
-            format("%lld: leads to state %lld, which is not at the end node of clip %lld "
-                   "(primary clip %lld)",
-                   (long long)e.id, (long long)e.to_state, (long long)e.from_clip,
-                   (long long)pcs[size_t(p->second)].id));
-    }
-  }
-  {
-    Findings f(&report.problems, "cloth clip");
-    for (const ClothClip& c : clips) {
-      auto p = primary.find(c.primary_clip);
-      if (p == primary.end() || has_edge.count(c.id)) continue;
+    for (const GraphIndex::Clip& c : index.clips) {
+      if (c.to_state >= 0) continue;
       bool way_on = false;
-      for (int b : out_of[tgt(p->second)]) way_on |= with_cloth.count(b) > 0;
+      for (int b : index.leaving[size_t(index.primaries[size_t(c.primary)].tgt_node)])
+        way_on |= with_cloth.count(b) > 0;
       if (way_on)
         f.add(
             format("%lld: has no cloth edge out, though its end node has clips with cloth "
                    "leaving it",
                    (long long)c.id));
-    }
-  }
-  // Schema 4: every dead end must have a link (ClothLink), so the runtime never searches for a
-  // fallback (issue 16). Older files have no links: their dead ends are warnings, as before.
-  std::vector<ClothLink> links;
-  if (reader.cloth_links(&links, &err) != Status::Ok) {
-    report.problems.push_back(std::string("cloth link: cannot read: ") + err.message);
-    return;
-  }
-  std::set<std::pair<int64_t, int>> linked;  // (state, primary index)
-  {
-    Findings f(&report.problems, "cloth link");
-    for (const ClothLink& l : links) {
-      auto s = state_node.find(l.from_state);
-      auto p = primary.find(l.primary_clip);
-      auto c = clip_index.find(l.to_clip);
-      if (s == state_node.end() || p == primary.end() || c == clip_index.end()) {
-        f.add(format("%lld: names a missing state %lld, primary clip %lld or cloth clip %lld",
-                     (long long)l.id, (long long)l.from_state, (long long)l.primary_clip,
-                     (long long)l.to_clip));
-        continue;
-      }
-      if (clips[c->second].primary_clip != l.primary_clip)
-        f.add(format("%lld: continues with cloth clip %lld, which is not along primary clip %lld",
-                     (long long)l.id, (long long)l.to_clip, (long long)l.primary_clip));
-      if (s->second != src(p->second))
-        f.add(format("%lld: from state %lld, which is not at primary clip %lld's source node",
-                     (long long)l.id, (long long)l.from_state, (long long)l.primary_clip));
-      if (!(l.blend_error >= 0) || !std::isfinite(l.blend_error))
-        f.add(
-            format("%lld: blend error %g is not a finite length", (long long)l.id, l.blend_error));
-      if (explored.count({l.from_state, p->second}))
-        f.add(format("%lld: state %lld already has a clip along primary clip %lld", (long long)l.id,
-                     (long long)l.from_state, (long long)l.primary_clip));
-      linked.insert({l.from_state, p->second});
     }
   }
   {
@@ -354,28 +225,30 @@ void check_graph(Reader& reader, CheckReport& report) {
     const bool required = reader.schema_version() >= 4 &&
                           reader.meta(meta::kDeadEndsLinked, &flag, &err) == Status::Ok &&
                           flag == "1";
-    std::set<int64_t> reached;
-    for (const ClothEdge& e : edges) reached.insert(e.to_state);
+    std::set<int> reached;
+    for (const GraphIndex::Clip& c : index.clips)
+      if (c.to_state >= 0) reached.insert(c.to_state);
     Findings f(required ? &report.problems : &report.warnings,
                required ? "dead end" : "unexplored");
-    for (const StoredState& s : states) {
-      auto n = state_node.find(s.id);
-      if (n == state_node.end()) continue;
-      if (required && !reached.count(s.id)) continue;
-      for (int b : out_of[n->second])
-        if (with_cloth.count(b) && !explored.count({s.id, b}) && !linked.count({s.id, b}))
+    for (size_t s = 0; s < index.states.size(); ++s) {
+      if (required && !reached.count(int(s))) continue;
+      for (int b : index.leaving[size_t(index.states[s].node)])
+        if (with_cloth.count(b) && !explored.count({int(s), b}) && !linked.count({int(s), b}))
           f.add(required
                     ? format("state %lld has neither a clip nor a link along primary clip %lld "
                              "(the runtime would have to fall back; run `clothdb precompute` "
                              "again on this database to link its dead ends)",
-                             (long long)s.id, (long long)pcs[size_t(b)].id)
+                             (long long)index.states[s].id,
+                             (long long)index.primaries[size_t(b)].id)
                     : format("state %lld has no clip along primary clip %lld (the runtime falls "
                              "back to the nearest state that has one)",
-                             (long long)s.id, (long long)pcs[size_t(b)].id));
+                             (long long)index.states[s].id,
+                             (long long)index.primaries[size_t(b)].id));
     }
   }
+  const std::vector<PrimaryClip>& pcs = rows.primary_clips;
   std::string start;
-  if (reader.meta("start_clip", &start, &err) == Status::Ok) {
+  if (reader.meta(meta::kStartClip, &start, &err) == Status::Ok) {
     bool found = false;
     for (const PrimaryClip& p : pcs) found |= std::to_string(p.id) == start || p.name == start;
     if (!found) report.problems.push_back("meta: start_clip '" + start + "' names no primary clip");
@@ -404,14 +277,9 @@ CheckReport check_database(const std::string& path) {
     sqlite3* db = nullptr;
     if (err.status != Status::NotClothdb && err.status != Status::NewerVersion &&
         sqlite3_open_v2(path.c_str(), &db, SQLITE_OPEN_READONLY, nullptr) == SQLITE_OK) {
-      sqlite3_stmt* s = nullptr;
-      if (sqlite3_prepare_v2(db, "PRAGMA integrity_check(20)", -1, &s, nullptr) == SQLITE_OK) {
-        while (sqlite3_step(s) == SQLITE_ROW) {
-          const std::string row = reinterpret_cast<const char*>(sqlite3_column_text(s, 0));
-          if (row != "ok") report.problems.push_back("sqlite integrity_check: " + row);
-        }
-      }
-      sqlite3_finalize(s);
+      Stmt s(db, "PRAGMA integrity_check(20)");
+      while (s.ok() && s.step() == SQLITE_ROW)
+        if (s.text(0) != "ok") report.problems.push_back("sqlite integrity_check: " + s.text(0));
     }
     sqlite3_close_v2(db);
     return report;
@@ -420,17 +288,17 @@ CheckReport check_database(const std::string& path) {
   // Everything below reads one consistent snapshot even while a writer commits.
   sqlite3_exec(db, "BEGIN", nullptr, nullptr, nullptr);
 
-  sqlite3_stmt* ic = nullptr;
-  if (sqlite3_prepare_v2(db, "PRAGMA integrity_check(100)", -1, &ic, nullptr) == SQLITE_OK) {
-    while (sqlite3_step(ic) == SQLITE_ROW) {
-      const unsigned char* t = sqlite3_column_text(ic, 0);
-      const std::string row = t ? reinterpret_cast<const char*>(t) : "?";
-      if (row != "ok") report.problems.push_back("sqlite integrity_check: " + row);
+  {
+    Stmt ic(db, "PRAGMA integrity_check(100)");
+    if (ic.ok()) {
+      while (ic.step() == SQLITE_ROW) {
+        const std::string row = ic.is_null(0) ? "?" : ic.text(0);
+        if (row != "ok") report.problems.push_back("sqlite integrity_check: " + row);
+      }
+    } else {
+      report.problems.push_back(std::string("sqlite integrity_check: ") + sqlite3_errmsg(db));
     }
-  } else {
-    report.problems.push_back(std::string("sqlite integrity_check: ") + sqlite3_errmsg(db));
   }
-  sqlite3_finalize(ic);
 
   collect(db,
           "SELECT printf('%s row %d: %s references a missing row', \"table\", rowid, parent) "
@@ -492,43 +360,37 @@ CheckReport check_database(const std::string& path) {
 
   const int64_t garment_vertices = int64_t(count(db, "SELECT vertex_count FROM garment"));
   codec::DecodeScratch scratch;
-  sqlite3_stmt* s = nullptr;
-  if (sqlite3_prepare_v2(db,
-                         "SELECT id, frame_count, vertex_count, frames, error_bound, max_error "
-                         "FROM cloth_clip",
-                         -1, &s, nullptr) == SQLITE_OK) {
-    while (sqlite3_step(s) == SQLITE_ROW) {
-      const int64_t id = sqlite3_column_int64(s, 0);
-      const int64_t vertices = sqlite3_column_int64(s, 2);
+  {
+    Stmt s(db,
+           "SELECT id, frame_count, vertex_count, frames, error_bound, max_error FROM cloth_clip");
+    while (s.ok() && s.step() == SQLITE_ROW) {
+      const int64_t id = s.i64(0);
+      const int64_t vertices = s.i64(2);
       const std::string what = format("cloth clip %lld", (long long)id);
       if (garment_vertices > 0 && vertices != garment_vertices)
         report.problems.push_back(format("%s: %lld vertices, the garment has %lld", what.c_str(),
                                          (long long)vertices, (long long)garment_vertices));
       const codec::BlobInfo info =
-          check_blob(sqlite3_column_blob(s, 3), size_t(sqlite3_column_bytes(s, 3)), what,
-                     sqlite3_column_int64(s, 1), vertices, reader, scratch, report);
+          check_blob(s.blob(3), s.bytes(3), what, s.i64(1), vertices, reader, scratch, report);
       // The bound: the blob's codec bound and the error measured when it was encoded must lie
       // within the clip's recorded bound (after `db recode`, the old bound plus the new one).
       // Without the simulation's own frames this is what can be checked; the decoder itself
       // range-checks every value against the blob's grid.
-      const double bound = sqlite3_column_double(s, 4), max_error = sqlite3_column_double(s, 5);
+      const double bound = s.f64(4), max_error = s.f64(5);
       const double slack = 1 + 1e-9;
-      if (info.version != 0 && sqlite3_column_type(s, 4) != SQLITE_NULL &&
-          info.bound > bound * slack)
+      if (info.version != 0 && !s.is_null(4) && info.bound > bound * slack)
         report.problems.push_back(format("%s: blob bound %g m exceeds the recorded bound %g m",
                                          what.c_str(), info.bound, bound));
-      if (sqlite3_column_type(s, 4) != SQLITE_NULL && sqlite3_column_type(s, 5) != SQLITE_NULL &&
-          !(max_error <= bound * slack))
+      if (!s.is_null(4) && !s.is_null(5) && !(max_error <= bound * slack))
         report.problems.push_back(format("%s: measured error %g m exceeds the recorded bound %g m",
                                          what.c_str(), max_error, bound));
     }
   }
-  sqlite3_finalize(s);
-  if (sqlite3_prepare_v2(db, "SELECT id, vertex_count, positions, velocities FROM cloth_state", -1,
-                         &s, nullptr) == SQLITE_OK) {
-    while (sqlite3_step(s) == SQLITE_ROW) {
-      const int64_t id = sqlite3_column_int64(s, 0);
-      const int64_t vertices = sqlite3_column_int64(s, 1);
+  {
+    Stmt s(db, "SELECT id, vertex_count, positions, velocities FROM cloth_state");
+    while (s.ok() && s.step() == SQLITE_ROW) {
+      const int64_t id = s.i64(0);
+      const int64_t vertices = s.i64(1);
       if (garment_vertices > 0 && vertices != garment_vertices)
         report.problems.push_back(format("cloth state %lld: %lld vertices, the garment has %lld",
                                          (long long)id, (long long)vertices,
@@ -536,21 +398,16 @@ CheckReport check_database(const std::string& path) {
       for (int col : {2, 3}) {
         const std::string what =
             format("cloth state %lld %s", (long long)id, col == 2 ? "positions" : "velocities");
-        check_blob(sqlite3_column_blob(s, col), size_t(sqlite3_column_bytes(s, col)), what, 1,
-                   vertices, reader, scratch, report);
+        check_blob(s.blob(col), s.bytes(col), what, 1, vertices, reader, scratch, report);
       }
     }
   }
-  sqlite3_finalize(s);
-  if (sqlite3_prepare_v2(db, "SELECT id, old_frames FROM edit_log WHERE old_frames IS NOT NULL", -1,
-                         &s, nullptr) == SQLITE_OK) {
-    while (sqlite3_step(s) == SQLITE_ROW) {
-      check_blob(sqlite3_column_blob(s, 1), size_t(sqlite3_column_bytes(s, 1)),
-                 format("edit %lld old frames", (long long)sqlite3_column_int64(s, 0)), 0,
+  {
+    Stmt s(db, "SELECT id, old_frames FROM edit_log WHERE old_frames IS NOT NULL");
+    while (s.ok() && s.step() == SQLITE_ROW)
+      check_blob(s.blob(1), s.bytes(1), format("edit %lld old frames", (long long)s.i64(0)), 0,
                  garment_vertices, reader, scratch, report);
-    }
   }
-  sqlite3_finalize(s);
   check_new_state_ends(reader, report);
   sqlite3_exec(db, "COMMIT", nullptr, nullptr, nullptr);
   return report;
@@ -559,7 +416,7 @@ CheckReport check_database(const std::string& path) {
 DatabaseInfo read_database_info(const std::string& path) {
   Reader reader;
   Error err;
-  if (reader.open(path, &err) != Status::Ok) throw ClothdbError(err.status, err.message);
+  throw_if_error(reader.open(path, &err), err);
   DatabaseInfo info;
   info.path = path;
   std::error_code ec;
@@ -568,7 +425,7 @@ DatabaseInfo read_database_info(const std::string& path) {
   if (!ec) info.file_bytes += wal;
   info.schema_version = reader.schema_version();
   info.codec = reader.codec();
-  if (reader.all_meta(&info.meta, &err) != Status::Ok) throw ClothdbError(err.status, err.message);
+  throw_if_error(reader.all_meta(&info.meta, &err), err);
   sqlite3* db = reader.handle();
   sqlite3_exec(db, "BEGIN", nullptr, nullptr, nullptr);
   info.garment_vertices = uint32_t(count(db, "SELECT vertex_count FROM garment"));
@@ -594,50 +451,45 @@ DatabaseInfo read_database_info(const std::string& path) {
   info.clip_raw_bytes = count(db, "SELECT total(frame_count * vertex_count * 12) FROM cloth_clip");
   info.state_blob_bytes =
       count(db, "SELECT total(length(positions) + length(velocities)) FROM cloth_state");
-  info.clips_v2 = count(db, "SELECT count(*) FROM cloth_clip WHERE substr(frames, 5, 1) = x'02'");
+  info.clips_v2 = count(db, "SELECT count(*) FROM cloth_clip WHERE " +
+                                codec::version_is_sql("frames", codec::kFormatVersionV2));
   info.clips_v1 = info.cloth_clips - info.clips_v2;
-  info.states_v2 =
-      count(db, "SELECT count(*) FROM cloth_state WHERE substr(positions, 5, 1) = x'02'");
+  info.states_v2 = count(db, "SELECT count(*) FROM cloth_state WHERE " +
+                                 codec::version_is_sql("positions", codec::kFormatVersionV2));
   info.states_v1 = info.cloth_states - info.states_v2;
-  if (list_bases(db, path, &info.bases, &err) != Status::Ok)
-    throw ClothdbError(err.status, err.message);
-  sqlite3_stmt* s = nullptr;
-  if (sqlite3_prepare_v2(db,
-                         "SELECT (SELECT max(max_error) FROM cloth_clip), "
-                         "(SELECT total(cpu_seconds) FROM run)",
-                         -1, &s, nullptr) == SQLITE_OK &&
-      sqlite3_step(s) == SQLITE_ROW) {
-    info.max_clip_error = sqlite3_column_double(s, 0);
-    info.run_cpu_seconds = sqlite3_column_double(s, 1);
+  throw_if_error(list_bases(db, path, &info.bases, &err), err);
+  {
+    Stmt s(db,
+           "SELECT (SELECT max(max_error) FROM cloth_clip), (SELECT total(cpu_seconds) FROM run)");
+    if (s.ok() && s.step() == SQLITE_ROW) {
+      info.max_clip_error = s.f64(0);
+      info.run_cpu_seconds = s.f64(1);
+    }
   }
-  sqlite3_finalize(s);
-  if (info.schema_version >= 4 &&
-      sqlite3_prepare_v2(db,
-                         "SELECT count(*), coalesce(avg(blend_error), 0), "
-                         "coalesce(max(blend_error), 0) FROM cloth_link",
-                         -1, &s, nullptr) == SQLITE_OK &&
-      sqlite3_step(s) == SQLITE_ROW) {
-    info.cloth_links = uint64_t(sqlite3_column_int64(s, 0));
-    info.mean_link_error = sqlite3_column_double(s, 1);
-    info.max_link_error = sqlite3_column_double(s, 2);
+  if (info.schema_version >= 4) {
+    Stmt s(db,
+           "SELECT count(*), coalesce(avg(blend_error), 0), coalesce(max(blend_error), 0) FROM "
+           "cloth_link");
+    if (s.ok() && s.step() == SQLITE_ROW) {
+      info.cloth_links = uint64_t(s.i64(0));
+      info.mean_link_error = s.f64(1);
+      info.max_link_error = s.f64(2);
+    }
   }
-  sqlite3_finalize(s);
-  if (sqlite3_prepare_v2(db,
-                         "SELECT (SELECT count(*) FROM cloth_clip c WHERE c.primary_clip = p.id) "
-                         "FROM primary_clip p",
-                         -1, &s, nullptr) == SQLITE_OK) {
-    while (sqlite3_step(s) == SQLITE_ROW) {
-      const auto k = size_t(sqlite3_column_int64(s, 0));
+  {
+    Stmt s(db,
+           "SELECT (SELECT count(*) FROM cloth_clip c WHERE c.primary_clip = p.id) FROM "
+           "primary_clip p");
+    while (s.ok() && s.step() == SQLITE_ROW) {
+      const auto k = size_t(s.i64(0));
       if (info.clips_per_edge.size() <= k) info.clips_per_edge.resize(k + 1, 0);
       ++info.clips_per_edge[k];
     }
   }
-  sqlite3_finalize(s);
-  if (sqlite3_prepare_v2(db, "SELECT notes FROM run WHERE notes != '' ORDER BY id DESC LIMIT 1", -1,
-                         &s, nullptr) == SQLITE_OK &&
-      sqlite3_step(s) == SQLITE_ROW && sqlite3_column_text(s, 0))
-    info.last_run_notes = reinterpret_cast<const char*>(sqlite3_column_text(s, 0));
-  sqlite3_finalize(s);
+  {
+    Stmt s(db, "SELECT notes FROM run WHERE notes != '' ORDER BY id DESC LIMIT 1");
+    if (s.ok() && s.step() == SQLITE_ROW) info.last_run_notes = s.text(0);
+  }
   sqlite3_exec(db, "COMMIT", nullptr, nullptr, nullptr);
   return info;
 }

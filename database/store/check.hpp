@@ -6,8 +6,8 @@
 #include <utility>
 #include <vector>
 
-#include "database/basis_store.hpp"
-#include "database/schema.hpp"
+#include "database/format/bases.hpp"
+#include "database/store/writer.hpp"
 
 namespace clothdb::db {
 

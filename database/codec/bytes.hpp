@@ -6,9 +6,9 @@
 #include <cstddef>
 #include <cstdint>
 
-#include "database/checksum.hpp"
-#include "database/codec.hpp"
-#include "database/status.hpp"
+#include "database/codec/codec.hpp"
+#include "database/format/checksum.hpp"
+#include "database/format/status.hpp"
 
 namespace clothdb::codec::bytes {
 

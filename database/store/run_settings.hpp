@@ -5,9 +5,9 @@
 // solver option is added in this file only (the field table in run_settings.cpp) and then survives
 // resume, MPI and edits.
 //
-// Plain C++ (no Eigen, no SQLite): the solvers include it for SolverSettings, the database for
-// CodecSettings. The runtime does not need it (clothdb_run_settings is a separate target, the
-// only one here that uses nlohmann-json).
+// Plain C++ (no Eigen, no SQLite): the solvers include it for SolverSettings, the store side of
+// the database to record a run. The runtime does not need it (clothdb_run_settings is a separate
+// target, the only one here that uses nlohmann-json).
 //
 // Validation happens where a record is built from text (and in validate()): NaN, negative or
 // out-of-range values are refused with an exception whose message names the field, e.g.
@@ -18,7 +18,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "database/codec.hpp"
+#include "database/codec/settings.hpp"
 
 namespace clothdb {
 
@@ -142,25 +142,6 @@ void validate_solver_settings(const SolverSettings& settings, const std::string&
 namespace db {
 
 using clothdb::SettingsError;
-
-// How cloth is compressed in a file; fixed at creation and stored in `meta` (codec.*).
-struct CodecSettings {
-  double position_bound = codec::kDefaultPositionBound;  // m, max error per coordinate
-  double velocity_bound = 0.001;  // m/s; 1 mm/s moves a resumed vertex 0.03 mm in a frame
-  uint32_t key_interval = codec::kDefaultKeyInterval;
-  int zstd_level = codec::kDefaultZstdLevel;
-};
-
-// The codec's settings for encoding with this file's key interval and zstd level at `bound` (the
-// position or the velocity bound): what the writer stores, and what a worker encoding a clip for it
-// must use.
-inline codec::EncodeSettings encode_settings(const CodecSettings& codec, double bound) {
-  codec::EncodeSettings s;
-  s.bound = bound;
-  s.key_interval = codec.key_interval;
-  s.zstd_level = codec.zstd_level;
-  return s;
-}
 
 // What a precompute run is given: the record stored in the run row, carried to every MPI worker.
 struct RunSettings {

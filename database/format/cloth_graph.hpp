@@ -11,7 +11,9 @@
 #include <string>
 #include <vector>
 
-#include "database/schema.hpp"
+#include "database/format/meta_keys.hpp"
+#include "database/format/reader.hpp"
+#include "database/format/rows.hpp"
 
 namespace clothdb::db {
 
@@ -48,49 +50,12 @@ inline int64_t start_clip(const std::vector<NodeEdge>& edges, int start_node) {
 int64_t start_state(const std::vector<StoredState>& states, const std::vector<NodeEdge>& edges,
                     int start_node);
 
-// Every key of the meta table, and what it holds. Typed accessors below read and write them.
-namespace meta {
-inline constexpr const char* kFormat = "format";                 // "clothdb"
-inline constexpr const char* kFormatVersion = "format_version";  // schema version (integer)
-inline constexpr const char* kCreated = "created";               // ISO 8601 UTC
-inline constexpr const char* kUnits = "units";                   // text for people
-inline constexpr const char* kCodecPositionBound = "codec.position_bound";  // m
-inline constexpr const char* kCodecVelocityBound = "codec.velocity_bound";  // m/s
-inline constexpr const char* kCodecKeyInterval = "codec.key_interval";
-inline constexpr const char* kCodecZstdLevel = "codec.zstd_level";
-inline constexpr const char* kCodecFormatVersion = "codec.format_version";
-inline constexpr const char* kScene = "scene";               // the scene file's text
-inline constexpr const char* kScenePath = "scene_path";      // as given to precompute
-inline constexpr const char* kSceneHash = "scene_hash";      // content_hash of kScene
-inline constexpr const char* kMotionGraph = "motion_graph";  // the primary graph, JSON
-inline constexpr const char* kStartClip = "start_clip";      // primary clip id (integer)
-inline constexpr const char* kAutoSolver = "auto_solver";    // --auto's table (Markdown)
-// "1": the explorer linked every dead end when its last run ended (schema 4, ClothLink), so db
-// check requires a clip or a link for every way out of every state a cloth edge leads into.
-inline constexpr const char* kDeadEndsLinked = "dead_ends_linked";
-// The garment's error floor on the motion graph (explore/error_floor.hpp), measured by the
-// precompute before it explored: m (a number), and the measurement's detail (JSON: pairwise
-// distances in mm, histories, options). An epsilon below the floor cannot link clip ends.
-inline constexpr const char* kErrorFloor = "error_floor";
-inline constexpr const char* kErrorFloorDetail = "error_floor_detail";
-// The explorer's forecast of the CPU-hours to converge, made when its last run ended
-// (precompute/explore/forecast.hpp): text as `db info` shows it after "forecast  ".
-inline constexpr const char* kForecast = "forecast";
-// The keys a file may hold; `db check` reports any other.
-const std::vector<std::string>& known_keys();
-}  // namespace meta
-
-// Typed reads. Each returns nullopt when the key is absent and throws ClothdbError naming the file
-// and key when it is there but not of its type. (The runtime, which must not throw, has
-// parse_start_clip below.)
+// Typed reads of meta keys (database/format/meta_keys.hpp). Each returns nullopt when the key is
+// absent and throws ClothdbError naming the file and key when it is there but not of its type. (The
+// runtime, which must not throw, has parse_start_clip below.)
 std::optional<std::string> meta_text(Reader& reader, const char* key);
 std::optional<int64_t> meta_integer(Reader& reader, const char* key);
 std::optional<double> meta_number(Reader& reader, const char* key);
-// Typed writes (inside the caller's transaction, if any).
-void set_meta_text(Writer& writer, const char* key, const std::string& value);
-void set_meta_integer(Writer& writer, const char* key, int64_t value);
-// Written with 17 significant digits: meta_number reads back the same double.
-void set_meta_number(Writer& writer, const char* key, double value);
 
 // meta start_clip as the runtime reads it: an id (or, from older tools, a primary clip's name).
 // Returns the index into `clips` or -1 when the value names none of them.

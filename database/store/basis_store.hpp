@@ -1,14 +1,15 @@
-// Storage of codec version 2 bases (issue 17) in a clothdb file: table codec_basis, created by the
-// first store_basis, so files without one are unchanged and older builds simply ignore it. Every
-// version 2 blob names the basis id it was encoded with; bases are never changed once stored.
+// Storing codec version 2 bases (table codec_basis, created by the first store_basis, so files
+// without one are unchanged and older builds simply ignore it) and recoding blobs in place (`db
+// recode`). Reading them is database/format/bases.hpp.
 #pragma once
 
 #include <cstdint>
 #include <string>
 #include <vector>
 
-#include "database/codec.hpp"
-#include "database/schema.hpp"
+#include "database/codec/codec.hpp"
+#include "database/format/bases.hpp"
+#include "database/store/writer.hpp"
 
 namespace clothdb::db {
 
@@ -24,21 +25,10 @@ void remove_basis(Writer& writer, int64_t id);
 // reader holds the file: the file is unchanged and still valid.
 bool compact_file(Writer& writer, std::string* why);
 
-// Loads basis `id` (NotFound if the file has no such basis or no basis table).
-Status load_basis(sqlite3* db, const std::string& path, int64_t id, codec::Basis* out, Error* err);
-
-// Ids and sizes of the stored bases, oldest first (empty if none).
-struct BasisRow {
-  int64_t id = 0;
-  uint32_t vertex_count = 0, mode_count = 0;
-  uint64_t bytes = 0;
-  std::string created, source;
-};
-Status list_bases(sqlite3* db, const std::string& path, std::vector<BasisRow>* out, Error* err);
-
 // Replace a clip's frames / a state's blobs with a re-encoded version of the same data (`db
 // recode`): the clip keeps its status and metrics; error_bound and max_error are the new ones
-// (against the original simulation). Throws ClothdbError (NotFound for a missing row).
+// (against the original simulation). A blob of a newer format version raises the file's
+// codec.format_version. Throws ClothdbError (NotFound for a missing row).
 void recode_clip_blob(Writer& writer, int64_t clip, const std::vector<uint8_t>& blob,
                       double error_bound, double max_error);
 void recode_state_blobs(Writer& writer, int64_t state, const std::vector<uint8_t>& positions,

@@ -1,4 +1,4 @@
-#include "database/checksum.hpp"
+#include "database/format/checksum.hpp"
 
 #include <cstring>
 

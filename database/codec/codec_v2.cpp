@@ -23,9 +23,9 @@
 #include <cstring>
 #include <string>
 
-#include "database/checksum.hpp"
-#include "database/codec.hpp"
-#include "database/codec_bytes.hpp"
+#include "database/codec/bytes.hpp"
+#include "database/codec/codec.hpp"
+#include "database/format/checksum.hpp"
 
 namespace clothdb::codec {
 

@@ -1,4 +1,4 @@
-#include "database/writer_lock.hpp"
+#include "database/store/writer_lock.hpp"
 
 #include <fcntl.h>
 #include <sys/file.h>
@@ -13,7 +13,7 @@
 #include <map>
 #include <mutex>
 
-#include "database/status.hpp"
+#include "database/format/status.hpp"
 
 namespace clothdb::db {
 namespace {

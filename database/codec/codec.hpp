@@ -26,9 +26,10 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <string>
 #include <vector>
 
-#include "database/status.hpp"
+#include "database/format/status.hpp"
 
 namespace clothdb::codec {
 
@@ -176,6 +177,20 @@ std::vector<uint8_t> encode_v2(const float* frames, uint32_t frame_count, uint32
 
 // Validates the header, the chunk table and their checksum (not the chunks' contents). Cheap.
 Status read_info(const uint8_t* blob, size_t size, BlobInfo* info, Error* err);
+
+// Where one chunk's compressed bytes lie in a blob (either version).
+struct ChunkSpan {
+  size_t offset = 0;  // from the blob's first byte
+  uint32_t size = 0;  // compressed bytes
+};
+// The chunks of a blob whose header and chunk table validate (read_info), in order: for tools
+// that measure the compressed chunks (bench runtime's zstd share, db check's per-chunk figures),
+// so nothing outside the codec reads the header or the chunk table.
+Status chunk_spans(const uint8_t* blob, size_t size, std::vector<ChunkSpan>* out, Error* err);
+
+// An SQL condition true when the blob in column `column` is of format `version` (1..255), for
+// counting blobs by version without reading them (db info).
+std::string version_is_sql(const std::string& column, uint32_t version);
 
 // Reusable decoder state: a zstd context and buffers. Once reserve() has been called for the
 // largest blob (or after the first decode of it), decoding allocates nothing.

@@ -1,4 +1,4 @@
-#include "database/run_settings.hpp"
+#include "database/store/run_settings.hpp"
 
 #include <cmath>
 #include <cstdio>

@@ -1,15 +1,16 @@
-#include "database/codec.hpp"
+#include "database/codec/codec.hpp"
 
 #include <zstd.h>
 
 #include <algorithm>
 #include <bit>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <string>
 
-#include "database/checksum.hpp"
-#include "database/codec_bytes.hpp"
+#include "database/codec/bytes.hpp"
+#include "database/format/checksum.hpp"
 
 namespace clothdb::codec {
 namespace {
@@ -409,6 +410,29 @@ void DecodeScratch::reserve(uint32_t vertex_count, uint32_t key_interval, uint32
 
 Status read_info(const uint8_t* blob, size_t size, BlobInfo* info, Error* err) {
   return parse(blob, size, info, err);
+}
+
+Status chunk_spans(const uint8_t* blob, size_t size, std::vector<ChunkSpan>* out, Error* err) {
+  out->clear();
+  BlobInfo info;
+  if (Status st = parse(blob, size, &info, err); st != Status::Ok) return st;
+  // Both versions: u16 header size at byte 6, then the chunk table (u32 compressed size first in
+  // each entry), then the chunks back to back; parse() has checked all of it fits.
+  const size_t header = get_u16(blob + 6);
+  size_t offset = header + kEntrySize * size_t(info.chunk_count);
+  for (uint32_t k = 0; k < info.chunk_count; ++k) {
+    const uint32_t csize = get_u32(blob + header + kEntrySize * size_t(k));
+    out->push_back({offset, csize});
+    offset += csize;
+  }
+  return Status::Ok;
+}
+
+std::string version_is_sql(const std::string& column, uint32_t version) {
+  // The u16 version at byte 4, little-endian: its low byte (versions stay below 256).
+  char hex[3];
+  std::snprintf(hex, sizeof hex, "%02x", version & 0xffu);
+  return "substr(" + column + ", 5, 1) = x'" + hex + "'";
 }
 
 Status decode_frames(const uint8_t* blob, size_t size, uint32_t first, uint32_t count, float* out,
