@@ -75,6 +75,12 @@ void print_graph_coverage(const db::DatabaseInfo& i) {
   }
 }
 
+// The explorer's forecast of the CPU-hours to converge (meta forecast), as its last run made it.
+void print_forecast(const db::DatabaseInfo& i) {
+  for (const auto& [key, value] : i.meta)
+    if (key == db::meta::kForecast) std::printf("forecast  %s\n", value.c_str());
+}
+
 void print_info(const db::DatabaseInfo& i) {
   std::printf("file            %s (%.2f MB with WAL)\n", i.path.c_str(), i.file_bytes / 1e6);
   std::printf("schema version  %d\n", i.schema_version);
@@ -128,6 +134,7 @@ void print_info(const db::DatabaseInfo& i) {
               i.run_cpu_seconds, (unsigned long long)i.edits);
   if (!i.last_run_notes.empty()) std::printf("last run        %s\n", i.last_run_notes.c_str());
   print_error_floor(i);
+  print_forecast(i);
   for (const auto& [key, value] : i.meta) {
     // Long values (the scene file) are shown by their first line only.
     const std::string first = value.substr(0, std::min(value.find('\n'), size_t(100)));

@@ -29,7 +29,7 @@ void register_db_dump(CLI::App& app) {
                    "has, docs/DATABASE.md)");
   dump->add_option("--mask", args->masked,
                    "Comma-separated columns to print as 'masked': TABLE.COLUMN, or meta.KEY for "
-                   "one meta value (e.g. run.started,run.host,meta.created to compare two runs)");
+                   "one meta value (e.g. run.started,run.host,meta.created,meta.forecast to compare two runs)");
   dump->callback([args] {
     db::DumpOptions options;
     if (!args->tables.empty()) options.tables = split_list(args->tables);

@@ -13,11 +13,20 @@
 
 #include "cli_util.hpp"
 #include "commands.hpp"
+#include "explore/forecast.hpp"
 #include "explore/precompute.hpp"
 
 namespace clothdb::cli {
 
 namespace {
+
+// "12.34 mm", or "unknown" when every dead end is unexplored (CurvePoint::worst_error is NaN).
+std::string mm(double metres) {
+  if (std::isnan(metres)) return "unknown";
+  char text[32];
+  std::snprintf(text, sizeof text, "%.2f mm", 1e3 * metres);
+  return text;
+}
 
 std::string floor_text(const PrecomputeOutcome& out) {
   if (out.error_floor < 0) return "not measured (--no-floor)";
@@ -182,23 +191,26 @@ void register_precompute(CLI::App& app) {
         "states       %d\nclips        %d\ndead ends    %d (%s)\nframes       %ld stored, %ld this "
         "run\n"
         "cpu          %.1f s this run (%.3f CPU-s per stored frame)\n"
-        "worst error  %.2f mm unresolved (%.2f mm weighted by reach), %.2f mm largest blend on "
-        "an edge (epsilon %.1f mm)\n"
+        "worst error  %s unresolved (%s weighted by reach; %d unexplored ways out: state alone "
+        "at its node, error unknown), %.2f mm largest blend on an edge (epsilon %.1f mm)\n"
         "linked       %.1f %% of clip ends linked back within epsilon\n"
         "dead ends    %d closed with a link to the nearest state's clip (blend error mean %.2f "
         "mm, worst %.2f mm): the runtime needs no fallback\n"
         "steering     %d clip ends steered onto a state this run (largest pull %.2f mm in a "
         "frame)\n"
         "error floor  %s\n"
-        "curve        %s.csv, %s.svg\n",
+        "curve        %s.csv, %s.svg\n"
+        "forecast     %s\n",
         request.db.c_str(), report.states, report.clips, report.dead_ends,
         report.converged ? "converged" : "budget reached", report.frames, report.frames_this_run,
         report.cpu_seconds,
         report.frames_this_run > 0 ? report.cpu_seconds / report.frames_this_run : 0.0,
-        1e3 * report.worst_error, 1e3 * report.weighted_worst_error, 1e3 * report.worst_blend_error,
+        mm(report.worst_error).c_str(), mm(report.weighted_worst_error).c_str(),
+        report.curve.empty() ? 0 : report.curve.back().unexplored, 1e3 * report.worst_blend_error,
         *epsilon_mm, 100 * report.linked_fraction, report.links, 1e3 * report.mean_link_error,
         1e3 * report.worst_link_error, report.steered, 1e3 * report.worst_steering,
-        floor_text(out).c_str(), out.curve_prefix.c_str(), out.curve_prefix.c_str());
+        floor_text(out).c_str(), out.curve_prefix.c_str(), out.curve_prefix.c_str(),
+        forecast_text(report.forecast).c_str());
     if (request.explore.subspace_modes > 0)
       std::printf(
           "codec        v2 (%u modes): %d bases built this run, %d removed (no clip chose "

@@ -8,8 +8,10 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <map>
 #include <set>
+#include <sstream>
 
 #include "clothrt.h"
 #include "database/codec/codec.hpp"
@@ -901,4 +903,141 @@ TEST(Explore, SteeredClipsEndWithinEpsilonOfTheirTargetState) {
   r.close();
   const db::CheckReport check = db::check_database(path);
   for (const auto& problem : check.problems) ADD_FAILURE() << problem;
+}
+
+namespace {
+
+std::vector<char> file_bytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::vector<char>(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+// Makes every read of `table` fail (SQLITE_CORRUPT) and nothing else: the first byte of its root
+// page, the b-tree page type, becomes 0, which no page type has. The schema, meta and the other
+// tables still read.
+void corrupt_table(const std::string& path, const char* table) {
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open_v2(path.c_str(), &db, SQLITE_OPEN_READONLY, nullptr), SQLITE_OK);
+  sqlite3_stmt* s = nullptr;
+  const std::string sql =
+      std::string("SELECT rootpage FROM sqlite_master WHERE type = 'table' AND name = '") + table +
+      "'";
+  ASSERT_EQ(sqlite3_prepare_v2(db, sql.c_str(), -1, &s, nullptr), SQLITE_OK);
+  ASSERT_EQ(sqlite3_step(s), SQLITE_ROW);
+  const int64_t root = sqlite3_column_int64(s, 0);
+  sqlite3_finalize(s);
+  ASSERT_EQ(sqlite3_prepare_v2(db, "PRAGMA page_size", -1, &s, nullptr), SQLITE_OK);
+  ASSERT_EQ(sqlite3_step(s), SQLITE_ROW);
+  const int64_t page_size = sqlite3_column_int64(s, 0);
+  sqlite3_finalize(s);
+  sqlite3_close(db);
+  ASSERT_GT(root, 1);  // page 1 starts with the file header
+  std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+  f.seekp((root - 1) * page_size);
+  f.put(0);
+  ASSERT_TRUE(f.good());
+}
+
+}  // namespace
+
+// Every read error surfaces: a resumed run that cannot read the states it must continue from
+// stops with an error naming the file and the table, and writes nothing (a run that took the
+// failed read for an empty table would settle again and store a second start state).
+TEST(Explore, ResumeThatCannotReadTheStatesFailsAndLeavesTheFileAsItWas) {
+  const CharacterScene scene = small_scene();
+  const std::string path = temp_db("unreadable");
+  ExploreOptions options;
+  options.epsilon = 0.02;
+  options.batch = 2;
+  options.max_frames = 30;
+  ASSERT_FALSE(run(scene, path, options).converged);
+  ASSERT_FALSE(std::filesystem::exists(path + "-wal"));  // checkpointed: the file is all there is
+  corrupt_table(path, "cloth_state");
+  const std::vector<char> before = file_bytes(path);
+  options.max_frames = 0;
+  try {
+    run(scene, path, options);
+    ADD_FAILURE() << "a resume that could not read cloth_state ran";
+  } catch (const std::exception& e) {
+    const std::string message = e.what();
+    EXPECT_NE(message.find(path), std::string::npos) << message;
+    EXPECT_NE(message.find("cloth_state"), std::string::npos) << message;
+  }
+  EXPECT_EQ(file_bytes(path), before);
+  EXPECT_TRUE(!std::filesystem::exists(path + "-wal") ||
+              std::filesystem::file_size(path + "-wal") == 0);
+}
+
+// A dead end whose state is alone at its node has no unresolved error yet (Kim et al.'s error is a
+// distance to another state there): the curve counts it as unexplored and never as 0 mm, which
+// made the curve rise from 0 over a run. On a graph of two nodes (0 -> 1, 1 -> 0, 1 -> 1), the
+// first clip's end is the first state at node 1: both its ways out are unexplored.
+TEST(Explore, UnexploredWaysOutAreCountedAndNeverReportedAsZero) {
+  const CharacterScene scene = small_scene();
+  const auto pose = clip_pose(scene.clips.front(), 0);
+  ExploreGraph graph;
+  graph.node_count = 2;
+  graph.rate = 30;
+  graph.edges.push_back({0, 1, "hold", std::vector<std::vector<JointPose>>(12, pose), 0});
+  graph.edges.push_back({1, 0, "sway", sway(pose, 0.6, 16), 0});
+  graph.edges.push_back({1, 1, "hold again", std::vector<std::vector<JointPose>>(10, pose), 0});
+  const std::string path = temp_db("unexplored");
+  ExploreOptions options;
+  options.epsilon = 0.02;
+  options.batch = 1;
+  options.max_frames = 1;  // one clip
+  options.progress = false;
+  std::vector<CurvePoint> curve;
+  {
+    db::Writer writer = db::Writer::create(path);
+    prepare_database(writer, scene, graph, "{}");
+    curve = explore(scene, graph, writer, options).curve;
+  }
+  ASSERT_EQ(curve.size(), 2u);
+  // The start state alone at node 0 with its one way out, then the clip's end alone at node 1.
+  EXPECT_EQ(curve[0].dead_ends, 1);
+  EXPECT_EQ(curve[0].unexplored, 1);
+  EXPECT_EQ(curve[1].dead_ends, 2);
+  EXPECT_EQ(curve[1].unexplored, 2);
+  for (const CurvePoint& p : curve) {
+    EXPECT_TRUE(std::isnan(p.worst_error)) << p.worst_error;
+    EXPECT_TRUE(std::isnan(p.mean_error)) << p.mean_error;
+  }
+  // The CSV leaves the error cells empty (unknown), not 0.
+  std::istringstream csv(curve_csv(curve));
+  std::string header, row;
+  std::getline(csv, header);
+  EXPECT_NE(header.find("dead_ends,unexplored,worst_error_mm"), std::string::npos) << header;
+  while (std::getline(csv, row)) {
+    std::vector<std::string> cells;
+    std::istringstream fields(row);
+    for (std::string c; std::getline(fields, c, ',');) cells.push_back(c);
+    cells.resize(10);
+    EXPECT_EQ(cells[3], cells[4]) << row;  // dead_ends == unexplored on both points
+    for (size_t k : {5u, 6u, 7u}) EXPECT_EQ(cells[k], "") << row;
+  }
+
+  // Resumed to convergence: every point's count of unexplored ways out is within its dead ends,
+  // a point whose dead ends are all unexplored has no error (NaN), and a point with a measured
+  // dead end has a positive one (a state distance between two different states).
+  options.max_frames = 0;
+  ExploreReport done;
+  {
+    db::Writer writer = db::Writer::open(path);
+    prepare_database(writer, scene, graph, "{}");
+    done = explore(scene, graph, writer, options);
+  }
+  ASSERT_TRUE(done.converged);
+  for (const CurvePoint& p : done.curve) {
+    EXPECT_LE(p.unexplored, p.dead_ends);
+    if (p.dead_ends == 0) {
+      EXPECT_EQ(p.worst_error, 0.0);
+    } else if (p.unexplored == p.dead_ends) {
+      EXPECT_TRUE(std::isnan(p.worst_error));
+    } else {
+      EXPECT_GT(p.worst_error, 0.0);
+      EXPECT_GT(p.mean_error, 0.0);
+    }
+  }
+  EXPECT_EQ(done.curve.back().unexplored, 0);
 }

@@ -23,7 +23,8 @@ const std::vector<std::string>& known_keys() {
                                                 kAutoSolver,
                                                 kErrorFloor,
                                                 kErrorFloorDetail,
-                                                kDeadEndsLinked};
+                                                kDeadEndsLinked,
+                                                kForecast};
   return keys;
 }
 }  // namespace meta

@@ -39,6 +39,9 @@ inline constexpr const char* kDeadEndsLinked = "dead_ends_linked";
 // distances in mm, histories, options). An epsilon below the floor cannot link clip ends.
 inline constexpr const char* kErrorFloor = "error_floor";
 inline constexpr const char* kErrorFloorDetail = "error_floor_detail";
+// The explorer's forecast of the CPU-hours to converge, made when its last run ended
+// (precompute/explore/forecast.hpp): text as `db info` shows it after "forecast  ".
+inline constexpr const char* kForecast = "forecast";
 // The value of kFormat in every clothdb file.
 inline constexpr const char* kFormatName = "clothdb";
 // The keys a file may hold; `db check` reports any other.

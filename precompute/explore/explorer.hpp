@@ -21,6 +21,7 @@
 #pragma once
 
 #include <functional>
+#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -153,14 +154,34 @@ db::RunSettings make_run_settings(const CharacterScene& scene, const ExploreOpti
                                   const db::CodecSettings& codec);
 
 struct CurvePoint {
-  double cpu_seconds = 0;
+  double cpu_seconds = 0;  // this run's
   long frames = 0;
   int states = 0;
   int dead_ends = 0;
-  double worst_error = 0;           // m, largest unresolved error among dead ends (0 when none)
-  double weighted_worst_error = 0;  // m, largest unresolved error x the edge's reach
-  double mean_error = 0;            // m
-  double linked_fraction = 0;       // clip ends so far that linked back within epsilon
+  // Dead ends whose state is still alone at its node: no other state to measure their unresolved
+  // error against, so it is unknown (Kim et al.'s error is a distance to another state). They are
+  // counted here and left out of the errors below, never counted as 0 mm.
+  int unexplored = 0;
+  // m, over the other dead ends (the measured ones): NaN when every dead end is unexplored (the
+  // error is unknown, not 0), 0 when no dead end is left.
+  double worst_error = 0;           // largest unresolved error
+  double weighted_worst_error = 0;  // largest unresolved error x the edge's reach
+  double mean_error = 0;
+  double linked_fraction = 0;  // clip ends so far that linked back within epsilon
+  // The forecast made at this point from the curve so far (explore/forecast.hpp): CPU seconds of
+  // the whole exploration (earlier runs included) at convergence; NaN when there is none.
+  double forecast_cpu_seconds = std::numeric_limits<double>::quiet_NaN();
+};
+
+// The forecast of the CPU time to converge (explore/forecast.hpp).
+struct Forecast {
+  bool converging = false;  // false: none (the trend does not fall, or too little to fit)
+  bool converged = false;   // no dead end left: cpu_seconds is what it took
+  bool too_few = false;     // none because too few curve points to fit
+  double cpu_seconds = 0;   // the whole exploration's CPU seconds at convergence, when converging
+  double made_at = 0;       // the whole exploration's CPU seconds when it was made
+  std::string model;        // the model, stated for people
+  std::string why;          // why none
 };
 
 struct ExploreReport {
@@ -189,6 +210,8 @@ struct ExploreReport {
   int bases_built = 0, bases_removed = 0;
   int clips_v2 = 0;
   double integrate_seconds = 0;   // wall time spent integrating them into the database
+  double cpu_seconds_before = 0;  // simulation CPU of the file's earlier runs (the run table)
+  Forecast forecast;              // made at the end of this run (meta forecast)
   std::vector<CurvePoint> curve;  // one point per batch (this run)
 };
 
@@ -232,6 +255,8 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
                       const ExploreOptions& options, const BatchRunner& runner = {});
 
 std::string curve_csv(const std::vector<CurvePoint>& curve);
+// Three panels against this run's CPU time: the unresolved error (worst, worst x reach, mean, and
+// epsilon), the dead ends and the unexplored ways out, and the share of clip ends linked.
 std::string curve_svg(const std::vector<CurvePoint>& curve, double epsilon);
 
 }  // namespace clothdb

@@ -129,6 +129,10 @@ TEST(PrecomputeCli, SigkillThenRerunGivesTheUninterruptedDatabase) {
   EXPECT_NE(read_file(log).find("the database's meta"), std::string::npos) << read_file(log);
   run({"db", "info", killed}, log);
   EXPECT_NE(read_file(log).find("error floor     "), std::string::npos) << read_file(log);
+  // The forecast the converged run stored: converged, so what it took.
+  EXPECT_NE(read_file(log).find("\nforecast  "), std::string::npos) << read_file(log);
+  EXPECT_NE(read_file(log).find("CPU-h to converge (model converged"), std::string::npos)
+      << read_file(log);
   // Every table (cloth_link, cloth_clip_steering and meta included), the run bookkeeping named in
   // run_bookkeeping() left out; and both files pass db check.
   clothdb::test::expect_same_rows(whole, killed);

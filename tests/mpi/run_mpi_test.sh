@@ -36,7 +36,7 @@ if [ "$mode" = stored ]; then
   cp single.db mpi.db
 fi
 "$clothdb" precompute "$scene" --db single.db --threads 2 "${args[@]}" >single.out 2>single.err
-dump=(db dump --mask run.started,run.finished,run.cpu_seconds,run.host,run.settings,run.notes,meta.created)
+dump=(db dump --mask run.started,run.finished,run.cpu_seconds,run.host,run.settings,run.notes,meta.created,meta.forecast)
 "$clothdb" "${dump[@]}" single.db >single.dump
 [ "$(grep -c . single.dump)" -gt 50 ] || { echo "the single-process run stored too little"; exit 1; }
 

@@ -1,0 +1,81 @@
+// The secondary graph as the explorer holds it between batches (Kim et al. 2013, section 4): the
+// cloth states at each node of the primary graph, which (state, way out) pairs have a clip, and
+// Kim et al.'s query, the nearest state at a node. What is in memory is exactly what the file
+// holds (states as decoded), so a resumed run rebuilds the same graph.
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <set>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "database/store/writer.hpp"
+#include "explore/explorer.hpp"
+
+namespace clothdb {
+
+// Priority of a node's only state (no other state to measure it against): ahead of every measured
+// error. It is not a distance: the curve counts such ways out as unexplored.
+inline constexpr double kNoNeighbour = 1e9;
+
+struct StateRec {
+  int64_t id = 0;
+  int node = 0;
+  std::vector<float> x, v;  // character space, as stored
+  // Unresolved error of its dead ends: the distance to the nearest OTHER state at its node (older
+  // or newer), kept up to date as states are added there, so a dead end that a later state came
+  // close to no longer counts as far from everything. kNoNeighbour while it is alone.
+  double priority = 0;
+};
+
+struct SecondaryGraph {
+  double tau = 0;                           // s, the state distance's velocity weight (1 / rate)
+  std::vector<std::vector<int>> out_edges;  // per node: edges leaving it
+  std::vector<StateRec> states;
+  std::vector<std::vector<int>> states_at_node;  // indices into states, per node
+  long clips = 0, linked = 0;  // clip ends so far, and those that linked back within epsilon
+  std::set<std::pair<int64_t, int>> done;              // (state id, edge) with a clip
+  std::map<std::pair<int64_t, int>, int64_t> clip_of;  // (state id, edge) -> its cloth clip id
+};
+
+// The graph's nodes and ways out, with no state yet.
+SecondaryGraph empty_secondary_graph(const ExploreGraph& graph);
+
+// What the file at `reader` holds (a resumed run; nothing for a new file), with every state's
+// priority. Adds the stored clips' frames to *frames and takes the worst stored blend error into
+// *worst_blend_error. Throws std::runtime_error naming `path` and the table when a read fails: a
+// run that went on would settle again, or explore states twice.
+SecondaryGraph load_secondary_graph(db::Reader& reader, const std::string& path,
+                                    const ExploreGraph& graph, long* frames,
+                                    double* worst_blend_error);
+
+// Kim et al.'s query: the state at `node` nearest to (x, v) in the state distance
+// (db::state_distance), ties to the one added first. state: -1 when the node has none.
+struct Nearest {
+  int state = -1;  // index into states
+  double distance = 0;
+  std::vector<double> distances;  // to each of states_at_node[node], in order
+};
+Nearest nearest_state(const SecondaryGraph& sg, int node, const std::vector<float>& x,
+                      const std::vector<float>& v);
+
+// Adds a state (id already given by the file) at rec.node; `nearest` is nearest_state's answer for
+// it. Its priority is its distance to that state, and the states already there have a new
+// neighbour: their dead ends' errors may fall. Returns its index.
+int add_state(SecondaryGraph& sg, StateRec rec, const Nearest& nearest);
+
+// A clip now leaves state `state_id` along `edge`.
+void record_clip(SecondaryGraph& sg, int64_t state_id, int edge, int64_t clip_id);
+
+// What a state looks like after a trip through the database (the codec's quantisation), so that
+// every simulation starts from exactly what a resumed run would read back.
+std::vector<float> roundtrip(const std::vector<float>& values, double bound);
+
+// The first state of a new file: the garment settled at the start node's first edge's first pose,
+// stored (in the caller's run) and added.
+void add_start_state(const CharacterScene& scene, const ExploreGraph& graph, db::Writer& writer,
+                     int64_t run_id, SecondaryGraph& sg);
+
+}  // namespace clothdb
