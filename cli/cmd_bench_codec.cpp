@@ -1,6 +1,7 @@
 // `clothdb bench codec`: compression ratio, measured error and single-core encode/decode
-// throughput of the cloth frame codec on simulated frames (issue 4), plus the random-access cost
-// of the key-frame interval.
+// throughput of the cloth frame codec on simulated frames
+// (docs/RESULTS.md#codec-size-of-the-frames), plus the random-access cost of the key-frame
+// interval.
 #include <zstd.h>
 
 #include <algorithm>
@@ -167,7 +168,7 @@ Row measure(const Frames& f, double bound_mm, uint32_t key_interval, int level, 
   return row;
 }
 
-// ---- v1, v2 and meshoptimizer side by side (issue 17) -------------------------------------
+// ---- v1, v2 and meshoptimizer side by side (docs/notebook/BENCHMARKS.md, "Codec version 2") ----
 
 struct Compared {
   std::string codec;

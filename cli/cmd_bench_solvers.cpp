@@ -1,5 +1,5 @@
 // `clothdb bench solvers`: the solvers' accuracy, separated into chaos, step size and model
-// (issue 14); `clothdb bench newton`: the Newton loop's speed study.
+// (docs/GUIDE.md#the-solvers); `clothdb bench newton`: the Newton loop's speed study.
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -22,7 +22,7 @@ void register_bench_solvers(CLI::App& bench) {
   auto args = std::make_shared<Args>();
   CLI::App* cmd = bench.add_subcommand(
       "solvers",
-      "Solver accuracy, separated (issue 14): per scene a chaos floor (the reference against "
+      "Solver accuracy, separated: per scene a chaos floor (the reference against "
       "itself started 1 um away), the short-horizon error (every solver setting restarted from "
       "the reference's states every --restart-every frames and run --horizon frames, against "
       "Newton with uniform sub-steps), self-convergence (the same windows at --refine x the "
@@ -30,7 +30,7 @@ void register_bench_solvers(CLI::App& bench) {
       "perturbed reference ensemble on chaotic scenes, the CPU cost per simulated second at "
       "--target-mm, and static cases with analytic answers (membrane elongation, cantilever, "
       "catenary). Writes accuracy.json, rows.csv, statics.csv, accuracy.md and one Pareto SVG "
-      "per scene into --out.");
+      "per scene into --out. See docs/GUIDE.md, \"The solvers\".");
   cmd->add_option("--scenes", args->scenes,
                   "Comma-separated scenes (default: hanging-sheet, swung-sheet, sphere-drape, "
                   "stretched-start, seed004-fall; also any hard case, seed004-529, large-sheet)");

@@ -1,6 +1,6 @@
 // `clothdb clips list FILE --worst N --by METRIC [--json]` and `clothdb clip show FILE ID`:
-// finding the cloth clips that look wrong (issue 7) from the quality metrics the explorer stores
-// (precompute/quality/clip_quality.hpp, docs/DATABASE.md).
+// finding the cloth clips that look wrong (docs/GUIDE.md#fixing-a-bad-clip) from the quality
+// metrics the explorer stores (precompute/quality/clip_quality.hpp, docs/DATABASE.md).
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -34,7 +34,8 @@ struct ClipTable {
   std::map<int64_t, std::string> primary_name;
   std::map<int64_t, std::vector<db::ClothEdge>> edges_from;  // clip id -> its out edges
   std::vector<db::StoredState> states;
-  std::map<int64_t, db::ClipSteering> steering;  // clip id -> how its end was steered (issue 16)
+  // clip id -> how its end was steered (docs/GUIDE.md#the-precompute-kim-et-al-2013, steering)
+  std::map<int64_t, db::ClipSteering> steering;
   // clip id -> the most edge-triangle crossings in one of its decoded frames; filled only when
   // listing by self-intersections (measured here, not stored: it decodes every clip).
   std::map<int64_t, int> crossings;
@@ -148,7 +149,8 @@ const Metric kMetrics[] = {
        auto it = t.steering.find(c.id);
        return it == t.steering.end() ? 0.0 : it->second.displacement;
      }},
-    // The most edge-triangle crossings in one decoded frame (issue 29); measured when listing.
+    // The most edge-triangle crossings in one decoded frame (docs/guide/self_collision.md);
+    // measured when listing.
     {"self-intersections", "self_intersections", 1,
      [](const ClipTable& t, const db::ClothClip& c) {
        auto it = t.crossings.find(c.id);
@@ -413,7 +415,8 @@ void show_clip(const ShowArgs& a) {
     triangles[k] = {int(garment.triangles[3 * k]), int(garment.triangles[3 * k + 1]),
                     int(garment.triangles[3 * k + 2])};
 
-  // Frames where the cloth passes through itself (issue 29): framed in orange on the sheet.
+  // Frames where the cloth passes through itself (docs/guide/self_collision.md): framed in orange
+  // on the sheet.
   const std::vector<int> crossings = clip_crossings(reader, garment_topology(reader), c.id);
   int crossing_frames = 0, most = 0;
   for (int k : crossings) crossing_frames += k > 0 ? 1 : 0, most = std::max(most, k);

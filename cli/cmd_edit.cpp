@@ -1,6 +1,7 @@
 // `clothdb clip export|import|resim|flag|unflag|delete|log FILE ID ...` and `clothdb undo FILE`:
-// fixing bad clips by hand or by re-simulating (issue 7; precompute/edit/clip_edit.hpp). Each
-// command is one logged edit in one transaction; `undo` reverts the newest exactly.
+// fixing bad clips by hand or by re-simulating (docs/GUIDE.md#fixing-a-bad-clip;
+// precompute/edit/clip_edit.hpp). Each command is one logged edit in one transaction; `undo`
+// reverts the newest exactly.
 #include <unistd.h>
 
 #include <cstdio>

@@ -1,6 +1,7 @@
 // `clothdb play FILE`: plays a path through the motion graph with the runtime library (clothrt)
 // and writes the cloth for Blender plus PNG previews; `clothdb bench runtime FILE`: per-frame cost
-// of playback for one and for many players, memory, and where the time goes (issue 6).
+// of playback for one and for many players, memory, and where the time goes
+// (docs/RESULTS.md#runtime-playback-cost-and-memory).
 #include <unistd.h>
 #include <zstd.h>
 
@@ -603,7 +604,7 @@ void register_bench_runtime(CLI::App& bench) {
       ->capture_default_str();
   cmd->add_option("--codec", a->codec,
                   "With FILE synthetic: v1, or v2 (every blob recoded to the subspace codec, "
-                  "issue 17)")
+                  "docs/DATABASE.md, \"version 2\")")
       ->check(CLI::IsMember({"v1", "v2"}))
       ->capture_default_str();
   cmd->add_option("--modes", a->modes, "--codec v2: basis modes")

@@ -67,9 +67,10 @@ void register_precompute(CLI::App& app) {
       ->check(number_in(1e-6, 1e3));
   auto codec_name = std::make_shared<std::string>("v1");
   cmd->add_option("--codec", *codec_name,
-                  "Frame codec of the clips this run stores: v1, or v2 (issue 17: a garment "
-                  "subspace built from the clips stored so far, from --basis-first-frames on and "
-                  "again each time the frames double; each clip keeps the smaller of v1 and v2)")
+                  "Frame codec of the clips this run stores: v1, or v2 (a garment subspace built "
+                  "from the clips stored so far, from --basis-first-frames on and again each time "
+                  "the frames double; each clip keeps the smaller of v1 and v2; docs/DATABASE.md, "
+                  "\"clothdb precompute ... --codec v2\")")
       ->check(CLI::IsMember({"v1", "v2"}))
       ->capture_default_str();
   cmd->add_option("--modes", args->explore.subspace_modes, "--codec v2: modes of each basis")

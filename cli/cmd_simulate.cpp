@@ -100,7 +100,7 @@ void register_simulate(CLI::App& app) {
     csv << "frame,max_strain,max_penetration_mm,mean_penetration_mm,kinetic_energy_J,step_"
            "halvings,self_intersections\n";
     // Edge-triangle crossings (cloth/self_intersection.hpp): per frame, the worst, and how many
-    // frames have any (issue 29).
+    // frames have any (docs/guide/self_collision.md).
     int worst_crossings = count_self_intersections(scene.model.mesh, state.x);
     int worst_crossing_frame = 0, crossing_frames = worst_crossings > 0 ? 1 : 0;
     FrameMetrics worst;

@@ -1,6 +1,6 @@
 // `clothdb view FILE`: a local web page that plays the database live through the runtime library
 // (clothrt), with the character's body capsules, controls for the walk through the motion graph,
-// and the clip table of `clothdb clips list` (issue 32, docs/guide/viewer.md).
+// and the clip table of `clothdb clips list` (docs/guide/viewer.md).
 //
 // How frames reach the page: cpp-httplib 0.11 (Debian) has no WebSocket, so the page pulls, over
 // a keep-alive connection: `GET /api/frames?dt=SECONDS&n=4&wait=MS` advances the server's one

@@ -1,5 +1,6 @@
 // clothdb_bench_bender: our XPBD against Bender's PositionBasedDynamics XPBD kernels on the same
-// hanging sheet at equal sub-steps (issue 15), one thread, CPU time. Prints a Markdown table.
+// hanging sheet at equal sub-steps (docs/notebook/BENCHMARKS.md, "Against Bender's
+// PositionBasedDynamics at equal sub-steps"), one thread, CPU time. Prints a Markdown table.
 #include <CLI/CLI.hpp>
 #include <cstdio>
 #include <string>

@@ -1,7 +1,7 @@
-// One sheet scene run with Jan Bender's PositionBasedDynamics XPBD constraint kernels (issue 15:
-// "the ratio to Bender's PositionBasedDynamics at equal sub-steps"). Built only with
-// -DCLOTHDB_BENDER_PBD_DIR (reference/CMakeLists.txt); compiled once with Bender's Real = float
-// (as it ships) and once with USE_DOUBLE.
+// One sheet scene run with Jan Bender's PositionBasedDynamics XPBD constraint kernels (for
+// docs/notebook/BENCHMARKS.md, "Against Bender's PositionBasedDynamics at equal sub-steps"). Built
+// only with -DCLOTHDB_BENDER_PBD_DIR (reference/CMakeLists.txt); compiled once with Bender's Real =
+// float (as it ships) and once with USE_DOUBLE.
 #pragma once
 
 #include "hard_cases/hard_cases.hpp"

@@ -143,7 +143,8 @@ struct Db {
   uint32_t max_successors = 0;
   clothrt_db_options options{};
   size_t metadata_bytes = 0;  // including the codec bases
-  // Codec version 2 bases (issue 17), loaded once at open and shared by every decoding thread.
+  // Codec version 2 bases (docs/DATABASE.md, "version 2"), loaded once at open and shared by every
+  // decoding thread.
   std::vector<clothdb::codec::Basis> bases;
   const clothdb::codec::Basis* basis_for(const clothdb::codec::BlobInfo& info) const;
   // A cloth state decoded through the loader's connection with the database's bases.

@@ -13,9 +13,10 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-// Blend length from a link's blend error (issue 16): a transition through a precomputed link
-// (ClothLink) whose error exceeds blend_frames x kBlendPerFrame fades over error / kBlendPerFrame
-// frames, at most kMaxBlendFrames. Edges linked within epsilon keep the player's blend_frames.
+// Blend length from a link's blend error (docs/DATABASE.md, "Dead ends and links"): a transition
+// through a precomputed link (ClothLink) whose error exceeds blend_frames x kBlendPerFrame fades
+// over error / kBlendPerFrame frames, at most kMaxBlendFrames. Edges linked within epsilon keep the
+// player's blend_frames.
 constexpr double kBlendPerFrame = 1e-3;  // m of state distance per frame
 constexpr double kMaxBlendFrames = 60;
 

@@ -1,9 +1,10 @@
 #!/usr/bin/env python3
 """Measures whether a clip predicted from an earlier clip along the same primary clip would code
-more cheaply than the clip itself (issue 17: the explorer's clips along one edge start from nearby
-states and follow the same body motion). Exports every cloth clip of DB with `clothdb clip export`,
-writes OUT/B.pc2 (every clip as stored, in id order) and OUT/D.pc2 (the same, but each clip after
-the first along its primary clip replaced by its difference from that first clip), then compare
+more cheaply than the clip itself (docs/notebook/BENCHMARKS.md, "Codec v2 in the precompute": the
+explorer's clips along one edge start from nearby states and follow the same body motion). Exports
+every cloth clip of DB with `clothdb clip export`, writes OUT/B.pc2 (every clip as stored, in id
+order) and OUT/D.pc2 (the same, but each clip after the first along its primary clip replaced by its
+difference from that first clip), then compare
     clothdb bench codec --input OUT/B.pc2 --bounds 0.1,1 --codecs v1 --comparison-only
     clothdb bench codec --input OUT/D.pc2 --bounds 0.1,1 --codecs v1 --comparison-only
 A decoder would add the reference clip back, so D's ratio is what inter-clip prediction could

@@ -1,7 +1,7 @@
-// Codec version 2 (issue 17): the subspace + residual format keeps the hard per-coordinate bound
-// on random and adversarial frames, refuses non-finite input, decodes exactly from any frame,
-// rejects damaged blobs and bases with clear errors; version 1 blobs made before version 2
-// existed still decode bit for bit.
+// Codec version 2 (docs/DATABASE.md, "version 2"): the subspace + residual format keeps the hard
+// per-coordinate bound on random and adversarial frames, refuses non-finite input, decodes exactly
+// from any frame, rejects damaged blobs and bases with clear errors; version 1 blobs made before
+// version 2 existed still decode bit for bit.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -394,10 +394,10 @@ std::vector<float> swinging_shape(uint32_t vertices, uint32_t frames) {
 
 namespace clothdb::codec {
 
-// Cloth relative to the body (issue 17): a garment carried rigidly by the body (the turning
-// shape) is, in the body frame of its anchors, one shape: version 2 with a body frame codes it as
-// the basis mean plus 12 floats a frame, where without one the subspace must code the turn. The
-// bound holds either way, on every coordinate.
+// Cloth relative to the body (docs/DATABASE.md, "version 2"): a garment carried rigidly by the body
+// (the turning shape) is, in the body frame of its anchors, one shape: version 2 with a body frame
+// codes it as the basis mean plus 12 floats a frame, where without one the subspace must code the
+// turn. The bound holds either way, on every coordinate.
 TEST(CodecV2, BodyFrameKeepsTheBoundAndCodesWhatTheBodyCarriesInItsTransforms) {
   const uint32_t vertices = 400, frames = 48;
   std::vector<float> x = swinging_shape(vertices, frames);

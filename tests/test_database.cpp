@@ -645,7 +645,7 @@ TEST(Database, QualityMetricsRoundTripWithUnknownAsNull) {
   EXPECT_TRUE(mentions(check, "cloth edge " + std::to_string(f.edge) + ": negative pop"));
 }
 
-// ---- db check verifies what the runtime relies on (issue 18) ---------------------------------
+// ---- db check verifies what the runtime relies on (docs/DATABASE.md#clothdb-db-check-file) ----
 
 std::string file_bytes(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
@@ -734,9 +734,10 @@ TEST(DatabaseCheck, StartClipNamingNothing) {
   expect_refused("INSERT INTO meta VALUES('start_clip', '4242');", "start_clip '4242'", "");
 }
 
-// Issue 17: the bound a clip was coded within is checked on every blob. A blob coded on a grid
-// coarser than its row's recorded bound, or a measured encode error above it, fails the check
-// (the runtime still plays such a file: the bound is a promise to the artist, not to the decoder).
+// The bound a clip was coded within is checked on every blob
+// (docs/DATABASE.md#clothdb-db-check-file). A blob coded on a grid coarser than its row's recorded
+// bound, or a measured encode error above it, fails the check (the runtime still plays such a file:
+// the bound is a promise to the artist, not to the decoder).
 TEST(DatabaseCheck, ClipCodedBeyondItsRecordedBound) {
   expect_refused("UPDATE cloth_clip SET error_bound = error_bound / 4;", "blob bound", "");
   expect_refused("UPDATE cloth_clip SET max_error = 2 * error_bound;", "measured error", "");
@@ -776,7 +777,7 @@ TEST(DatabaseCheck, MissingTransitionAtANodeAndUnexploredStates) {
       << (report.problems.empty() ? "" : report.problems[0]);
 }
 
-// ---- one writer per database (issue 18) -------------------------------------------------------
+// ---- one writer per database (docs/DATABASE.md#durability-and-concurrency) --------------------
 
 TEST(WriterLock, SecondProcessIsRefusedNamingTheHolder) {
   TempDir dir;
@@ -876,7 +877,7 @@ TEST(WriterLock, WritersInOneProcessShareTheLock) {
   a.set_meta("note", "first writer again");
 }
 
-// ---- one owner per fact (issue 26) -------------------------------------------------------------
+// ---- one owner per fact (docs/DATABASE.md#who-owns-what) ----------------------------------------
 
 // Storing a version 2 blob raises meta codec.format_version in the same transaction, so a runtime
 // that reads only version 1 refuses the file at open (UnknownMetaVersions pins that refusal)

@@ -1,8 +1,9 @@
-// The error floor of a garment on a motion (explore/error_floor.hpp, issue 16): a multi-stable
-// garment (a strongly flared skirt with soft bending) measures above a well-posed one on the same
-// motion, the measurement does not depend on the run or the thread count, walks that cannot meet
-// fall back to different start frames, and `precompute` refuses an epsilon below the floor
-// without --force, writing nothing, and stores the floor in meta with it.
+// The error floor of a garment on a motion (explore/error_floor.hpp,
+// docs/GUIDE.md#choosing-epsilon-the-error-floor): a multi-stable garment (a strongly flared skirt
+// with soft bending) measures above a well-posed one on the same motion, the measurement does not
+// depend on the run or the thread count, walks that cannot meet fall back to different start
+// frames, and `precompute` refuses an epsilon below the floor without --force, writing nothing, and
+// stores the floor in meta with it.
 #include <gtest/gtest.h>
 
 #include <filesystem>

@@ -286,10 +286,11 @@ static int expect_same_clips_within_twice_the_bound(const std::string& v1_path,
   return v2;
 }
 
-// Codec version 2 during the run (issue 17): the explorer builds a basis from the clips stored so
-// far and new ones as the frames grow; the simulations (which start from version 1 states) are
-// the same as a version 1 run's, so the files hold the same graph. With a body frame as without.
-// Keeping the smaller of the two encodings, no basis stays that no clip chose.
+// Codec version 2 during the run (docs/DATABASE.md, "clothdb precompute ... --codec v2"): the
+// explorer builds a basis from the clips stored so far and new ones as the frames grow; the
+// simulations (which start from version 1 states) are the same as a version 1 run's, so the files
+// hold the same graph. With a body frame as without. Keeping the smaller of the two encodings, no
+// basis stays that no clip chose.
 TEST(Explore, CodecV2BasesFromTheStoredClipsKeepTheGraphAndTheBound) {
   const CharacterScene scene = small_scene();
   ExploreOptions options;
@@ -497,9 +498,10 @@ TEST(Precompute, MotionGraphRuleAndResumeRule) {
   EXPECT_EQ(changed.file.settings.substeps, scene.file.settings.substeps);
 }
 
-// Issue 14: a dead end's unresolved error is its state's distance to the nearest OTHER state at
-// the node, newer ones included, so the reported worst falls when a state lands near an old dead
-// end (it used to stay at the distance to the nearest older state forever).
+// A dead end's unresolved error (docs/SECONDARY_GRAPH.md, "Which dead end next") is its state's
+// distance to the nearest OTHER state at the node, newer ones included, so the reported worst falls
+// when a state lands near an old dead end (it used to stay at the distance to the nearest older
+// state forever).
 TEST(Explore, UnresolvedErrorIsTheDistanceToTheNearestOtherStateAtItsNode) {
   const CharacterScene scene = small_scene();
   const std::string path = temp_db("unresolved");
@@ -534,12 +536,12 @@ TEST(Explore, UnresolvedErrorIsTheDistanceToTheNearestOtherStateAtItsNode) {
   EXPECT_EQ(report.linked_fraction, 0.0);
 }
 
-// Every edge's blend error recomputed (issue 34), on a graph of two nodes, independently of the
-// figure the explorer stored: each clip's job is run again from its stored start state (giving
-// the stored clip, blob for blob), and the state distance from its end to the state its edge
-// lands on is the recorded blend error, at most epsilon; the landing state is at the edge's end
-// node; and the stored clip's last frame is that near the state in position too (the position
-// part of the distance), within the codec's bound.
+// Every edge's blend error recomputed (docs/notebook/tests-that-can-fail.md), on a graph of two
+// nodes, independently of the figure the explorer stored: each clip's job is run again from its
+// stored start state (giving the stored clip, blob for blob), and the state distance from its end
+// to the state its edge lands on is the recorded blend error, at most epsilon; the landing state is
+// at the edge's end node; and the stored clip's last frame is that near the state in position too
+// (the position part of the distance), within the codec's bound.
 TEST(Explore, EveryEdgeErrorRecomputedFromTheClipEndOnTwoNodes) {
   const CharacterScene scene = small_scene();
   const ExploreGraph graph = two_node_graph(scene);
@@ -638,10 +640,10 @@ TEST(Explore, EveryEdgeErrorRecomputedFromTheClipEndOnTwoNodes) {
   EXPECT_GT(linked, 0) << "no clip linked to an existing state: nothing recomputed";
 }
 
-// Issue 16, no runtime fallback: a run stopped by its budget links every dead end to the clip of
-// the nearest state at its node that has one, with that state distance as the blend error; every
-// way out of every state then plays without a fallback, and db check refuses a file that lost a
-// link.
+// No runtime fallback (docs/GUIDE.md#the-precompute-kim-et-al-2013): a run stopped by its budget
+// links every dead end to the clip of the nearest state at its node that has one, with that state
+// distance as the blend error; every way out of every state then plays without a fallback, and db
+// check refuses a file that lost a link.
 TEST(Explore, BudgetLimitedRunLinksEveryDeadEndSoPlaybackNeverFallsBack) {
   const CharacterScene scene = small_scene();
   const std::string path = temp_db("links");
@@ -748,12 +750,12 @@ TEST(Explore, BudgetLimitedRunLinksEveryDeadEndSoPlaybackNeverFallsBack) {
   EXPECT_TRUE(named) << "db check did not report the missing link";
 }
 
-// The steered tail against the unsteered one (issue 34): the job that made a steered clip is run
-// again with and without its target, and over the last K frames each frame's movement (the
-// largest vertex displacement from the frame before) may exceed the unsteered tail's by at most
-// the share of the end's offset to the target that the pull's ramp brings in one frame: the
-// smoothstep over K frames rises by at most 1.5 / K a frame (measured on this scene: at most
-// half of that). A pull that arrives in one frame (the whole offset at
+// The steered tail against the unsteered one (docs/notebook/tests-that-can-fail.md): the job that
+// made a steered clip is run again with and without its target, and over the last K frames each
+// frame's movement (the largest vertex displacement from the frame before) may exceed the unsteered
+// tail's by at most the share of the end's offset to the target that the pull's ramp brings in one
+// frame: the smoothstep over K frames rises by at most 1.5 / K a frame (measured on this scene: at
+// most half of that). A pull that arrives in one frame (the whole offset at
 // the last frame) exceeds it. Also: the job run again gives the stored clip, blob for blob.
 // Returns 1 when the tail was compared.
 int expect_steered_tail_moves_like_the_unsteered_one(const CharacterScene& scene, db::Reader& r,
@@ -833,9 +835,10 @@ int expect_steered_tail_moves_like_the_unsteered_one(const CharacterScene& scene
   return 1;
 }
 
-// Issue 16, steered clip ends: with steering on, a clip whose end lands farther than epsilon but
-// within max_mm of a state at its end node is pulled onto that state over its last frames, so it
-// links with a blend within epsilon instead of making a new state; what the pull did is recorded.
+// Steered clip ends (docs/GUIDE.md#the-precompute-kim-et-al-2013): with steering on, a clip whose
+// end lands farther than epsilon but within max_mm of a state at its end node is pulled onto that
+// state over its last frames, so it links with a blend within epsilon instead of making a new
+// state; what the pull did is recorded.
 TEST(Explore, SteeredClipsEndWithinEpsilonOfTheirTargetState) {
   CharacterScene scene = small_scene();
   ExploreOptions options;

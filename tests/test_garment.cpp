@@ -71,11 +71,12 @@ TEST(Garment, SkirtPinsFollowTheHipsExactly) {
   }
 }
 
-// Issue 15's bound on the demo skirt (flare 1.5) over 01_01's first 125 frames, where the legs
-// lift into the hem. Without the contact round the collision pass has the last word: the thigh
-// pushes the hem ring outward and its edges stretch to about 9-11 % (the worst edge lies at the
-// collision margin of a leg). With the scene's round (the strain limit once more after the
-// collision pass) the hem slides and stays within 6 %, with no vertex below the body's surface.
+// The strain bound (docs/RESULTS.md#strain-how-much-the-cloth-stretches) on the demo skirt
+// (flare 1.5) over 01_01's first 125 frames, where the legs lift into the hem. Without the contact
+// round the collision pass has the last word: the thigh pushes the hem ring outward and its edges
+// stretch to about 9-11 % (the worst edge lies at the collision margin of a leg). With the scene's
+// round (the strain limit once more after the collision pass) the hem slides and stays within 6 %,
+// with no vertex below the body's surface.
 TEST(Garment, SkirtOnWalkStaysWithinTheStrainBoundWhereTheBodyPushesOnIt) {
   const SceneFile file = load_scene_file(kMotions + "skirt_walk.json");
   ASSERT_GE(file.settings.strain_limit_contact_rounds, 1);
@@ -98,10 +99,10 @@ TEST(Garment, SkirtOnWalkStaysWithinTheStrainBoundWhereTheBodyPushesOnIt) {
   EXPECT_LE(with_rounds[0].p99_strain, 0.03);
 }
 
-// Issue 15: settled from 01_01 frames where the legs are apart, the skirt used to be put
-// straight into the pose and caught around a leg (over 600 % strain). Settled in the bind pose and
-// blended into the pose, it hangs within the strain bound, outside the body, and its pins are
-// where skinning puts them.
+// Settling (docs/notebook/BENCHMARKS.md, "Settling from any start frame"): settled from 01_01
+// frames where the legs are apart, the skirt used to be put straight into the pose and caught
+// around a leg (over 600 % strain). Settled in the bind pose and blended into the pose, it hangs
+// within the strain bound, outside the body, and its pins are where skinning puts them.
 TEST(Garment, SettleFromLegsApartStaysWithinTheStrainBound) {
   const CharacterScene scene =
       build_character_scene(load_scene_file(kMotions + "skirt_walk_flared.json"));
@@ -132,8 +133,8 @@ TEST(Garment, CapeOnBoxingDoesNotPenetrateOrOverstretch) {
   // auto_distance selects only the bones near the cape: fewer than all of the skeleton's.
   EXPECT_LT(scene.body.capsules.size(), all_bone_capsules(scene.skeleton).size());
   EXPECT_GT(scene.body.capsules.size(), 0u);
-  // Issue 15's target for the cape is 8 % (66 % before it; 17 % with the strain limit capped at 16
-  // passes and no contact round).
+  // The cape's target (docs/RESULTS.md#strain-how-much-the-cloth-stretches) is 8 % (66 % before it;
+  // 17 % with the strain limit capped at 16 passes and no contact round).
   expect_clean_run(scene, 45, 0.08);
 }
 
@@ -411,10 +412,11 @@ TEST(Garment, FastLimbsOnBoxingDoNotTunnel) {
   options.self_collision_mm = {0.0};
   const auto one_step = run_character_bench(file, options);
   ASSERT_EQ(one_step.size(), 2u);
-  // One projection per frame let vertices through a limb before issue 15; its collision pass
-  // (contacts resolved per vertex, also before the strain limit) no longer does on this clip, so
-  // only the swept motion's guarantee is asserted here (the limb speed above shows the case is
-  // still hard). `clothdb bench character motions/cape_boxing.json` reports both.
+  // One projection per frame let vertices through a limb before the changes in
+  // docs/notebook/BENCHMARKS.md, "Cloth that does not stretch"; its collision pass (contacts
+  // resolved per vertex, also before the strain limit) no longer does on this clip, so only the
+  // swept motion's guarantee is asserted here (the limb speed above shows the case is still hard).
+  // `clothdb bench character motions/cape_boxing.json` reports both.
   EXPECT_EQ(one_step[1].tunnelled, 0) << "swept";
   options.substeps = {0};       // the scene's 15
   options.contact_rounds = -1;  // and its contact round

@@ -1,7 +1,7 @@
-// `clothdb db recode` (issue 17): a database recoded to codec version 2 checks, keeps every
-// coordinate within the bound of the frames it had, and plays; a recode killed after any batch
-// (the process ends without unwinding, as with SIGKILL) leaves a file that checks and plays, and
-// a second recode finishes the job.
+// `clothdb db recode` (docs/DATABASE.md, "clothdb db recode"): a database recoded to codec
+// version 2 checks, keeps every coordinate within the bound of the frames it had, and plays; a
+// recode killed after any batch (the process ends without unwinding, as with SIGKILL) leaves a file
+// that checks and plays, and a second recode finishes the job.
 #include <gtest/gtest.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -273,7 +273,8 @@ TEST(Recode, SigkillAtAnyMomentLeavesAFileThatChecksAndPlays) {
 }
 
 // The runtime loads a database's basis once, at open, and counts it in the memory it reports
-// (issue 17: one player's memory includes the basis); players share it.
+// (one player's memory includes the basis: docs/RESULTS.md#runtime-playback-cost-and-memory);
+// players share it.
 TEST(Recode, RuntimeCountsTheBasisOnceInItsMemory) {
   TempDir dir;
   const std::string v1 = dir.file("v1.db"), v2 = dir.file("v2.db");

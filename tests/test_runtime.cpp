@@ -1,7 +1,7 @@
-// The playback runtime (issue 6): the C API of clothrt on synthetic databases laid out as
-// docs/SECONDARY_GRAPH.md says: stored frames played back exactly, interpolation, blends without
-// pops (also when interrupted), fallbacks to the nearest state, world space and strides, errors
-// with the last good pose, many players on threads, and no allocation per frame.
+// The playback runtime (README.md#what-is-in-the-tree): the C API of clothrt on synthetic databases
+// laid out as docs/SECONDARY_GRAPH.md says: stored frames played back exactly, interpolation,
+// blends without pops (also when interrupted), fallbacks to the nearest state, world space and
+// strides, errors with the last good pose, many players on threads, and no allocation per frame.
 #include <gtest/gtest.h>
 #include <sqlite3.h>
 #include <unistd.h>
@@ -878,7 +878,7 @@ void expect_error_and_last_good_pose(Fixture& fx, int threads, int expected_code
   EXPECT_TRUE(failed.info.holding);
   EXPECT_EQ(failed.info.cloth_clip, 0);
   EXPECT_EQ(failed.info.primary_clip, fx.built.primary[2]);
-  // The message names the file and the damaged clip (issue 18: `play` showed neither).
+  // The message names the file and the damaged clip (`play` showed neither; docs/GUIDE.md#limits).
   const std::string msg = clothrt_player_errmsg(h.player);
   EXPECT_NE(msg.find(fx.path + ": cloth clip " + std::to_string(fx.built.clip.at({3, 2}))),
             std::string::npos)

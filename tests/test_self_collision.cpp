@@ -1,5 +1,6 @@
-// Cloth self-collision (issue 29): the crossing metric on hand-made meshes, the XPBD contacts on
-// the two hard cases made for them, determinism across thread counts, and the setting's record.
+// Cloth self-collision (docs/notebook/self_collision.md): the crossing metric on hand-made meshes,
+// the XPBD contacts on the two hard cases made for them, determinism across thread counts, and the
+// setting's record.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -120,9 +121,9 @@ TEST(SelfCollision, FoldingSheetHasNoCrossingsWithItAndSomeWithout) {
 }
 
 // The twisted skirt is wrung against the body into pleats tighter than its edges (4 cm edges,
-// 5 mm thickness): there self-collision does not yet remove every crossing (a known gap, issue 29
-// and docs/notebook/self_collision.md), but it must remove most of them. Fails if the contacts do
-// nothing, or if the scene stops crossing itself without them.
+// 5 mm thickness): there self-collision does not yet remove every crossing (a known gap,
+// docs/notebook/self_collision.md#known-gaps-not-done), but it must remove most of them. Fails if
+// the contacts do nothing, or if the scene stops crossing itself without them.
 TEST(SelfCollision, TwistedSkirtCrossesFarLessWithIt) {
   const ClothScene scene = make_hard_case("twisted-skirt");
   auto off = make_solver(SolverKind::Xpbd, scene.model, xpbd(0.0));

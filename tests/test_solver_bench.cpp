@@ -1,6 +1,7 @@
 // The solver benchmark's own logic: mass-spring sub-steps derived from the stability limit, the
-// cap on them, and one measured row against its reference; and the accuracy benchmark of issue 14
-// (chaos floor, short-horizon windows, self-convergence, static cases, cost at a fixed error).
+// cap on them, and one measured row against its reference; and the accuracy benchmark of
+// docs/GUIDE.md#the-solvers (chaos floor, short-horizon windows, self-convergence, static cases,
+// cost at a fixed error).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -76,7 +77,7 @@ TEST(SolverBench, NewtonRowsMeasureIterationsAndFactorisations) {
   EXPECT_LT(row.rms_error_mm, 10.0);
 }
 
-// ---- issue 14: the accuracy benchmark (bench/solver_accuracy.hpp) ----
+// ---- the accuracy benchmark (bench/solver_accuracy.hpp, docs/GUIDE.md#the-solvers) ----
 
 namespace {
 

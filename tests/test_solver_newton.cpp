@@ -733,9 +733,10 @@ TEST(NewtonSolver, ChordIterationsReachTheSameSolutionWithFewerFactorisations) {
   EXPECT_GT((plain.x - rest_state(model).x).cwiseAbs().maxCoeff(), 0.004);
 }
 
-// Issue 15's stopping rule (the defaults): stop once an update changes no velocity by more than
-// 1e-3 m/s, keep a non-converged iterate that lowered Phi, projected Hessian first. It must end
-// where a tight force tolerance ends (within 0.01 mm), with fewer Newton iterations, no halvings.
+// Newton's stopping rule (the defaults; docs/notebook/BENCHMARKS.md, "Newton on seed 004's grids"):
+// stop once an update changes no velocity by more than 1e-3 m/s, keep a non-converged iterate that
+// lowered Phi, projected Hessian first. It must end where a tight force tolerance ends
+// (within 0.01 mm), with fewer Newton iterations, no halvings.
 TEST(NewtonSolver, StopOnTheUpdateReachesTheTightEndState) {
   // The soft sheet of the chord test, hanging from its top edge: one minimum per step.
   const int n = 9;

@@ -121,11 +121,12 @@ TEST(Xpbd, DescribeNamesTheSettings) {
   EXPECT_THROW(make_xpbd_solver(scene.model, s), std::invalid_argument);
 }
 
-// Issue 15: with Rayleigh damping in the stretch projection's denominator, each sweep corrected
-// only 1 / (1 + damping / h) of the stretch error, so more sub-steps (smaller h) gave *more*
-// strain. With damping on (the material's 1e-3 s, raised to 1e-2 s to make the effect plain),
-// the hanging sheet's strain must fall as the sub-steps grow, and more stretch sweeps must not
-// make it worse either.
+// Damping and strain (docs/notebook/BENCHMARKS.md, "The 10,000-vertex sheet (hanging from two
+// corners, tethers on)"): with Rayleigh damping in the stretch projection's denominator, each sweep
+// corrected only 1 / (1 + damping / h) of the stretch error, so more sub-steps (smaller h) gave
+// *more* strain. With damping on (the material's 1e-3 s, raised to 1e-2 s to make the effect
+// plain), the hanging sheet's strain must fall as the sub-steps grow, and more stretch sweeps must
+// not make it worse either.
 TEST(Xpbd, StrainFallsAsSubstepsGrowWithDampingOn) {
   for (double damping : {1e-3, 1e-2}) {
     ClothScene scene = make_hard_case("hanging-sheet", 15);
@@ -149,10 +150,11 @@ TEST(Xpbd, StrainFallsAsSubstepsGrowWithDampingOn) {
     EXPECT_LT(run.metrics.back().max_strain, base.metrics.back().max_strain) << damping;
   }
   // Falling strain alone would not catch damping inside the stretch projection: that solver's
-  // strain also fell with sub-steps (issue 15: 27 % at 80, 4.8 % at 250 with damping 1e-3), only
-  // far above the undamped one (6 %, 0.41 %), because each sweep corrected 1 / (1 + damping / h)
-  // of the error. Damping acts on bending only, so at 160 sub-steps (damping / h = 48 for 1e-2 s)
-  // the damped sheet must stretch about as little as the undamped one.
+  // strain also fell with sub-steps (27 % at 80, 4.8 % at 250 with damping 1e-3; same section),
+  // only far above the undamped one (6 %, 0.41 %), because each sweep corrected
+  // 1 / (1 + damping / h) of the error. Damping acts on bending only, so at 160 sub-steps
+  // (damping / h = 48 for 1e-2 s) the damped sheet must stretch about as little as the undamped
+  // one.
   auto max_strain_at_160 = [](double damping) {
     ClothScene scene = make_hard_case("hanging-sheet", 15);
     scene.model.material.damping = damping;

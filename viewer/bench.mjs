@@ -1,8 +1,9 @@
-// The viewer's benchmark (issue 32 targets; not a test): plays DB in headless Chromium at
-// WIDTHxHEIGHT for SECONDS and prints, as JSON, the page's median frame rate over that time (one
-// sample per second, measured by the page), the server's CPU time per frame served (getrusage of
-// the clothdb process, all its threads, over the same time), and the page's load time (navigation
-// start to the first cloth frame drawn). Optionally saves a screenshot.
+// The viewer's benchmark (targets: docs/notebook/viewer.md#against-the-targets; not a test): plays
+// DB in headless Chromium at WIDTHxHEIGHT for SECONDS and prints, as JSON, the page's median frame
+// rate over that time (one sample per second, measured by the page), the server's CPU time per
+// frame served (getrusage of the clothdb process, all its threads, over the same time), and the
+// page's load time (navigation start to the first cloth frame drawn). Optionally saves a
+// screenshot.
 //
 //   node viewer/bench.mjs CLOTHDB DB [--seconds 10] [--width 1280] [--height 720] [--png FILE]
 //                         [--batch N (frames per request; the page's default 4)] [--paused]

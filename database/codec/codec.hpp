@@ -18,7 +18,7 @@
 //  4. XXH64 checksum over the header and chunk table, and one per chunk.
 // Decoding frame f touches only its chunk: at most K frame reconstructions (random access cost).
 //
-// Format version 2 (encode_v2, issue 17) predicts every frame from a per-garment subspace (a
+// Format version 2 (encode_v2) predicts every frame from a per-garment subspace (a
 // Basis: mean + modes, stored once per database) and codes only coefficients and a residual layer
 // on the same grid, so the bound is kept exactly as in version 1 (docs/DATABASE.md, "version 2").
 // Version 1 blobs decode exactly as before; decoding a version 2 blob needs its basis.
@@ -119,11 +119,11 @@ struct BlobInfo {
   bool body_frame = false;  // per-frame rigid transforms stored (SubspaceSettings::body_frames)
 };
 
-// A garment subspace (issue 17): x ~ mean + sum_k c_k modes[k], over 3V coordinates (x, y, z per
-// vertex). Built by precompute/compress/subspace.hpp (PCA of the database's own frames); stored
-// once per database (table codec_basis) as float32 mean and int16 modes with one float scale per
-// mode, so `modes` here holds exactly float(int16) * scale: the encoder and every decoder multiply
-// by the same floats.
+// A garment subspace (docs/DATABASE.md, "version 2"): x ~ mean + sum_k c_k modes[k], over 3V
+// coordinates (x, y, z per vertex). Built by precompute/compress/subspace.hpp (PCA of the
+// database's own frames); stored once per database (table codec_basis) as float32 mean and int16
+// modes with one float scale per mode, so `modes` here holds exactly float(int16) * scale: the
+// encoder and every decoder multiply by the same floats.
 struct Basis {
   int64_t id = 0;  // the codec_basis row id that version 2 blobs name
   uint32_t vertex_count = 0;
@@ -159,12 +159,12 @@ struct SubspaceSettings {
   uint32_t modes = 0;      // modes of the basis to use (0: all)
   bool use_mean = true;    // false for velocities
   int grid_divisions = 0;  // grid step just under 2 x bound / divisions (1 or 2, 0: try both)
-  // Cloth relative to the body (issue 17): per frame a rigid transform, 12 floats (the rotation R
-  // row by row, then the translation t), from the basis's body frame to the frames' space. The
-  // subspace then predicts R^T (x - t) and each frame's prediction is R s + t, so what the body
-  // carries (the pinned band's bob and tilt) is not paid for in coefficients. The transforms are
-  // stored in the blob (48 bytes a frame before zstd); the residual stays on the frames' grid, so
-  // the bound holds as without. Positions only (use_mean). Null: no body frame.
+  // Cloth relative to the body (docs/DATABASE.md, "version 2"): per frame a rigid transform, 12
+  // floats (the rotation R row by row, then the translation t), from the basis's body frame to the
+  // frames' space. The subspace then predicts R^T (x - t) and each frame's prediction is R s + t,
+  // so what the body carries (the pinned band's bob and tilt) is not paid for in coefficients. The
+  // transforms are stored in the blob (48 bytes a frame before zstd); the residual stays on the
+  // frames' grid, so the bound holds as without. Positions only (use_mean). Null: no body frame.
   const float* body_frames = nullptr;
 };
 

@@ -1,6 +1,7 @@
-// Frame codec version 2 (issue 17): every frame is predicted from a per-garment subspace (Kim et
-// al. 2013 keep a garment's shapes in a few hundred modes), and what the subspace misses is coded
-// on version 1's grid, so the hard per-coordinate bound holds exactly as in version 1.
+// Frame codec version 2 (docs/DATABASE.md, "version 2"): every frame is predicted from a
+// per-garment subspace (Kim et al. 2013 keep a garment's shapes in a few hundred modes), and what
+// the subspace misses is coded on version 1's grid, so the hard per-coordinate bound holds exactly
+// as in version 1.
 //
 // Per frame f of a chunk:
 //  1. Coefficients c[f] (M integers, coefficient = c * coefficient_step) are predicted in time:

@@ -122,9 +122,10 @@ struct ClothLink {
   int64_t run = 0;  // 0: none recorded
 };
 
-// A clip whose end was steered onto a state (issue 16, SceneFile::steering in the precompute):
-// how far its unsteered end was from that state (m, db::state_distance) and how hard the pull was
-// (the largest displacement of a vertex in one frame, m, and that over dt^2, m/s^2).
+// A clip whose end was steered onto a state (docs/DATABASE.md, "Dead ends and links";
+// SceneFile::steering in the precompute): how far its unsteered end was from that state (m,
+// db::state_distance) and how hard the pull was (the largest displacement of a vertex in one frame,
+// m, and that over dt^2, m/s^2).
 struct ClipSteering {
   int64_t clip = 0;
   int64_t target_state = 0;

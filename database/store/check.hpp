@@ -52,7 +52,8 @@ struct DatabaseInfo {
   uint64_t clip_raw_bytes = 0;   // as float32 positions
   uint64_t state_blob_bytes = 0;
   double max_clip_error = 0;  // largest measured codec error, m
-  // Frame codec in use (issue 17): blobs per format version, and the stored bases.
+  // Frame codec in use (docs/DATABASE.md, "version 2"): blobs per format version, and the stored
+  // bases.
   uint64_t clips_v1 = 0, clips_v2 = 0, states_v1 = 0, states_v2 = 0;
   std::vector<BasisRow> bases;
   double run_cpu_seconds = 0;

@@ -1,6 +1,6 @@
 // `clothdb db dump`: every row of a clothdb file's tables as text, blobs as their size and xxh64,
 // so two files can be compared with diff (the MPI and resume tests compare runs this way; the
-// README's undo walk-through compares md5 sums of it).
+// undo walk-through in docs/GUIDE.md#fixing-a-bad-clip compares dumps with cmp).
 #pragma once
 
 #include <cstdio>

@@ -60,8 +60,9 @@ struct SolverSettings {
   // newton_tolerance * (max vertex weight m g), or after newton_max_iterations (then halve dt).
   double newton_tolerance = 1e-6;
   // Newton: also stop once an iteration's update changes no free vertex's velocity by more than
-  // this (m/s), i.e. max |dx_i| / h below it (issue 15: the force tolerance above sits within a
-  // few times its own rounding floor on stiff cloth, so the loop stalled to the cap). 0: off.
+  // this (m/s), i.e. max |dx_i| / h below it (docs/notebook/BENCHMARKS.md, "Newton on seed 004's
+  // grids": the force tolerance above sits within a few times its own rounding floor on stiff
+  // cloth, so the loop stalled to the cap). 0: off.
   double newton_velocity_tolerance = 1e-3;
   // Newton: at the iteration cap, or when the line search can make no more progress, keep the
   // iterate if it lowered the incremental potential Phi below its value at the sub-step's start
@@ -103,7 +104,7 @@ struct SolverSettings {
   bool tethers = true;
   // XPBD: Gauss-Seidel sweeps of the stretch (edge) constraints per sub-step; 0: `iterations`.
   // Bending gets `iterations`. Stretch is the stiff part that does not converge in one sweep
-  // (issue 15); bending is soft and cheap to leave at one.
+  // (docs/GUIDE.md#the-solvers); bending is soft and cheap to leave at one.
   int stretch_iterations = 0;
   // XPBD: Provot-style strain limit: after the constraint sweeps and before collisions, every
   // edge longer than (1 + strain_limit) l0 is shortened to that, at most strain_limit_iterations
@@ -113,15 +114,15 @@ struct SolverSettings {
   int strain_limit_iterations = 1;
   // XPBD with the strain limit on: after the collision pass, up to this many rounds of the
   // strain limit, with a frictionless collision projection between rounds, so edges the body
-  // pushes on are shortened (by sliding along it) rather than left stretched (issue 15). The
-  // last round vertices are kept out of the body but may end inside the collision margin.
-  // 0: off.
+  // pushes on are shortened (by sliding along it) rather than left stretched
+  // (docs/GUIDE.md#the-solvers). The last round vertices are kept out of the body but may end
+  // inside the collision margin. 0: off.
   int strain_limit_contact_rounds = 0;
-  // XPBD cloth self-collision (issue 29): vertex-triangle and edge-edge contacts keep the cloth at
-  // least this far (mm) from itself, resolved in every sub-step (precompute/solvers/
-  // self_collision.hpp). JSON: "self_collision": {"thickness_mm": T}, written only when on so
-  // records made without it read and compare as before. 0: off. Newton, PBD and mass-spring refuse
-  // a setting with it on.
+  // XPBD cloth self-collision (docs/guide/self_collision.md): vertex-triangle and edge-edge
+  // contacts keep the cloth at least this far (mm) from itself, resolved in every sub-step
+  // (precompute/solvers/self_collision.hpp). JSON: "self_collision": {"thickness_mm": T}, written
+  // only when on so records made without it read and compare as before. 0: off. Newton, PBD and
+  // mass-spring refuse a setting with it on.
   double self_collision_thickness_mm = 0.0;
 };
 
@@ -161,8 +162,8 @@ struct RunSettings {
   int batch = 8;             // dead ends per batch (fixed: the result does not depend on threads)
   bool auto_solver = false;  // the solver setting was chosen by `precompute --auto`
   long resim_clip = 0;       // > 0: a `clip resim` of this clip carried forward (not a precompute)
-  // Codec version 2 during the run (issue 17): modes of the garment subspace the explorer builds
-  // from the clips stored so far (0: version 1 only).
+  // Codec version 2 during the run (docs/DATABASE.md, "clothdb precompute ... --codec v2"): modes
+  // of the garment subspace the explorer builds from the clips stored so far (0: version 1 only).
   uint32_t subspace_modes = 0;
   // ... coding the cloth relative to a body frame (precompute/compress/body_frame.hpp).
   bool subspace_body_frame = false;

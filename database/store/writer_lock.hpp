@@ -1,6 +1,7 @@
-// One writer per database (issue 18): two `precompute` runs on one file both finished and left
-// duplicate clips. Every Writer holds an exclusive lock on a sidecar file, PATH.lock, for its
-// life; a second process is refused at once with a message naming the holder.
+// One writer per database (docs/DATABASE.md#durability-and-concurrency): two `precompute` runs on
+// one file both finished and left duplicate clips. Every Writer holds an exclusive lock on a
+// sidecar file, PATH.lock, for its life; a second process is refused at once with a message naming
+// the holder.
 //
 // The lock is flock(2) on PATH.lock: the kernel drops it when its holder dies, however it dies,
 // so a killed run never leaves a lock that blocks the next one. The file's text (pid, host, start

@@ -1,6 +1,7 @@
 // `clothdb bench character`: a character scene's clip run with several solvers, sub-step counts,
-// thread counts and collider motions (issue 3): time per frame, edge strain, penetration into the
-// body capsules, and tunnelling (vertices whose path crossed a capsule during a frame).
+// thread counts and collider motions (docs/GUIDE.md#the-pipeline-command-by-command): time per
+// frame, edge strain, penetration into the body capsules, and tunnelling (vertices whose path
+// crossed a capsule during a frame).
 #pragma once
 
 #include <functional>
@@ -28,7 +29,8 @@ struct CharacterBenchOptions {
   std::vector<int> threads{1};
   std::vector<ColliderMotion> collider_motions;  // empty: the scene's
   // XPBD self-collision thicknesses (mm) to run, 0 for off. Empty: the scene's, and when that is
-  // on also a run without it, so its cost is shown beside the same run without (issue 29).
+  // on also a run without it, so its cost is shown beside the same run without
+  // (docs/guide/self_collision.md).
   std::vector<double> self_collision_mm;
 };
 
@@ -40,7 +42,8 @@ struct CharacterBenchRow {
   double ms_per_frame = 0;      // wall time of the solver steps per frame
   double cpu_ms_per_frame = 0;  // process CPU time (all threads) per frame
   double max_strain = 0;        // largest edge strain over all frames
-  // 99th percentile of (l - l0) / l0 over every edge at every frame's end (issue 15's p99).
+  // 99th percentile of (l - l0) / l0 over every edge at every frame's end (the p99 of
+  // docs/RESULTS.md#strain-how-much-the-cloth-stretches).
   double p99_strain = 0;
   int step_halvings = 0;  // Newton: sub-step halvings over the run
   // Per frame: the solver's iterations (Newton's, or constraint iterations) and Newton's
@@ -89,7 +92,8 @@ std::string character_rows_markdown(const std::vector<CharacterBenchRow>& rows);
 
 // The garment settled (settle_garment, with the scene's solver and settings) from every `every`-th
 // frame of a clip: per start frame, the largest edge strain and the deepest penetration of the
-// settled state (issue 15: every 50th start frame of 01_01 within 6 %).
+// settled state (docs/RESULTS.md#strain-how-much-the-cloth-stretches: every 50th start frame of
+// 01_01 within 6 %).
 struct SettleRow {
   int frame = 0;
   double max_strain = 0;

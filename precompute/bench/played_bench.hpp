@@ -1,9 +1,9 @@
 // `clothdb bench played DB`: how far the cloth a player sees is from the cloth a simulation of the
-// same path would have produced (issue 14). For seeded random walks through the primary graph
-// (the game's view: at each node a way out with probability proportional to the manifest's
-// weights), it plays the walk with the runtime library (clothrt, as a game links it) and
-// simulates the SAME walk continuously with the database's scene and solver settings from the
-// same start state. Per frame it reports the RMS and largest vertex distance between played and
+// same path would have produced (docs/GUIDE.md#is-the-database-good). For seeded random walks
+// through the primary graph (the game's view: at each node a way out with probability proportional
+// to the manifest's weights), it plays the walk with the runtime library (clothrt, as a game links
+// it) and simulates the SAME walk continuously with the database's scene and solver settings from
+// the same start state. Per frame it reports the RMS and largest vertex distance between played and
 // simulated cloth, and whether the frame was blending, fell back to a nearest state, or followed a
 // linked cloth edge.
 //

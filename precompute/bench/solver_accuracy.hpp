@@ -1,5 +1,5 @@
-// `clothdb bench solvers` (issue 14 part 3): how accurate each solver setting is, separated into
-// what can be told apart. Per scene:
+// `clothdb bench solvers` (docs/GUIDE.md#the-solvers): how accurate each solver setting is,
+// separated into what can be told apart. Per scene:
 //  - the chaos floor: the reference against itself started 1 um away. A long-run error at or
 //    under that floor is divergence of a chaotic motion, not a measurable solver error;
 //  - the short-horizon error: every `restart_every` frames each setting is restarted from the

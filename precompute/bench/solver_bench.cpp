@@ -91,7 +91,8 @@ std::vector<BenchConfig> newton_study_configs() {
     c.settings.newton_guess = guess;
     c.settings.newton_reuse_contraction = contraction;
     c.settings.newton_exact_hessian = exact;
-    // The loop as it was before issue 15: force tolerance only, halve at the cap, exact first.
+    // The loop as it was before today's stopping rule (docs/notebook/BENCHMARKS.md,
+    // "Newton on seed 004's grids"): force tolerance only, halve at the cap, exact first.
     c.settings.newton_velocity_tolerance = 0.0;
     c.settings.newton_accept_decrease = false;
     c.settings.newton_projected_first = false;
@@ -104,8 +105,9 @@ std::vector<BenchConfig> newton_study_configs() {
     c.label = buf;
     return c;
   };
-  // Issue 15's loop: stop on the update (no velocity change above `vtol`), keep a non-converged
-  // iterate that lowered Phi, projected Hessian first, Eisenstat-Walker PCG tolerance.
+  // Today's loop (docs/notebook/BENCHMARKS.md, "Newton on seed 004's grids"): stop on the update
+  // (no velocity change above `vtol`), keep a non-converged iterate that lowered Phi, projected
+  // Hessian first, Eisenstat-Walker PCG tolerance.
   auto update_stop = [](L linear, double vtol, bool exact, double contraction = 0.0,
                         G guess = G::Start) {
     BenchConfig c = candidate(SolverKind::Newton, 1, 0, 1e-6, linear);

@@ -1,6 +1,7 @@
 // The solver benchmarks' shared pieces: the bench scenes by name, mass-spring's sub-steps from its
 // stability limit, one measured row against a reference run, and the Newton study (`clothdb bench
-// newton`). `clothdb bench solvers` itself is bench/solver_accuracy.hpp (issue 14).
+// newton`). `clothdb bench solvers` itself is bench/solver_accuracy.hpp
+// (docs/GUIDE.md#the-solvers).
 #pragma once
 
 #include <cmath>

@@ -343,8 +343,9 @@ ClothState settle_garment(const CharacterScene& scene, Solver& solver,
   // Settle in the bind pose, where the garment was made and fits the body (no leg through the
   // skirt, whatever the target pose), moved rigidly onto the target's anchor bone so the garment
   // is already where and how it will hang; then blend the limbs into the target pose and hold it
-  // (issue 15: a skirt put straight into a pose with the legs apart and projected out of the
-  // capsules was caught around a leg, over 600 % strain). A third of the settle frames each.
+  // (docs/notebook/BENCHMARKS.md, "Settling from any start frame": a skirt put straight into a pose
+  // with the legs apart and projected out of the capsules was caught around a leg, over 600 %
+  // strain). A third of the settle frames each.
   const int frames = scene.file.settle_frames;
   std::vector<JointPose> start = pose;
   if (frames > 0) {

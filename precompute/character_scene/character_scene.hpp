@@ -55,11 +55,12 @@ struct SceneError : std::runtime_error {
 
 enum class GarmentKind { Skirt, Cape, Mesh };
 
-// Steered clip ends (issue 16, beyond Kim et al. 2013): over the last `frames` frames of a clip,
-// the cloth is pulled toward the nearest state at the clip's end node, ramped in, so that the clip
-// ends on that state and links to it instead of making a new state. Only ends within
-// `max_distance` (m, db::state_distance) of a state are steered; farther ones make new states as
-// without steering. frames 0: off (the scene file's "steering": {"frames": K, "max_mm": D}).
+// Steered clip ends (docs/GUIDE.md#the-precompute-kim-et-al-2013, beyond Kim et al. 2013): over the
+// last `frames` frames of a clip, the cloth is pulled toward the nearest state at the clip's end
+// node, ramped in, so that the clip ends on that state and links to it instead of making a new
+// state. Only ends within `max_distance` (m, db::state_distance) of a state are steered; farther
+// ones make new states as without steering. frames 0: off (the scene file's
+// "steering": {"frames": K, "max_mm": D}).
 struct SteeringSpec {
   int frames = 0;
   double max_distance = 0.03;

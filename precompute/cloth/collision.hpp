@@ -32,7 +32,8 @@ struct CapsuleCollider {
 };
 
 // Where a moving sphere or capsule is during a (sub)step, and how a vertex is tested against it.
-// This is the "no tunnelling for fast limbs" choice of issue 3; docs/notebook/BENCHMARKS.md
+// This is the "no tunnelling for fast limbs" choice;
+// docs/notebook/BENCHMARKS.md#fast-limbs-on-the-boxing-clip-sub-steps-against-swept-capsules
 // compares the three on the boxing clip.
 enum class ColliderMotion {
   // At the end pose for every sub-step, as if the limb jumped there at the start of the step.

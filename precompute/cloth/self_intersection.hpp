@@ -1,8 +1,8 @@
 // Where a cloth mesh passes through itself, and the spatial hash that finds near pairs of its
-// parts (issue 29). The one definition of a self-intersection that every report uses (the
-// self_intersections clip metric, `simulate`, `bench character`, the hard cases): a mesh edge that
-// crosses the interior of a triangle it does not touch (shares no vertex with). A sheet folded
-// through itself shows as such pairs along the line where the two layers cross.
+// parts (docs/guide/self_collision.md). The one definition of a self-intersection that every report
+// uses (the self_intersections clip metric, `simulate`, `bench character`, the hard cases): a mesh
+// edge that crosses the interior of a triangle it does not touch (shares no vertex with). A sheet
+// folded through itself shows as such pairs along the line where the two layers cross.
 #pragma once
 
 #include <Eigen/Core>

@@ -1,6 +1,6 @@
-// Cloth relative to the body for codec version 2 (issue 17: "code the offset from ... the rest
-// cloth carried by the pinned bones"): a rigid frame per cloth frame, fitted (Kabsch) to the
-// garment's anchor vertices, so the subspace describes the garment in that frame and the codec
+// Cloth relative to the body for codec version 2 (docs/DATABASE.md, "version 2": the offset from
+// the rest cloth carried by the pinned bones): a rigid frame per cloth frame, fitted (Kabsch) to
+// the garment's anchor vertices, so the subspace describes the garment in that frame and the codec
 // stores only the 12 floats of the transform for what the body carries.
 //
 // The anchors are the 5 % of vertices highest in the garment's rest shape, where garments hang

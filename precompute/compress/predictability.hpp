@@ -1,10 +1,11 @@
-// How predictable a garment's frames are under a per-coordinate error bound (issue 17): what a
-// subspace of k modes leaves, in character space and relative to a rigid body frame fitted to the
-// garment's least-moving vertices, and how often that residual is already within the bound as is,
-// after subtracting the previous frame's residual, or after linear extrapolation in time.
-// A coordinate within the bound of its prediction costs a codec (v2: subspace + residual layer)
-// almost nothing; every other one costs bits, so these fractions bound the ratio any predictor of
-// that family can reach under a hard L-infinity bound. `clothdb bench codec --predictability`.
+// How predictable a garment's frames are under a per-coordinate error bound
+// (docs/notebook/BENCHMARKS.md, "Codec v2 in the precompute"): what a subspace of k modes leaves,
+// in character space and relative to a rigid body frame fitted to the garment's least-moving
+// vertices, and how often that residual is already within the bound as is, after subtracting the
+// previous frame's residual, or after linear extrapolation in time. A coordinate within the bound
+// of its prediction costs a codec (v2: subspace + residual layer) almost nothing; every other one
+// costs bits, so these fractions bound the ratio any predictor of that family can reach under a
+// hard L-infinity bound. `clothdb bench codec --predictability`.
 #pragma once
 
 #include <cstdint>

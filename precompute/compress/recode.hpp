@@ -1,7 +1,8 @@
 // `clothdb db recode`: re-encodes every cloth clip and state of a database with codec version 2
-// (a subspace built from the database's own frames plus a residual layer, issue 17) or version 1,
-// in place, in batches of rows, each batch one transaction: a process killed at any moment leaves
-// a file whose every blob is either the old or the new one, and which checks and plays.
+// (a subspace built from the database's own frames plus a residual layer; docs/DATABASE.md,
+// "clothdb db recode") or version 1, in place, in batches of rows, each batch one transaction: a
+// process killed at any moment leaves a file whose every blob is either the old or the new one, and
+// which checks and plays.
 #pragma once
 
 #include <cstdint>

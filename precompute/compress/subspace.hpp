@@ -1,6 +1,7 @@
-// A garment subspace for codec version 2 (issue 17): principal components of a database's own
-// frames, as Kim et al. 2013 store a garment's shapes in a few hundred modes. Eigen lives here, in
-// the precompute; the codec in database/ takes the result as plain floats (codec::Basis).
+// A garment subspace for codec version 2 (docs/DATABASE.md, "version 2"): principal components of a
+// database's own frames, as Kim et al. 2013 store a garment's shapes in a few hundred modes. Eigen
+// lives here, in the precompute; the codec in database/ takes the result as plain floats
+// (codec::Basis).
 #pragma once
 
 #include <cstdint>

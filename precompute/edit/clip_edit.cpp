@@ -283,10 +283,11 @@ std::vector<float> read_edited_frames(const std::string& path, uint32_t vertex_c
   return cache.positions;
 }
 
-// Frames that are not an edit of the clip at all, refused whatever --on-break says (issue 18).
-// A rigid axis rotation of the whole clip about the origin is what a DCC's axis conversion writes
-// (Blender's PC2 export "Convert to Y-up": (x, y, z) -> (x, z, -y) in its frame); a change that
-// moves most vertices farther than the garment is big is no edit either.
+// Frames that are not an edit of the clip at all, refused whatever --on-break says
+// (docs/GUIDE.md#fixing-a-bad-clip). A rigid axis rotation of the whole clip about the origin is
+// what a DCC's axis conversion writes (Blender's PC2 export "Convert to Y-up":
+// (x, y, z) -> (x, z, -y) in its frame); a change that moves most vertices farther than the
+// garment is big is no edit either.
 void refuse_foreign_frames(const std::vector<float>& frames, const std::vector<float>& original,
                            size_t per_frame) {
   const size_t vertices = per_frame / 3, count = original.size() / 3;
@@ -342,7 +343,7 @@ void refuse_foreign_frames(const std::vector<float>& frames, const std::vector<f
                   aa.angle() * 180.0 / 3.14159265358979323846, axis[k] < 0 ? "-" : "", "XYZ"[k],
                   1e3 * best, as_is,
                   y_up ? "In Blender's PC2 export (io_export_pc2) turn off \"Convert to Y-up\" "
-                         "and export again (README, \"Blender\")"
+                         "and export again (docs/GUIDE.md, \"Fixing a bad clip\")"
                        : "Export again with the exporter's axis conversion off");
     fail(b);
   }
@@ -655,8 +656,9 @@ DeleteReport delete_clip(EditContext& ctx, int64_t clip) {
            " and no other state at its node has cloth along every way out; re-simulate it "
            "(clip resim) instead");
   }
-  // Dead ends linked to this clip (issue 16) continue with the clip of the nearest other state
-  // at the node along the same primary clip, so the runtime still never falls back.
+  // Dead ends linked to this clip (docs/DATABASE.md, "Dead ends and links") continue with the clip
+  // of the nearest other state at the node along the same primary clip, so the runtime still never
+  // falls back.
   std::vector<db::ClothLink> links, relinked;
   check(ctx.reader.cloth_links(&links, &err), err);
   for (const db::ClothLink& l : links) {

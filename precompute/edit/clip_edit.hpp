@@ -1,7 +1,7 @@
-// Hand-editing the cloth clips of a database (issue 7): export a clip for Blender and import it
-// back, re-simulate it with other settings, flag or delete it. Every change is one db::Writer::Edit
-// (one transaction, logged with its changeset), so `clothdb undo` reverts it exactly and a failed
-// edit writes nothing.
+// Hand-editing the cloth clips of a database (docs/GUIDE.md#fixing-a-bad-clip): export a clip for
+// Blender and import it back, re-simulate it with other settings, flag or delete it. Every change
+// is one db::Writer::Edit (one transaction, logged with its changeset), so `clothdb undo` reverts
+// it exactly and a failed edit writes nothing.
 //
 // Continuity. A clip starts at its start state S (its frame 0 is S's positions) and ends in a cloth
 // edge to a state T whose blend error (the explorer's state distance, explore/explorer.hpp) is at

@@ -1,9 +1,10 @@
-// The error floor of a garment on a motion (issue 16): how far apart cloth states stay that reach
-// the SAME node of the primary graph by DIFFERENT histories. The explorer links a clip's end to
-// a state at its node only when their state distance is at most epsilon; if the garment has many
-// resting shapes for one pose (a strongly flared skirt with soft bending buckles into one of many
-// stable fold patterns), the states at a node stay this far apart however long the exploration
-// runs, and an epsilon below it never links: every clip makes a new state.
+// The error floor of a garment on a motion (docs/GUIDE.md#choosing-epsilon-the-error-floor): how
+// far apart cloth states stay that reach the SAME node of the primary graph by DIFFERENT histories.
+// The explorer links a clip's end to a state at its node only when their state distance is at most
+// epsilon; if the garment has many resting shapes for one pose (a strongly flared skirt with soft
+// bending buckles into one of many stable fold patterns), the states at a node stay this far apart
+// however long the exploration runs, and an epsilon below it never links: every clip makes a new
+// state.
 //
 // The measurement, before exploring (seconds on a small garment, about a CPU-minute on the demo's
 // 3,000-vertex skirt):

@@ -60,7 +60,8 @@ struct ExploreGraph {
 
 // One job: simulate the garment along one primary edge from one cloth state. Everything a worker
 // needs beyond the scene and graph it loaded itself.
-// A state at a job's end node that steering may pull the clip's end toward (issue 16).
+// A state at a job's end node that steering may pull the clip's end toward
+// (docs/GUIDE.md#the-precompute-kim-et-al-2013).
 struct SteerTarget {
   int64_t state = 0;        // its id
   std::vector<float> x, v;  // character space, as stored (decoded)
@@ -130,14 +131,15 @@ struct ExploreOptions {
   // explores from the states its edit made and leaves the rest of the database as it is.
   int64_t min_state_id = 0;
   long resim_clip = 0;  // recorded in the run: a `clip resim` of this clip carried forward
-  // Codec version 2 (issue 17): the explorer builds a garment subspace of this many modes from
-  // the clips stored so far, once the file holds subspace_first_frames clip frames, and a new one
-  // each time the frames have grown by subspace_growth since the file's newest basis (with B
-  // bases stored, the next is due at first_frames x growth^B frames, so a resumed run decides as
-  // an uninterrupted one did). Later clips are encoded with version 1 and with version 2 on the
-  // newest basis, and the smaller blob is kept; each version 2 blob names its basis. When the
-  // exploration converges, the bases explorer runs built that no blob names are removed (with
-  // edits in the file, only this run's). 0: version 1 only. States stay version 1.
+  // Codec version 2 (docs/DATABASE.md, "clothdb precompute ... --codec v2"): the explorer builds a
+  // garment subspace of this many modes from the clips stored so far, once the file holds
+  // subspace_first_frames clip frames, and a new one each time the frames have grown by
+  // subspace_growth since the file's newest basis (with B bases stored, the next is due at
+  // first_frames x growth^B frames, so a resumed run decides as an uninterrupted one did). Later
+  // clips are encoded with version 1 and with version 2 on the newest basis, and the smaller blob
+  // is kept; each version 2 blob names its basis. When the exploration converges, the bases
+  // explorer runs built that no blob names are removed (with edits in the file, only this run's).
+  // 0: version 1 only. States stay version 1.
   uint32_t subspace_modes = 0;
   long subspace_first_frames = 300;
   double subspace_growth = 2.0;

@@ -21,7 +21,7 @@ namespace clothdb {
 constexpr uint32_t kWireVersion = 6;  // 2: clip quality metrics and the last frame; 3: Newton
                                       // options; 4: solver and codec settings as RunSettings JSON;
                                       // 5: steering (targets, epsilon, what the pull did);
-                                      // 6: self-intersection metrics of the clip (issue 29)
+                                      // 6: clip self-intersections (docs/guide/self_collision.md)
 
 class WireError : public std::runtime_error {
  public:

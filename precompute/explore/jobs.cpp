@@ -47,14 +47,15 @@ std::vector<uint8_t> encode_with(const std::vector<float>& frames, uint32_t fram
   return blob;
 }
 
-// Steered clip ends (issue 16; SceneFile::steering). The clip is simulated as usual, keeping the
-// state K frames before its end. If its end is farther than epsilon from the nearest state at the
-// end node, but within max_distance, the last K frames are simulated again with a pull toward
-// that state, ramped in (smoothstep), applied to the velocities before each step so that the
-// solver's constraints, strain limit and collisions still act on the cloth (see `pull` below), and
-// what is left closed after the last step (the clip ends on the target state). The
-// steered tail is kept only if it stretches no edge more than kSteerStrainAllowance beyond the
-// unsteered tail; the explorer then links its end like any other (within epsilon or not).
+// Steered clip ends (docs/GUIDE.md#the-precompute-kim-et-al-2013; SceneFile::steering). The clip is
+// simulated as usual, keeping the state K frames before its end. If its end is farther than epsilon
+// from the nearest state at the end node, but within max_distance, the last K frames are simulated
+// again with a pull toward that state, ramped in (smoothstep), applied to the velocities before
+// each step so that the solver's constraints, strain limit and collisions still act on the cloth
+// (see `pull` below), and what is left closed after the last step (the clip ends on the target
+// state). The steered tail is kept only if it stretches no edge more than kSteerStrainAllowance
+// beyond the unsteered tail; the explorer then links its end like any other (within epsilon or
+// not).
 PoseRun simulate_with_steering(const CharacterScene& scene, const ExploreGraph& graph,
                                const JobInput& input, ClothState& state, JobResult& result) {
   const ExploreEdge& edge = graph.edges[static_cast<size_t>(input.edge)];

@@ -78,8 +78,8 @@ Garment pin_rows_to(Garment g, const std::vector<int>& pins, int joint) {
   return g;
 }
 
-// Garment geometry checks at load (issue 18): damage and unit mistakes are reported against the
-// file, not found later as a blank preview or a solver blow-up.
+// Garment geometry checks at load (docs/GUIDE.md#limits): damage and unit mistakes are reported
+// against the file, not found later as a blank preview or a solver blow-up.
 constexpr double kMaxGarmentExtent = 20.0;    // m: bounding-box diagonal of any plausible garment
 constexpr double kNeedleQuality = 0.01;       // 2 area / longest edge^2 (equilateral: 0.87)
 constexpr double kSeamFactor = 5.0;           // open seams: gaps up to this many weld tolerances

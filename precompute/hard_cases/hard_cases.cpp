@@ -159,10 +159,10 @@ ClothScene cantilever(int resolution) {
   return scene;
 }
 
-// Self-collision (issue 29): a 1 m x 0.5 m sheet laid flat and held along a line across it, 40 cm
-// from one end, dropped with soft bending: both sides fall and fold down onto each other, the
-// short side over the long one, and swing. Without self-collision they pass through each other;
-// with it they meet and hang side by side.
+// Self-collision (docs/notebook/self_collision.md): a 1 m x 0.5 m sheet laid flat and held along a
+// line across it, 40 cm from one end, dropped with soft bending: both sides fall and fold down onto
+// each other, the short side over the long one, and swing. Without self-collision they pass through
+// each other; with it they meet and hang side by side.
 ClothScene folding_sheet(int resolution) {
   const int n = resolution > 0 ? resolution : 21;
   const int rows = std::max(2, (n + 1) / 2);
@@ -188,10 +188,10 @@ ClothScene folding_sheet(int resolution) {
   return scene;
 }
 
-// Self-collision (issue 29): a tube skirt (radius 0.16 m, 0.5 m long) round a body capsule of
-// radius 0.1 m, held at its waist and its hem. The hem ring turns once about the body and rises
-// 0.3 m in 1.5 s, then holds: the cloth between is wrung round the body in folds that press on
-// each other (the rise leaves the slack to do so without stretching).
+// Self-collision (docs/notebook/self_collision.md): a tube skirt (radius 0.16 m, 0.5 m long) round
+// a body capsule of radius 0.1 m, held at its waist and its hem. The hem ring turns once about the
+// body and rises 0.3 m in 1.5 s, then holds: the cloth between is wrung round the body in folds
+// that press on each other (the rise leaves the slack to do so without stretching).
 ClothScene twisted_skirt(int resolution) {
   const int around = resolution > 0 ? resolution : 24;
   const int rows = std::max(3, around * 5 / 8);

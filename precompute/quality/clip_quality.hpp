@@ -1,6 +1,7 @@
-// Quality metrics of a cloth clip (issue 7, "finding bad clips"): measured by the explorer for
+// Quality metrics of a cloth clip (for finding bad clips): measured by the explorer for
 // every clip it stores, recomputed by `clip import` / `clip resim`, listed by `clothdb clips list`.
-// Solver side: Eigen and the cloth model, no SQLite. docs/DATABASE.md repeats the definitions.
+// Solver side: Eigen and the cloth model, no SQLite.
+// docs/DATABASE.md#clip-quality-metrics-version-2 repeats the definitions.
 //
 // A clip is F frames of V vertices (float x, y, z; frame-major, as stored in the database) in
 // character space (docs/SECONDARY_GRAPH.md), with the body capsules at each frame in the same
@@ -35,8 +36,9 @@
 //   step_halvings summed over the clip; only the Newton solver halves, the others report 0).
 //   Not visible in the frames: measure_clip returns -1 (unknown); whoever ran the solver sets it.
 // - self_intersections: the most edge-triangle crossings in one frame (an edge through a triangle
-//   it does not touch: cloth/self_intersection.hpp, issue 29), self_intersection_frame the first
-//   frame with that many (-1: none), self_intersection_frames how many frames have any.
+//   it does not touch: cloth/self_intersection.hpp, docs/guide/self_collision.md),
+//   self_intersection_frame the first frame with that many (-1: none), self_intersection_frames how
+//   many frames have any.
 // - worst_frame: the frame with the largest score max(strain / kVisibleStrain, penetration /
 //   kVisiblePenetration, jitter / kVisibleJitter, crossings) of that frame's own values (first on
 //   ties): the frame the contact sheet of `clothdb clip show` marks. One crossing already shows

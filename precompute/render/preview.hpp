@@ -24,7 +24,7 @@ struct PreviewScene {
   const std::vector<std::array<int, 3>>* triangles = nullptr;
   std::vector<CapsuleCollider> capsules;  // colliders, drawn at their end pose (a, b)
   // The whole skeleton as thinner capsules in a lighter shade than the colliders, so a preview
-  // shows a person and which of their bones the cloth meets (issue 18).
+  // shows a person and which of their bones the cloth meets (docs/GUIDE.md#blender-and-previews).
   std::vector<CapsuleCollider> skeleton;
   std::vector<SphereCollider> spheres;
   bool floor = true;  // a grid floor at y = floor_height

@@ -9,12 +9,12 @@
 // cloth. Stiffness-proportional (Rayleigh) damping (Macklin 2016 eq. 26) acts on bending only:
 // in the stretch update it would sit in the denominator, (1 + damping/h), so that every sweep
 // corrected only a fraction of the stretch error, and the smaller h (more sub-steps), the smaller
-// that fraction (issue 15: on a tethered 10k sheet, 80 sub-steps gave 27 % strain with damping
-// 1e-3 and 6 % without). Stretch gets its own sweep count (stretch_iterations), and an optional
-// Provot (1995) strain limit clamps the edges that are still longer than (1 + limit) l0 before
-// collisions. Constraints, the strain limit and collisions run in parallel (each colour's
-// constraints share no vertex; collisions are per vertex): the result does not depend on the
-// number of threads.
+// that fraction (docs/notebook/BENCHMARKS.md, "The 10,000-vertex sheet (hanging from two corners,
+// tethers on)": on a tethered 10k sheet, 80 sub-steps gave 27 % strain with damping 1e-3 and 6 %
+// without). Stretch gets its own sweep count (stretch_iterations), and an optional Provot (1995)
+// strain limit clamps the edges that are still longer than (1 + limit) l0 before collisions.
+// Constraints, the strain limit and collisions run in parallel (each colour's constraints share no
+// vertex; collisions are per vertex): the result does not depend on the number of threads.
 #include <omp.h>
 
 #include <Eigen/Geometry>
@@ -629,16 +629,16 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
           project_self_collision(self_, model_, state.x, x_prev);
         }
       }
-      // Contact rounds (issue 15): the collision pass above pushed the cloth out of the body and
-      // so stretched the edges the body holds (the hem on a thigh lifted into it: 11.7 % on the
-      // demo skirt with the limit at 2.5 %). Each round applies the strain limit again; between
-      // rounds a frictionless projection puts the vertices the limit moved back at the margin,
-      // so a held ring slides along the body to where it fits (Gauss-Seidel on both sets of
-      // constraints). Friction is left to the pass above: it measures slip over the whole
-      // sub-step, and repeating it would pin each vertex back where the sub-step started. The
-      // last round is followed by a projection onto the body's surface rather than the margin,
-      // so the strain bound has the last word at the cost of a vertex pulled into the collision
-      // margin (4 mm on the bundled garments), never into the body.
+      // Contact rounds (docs/notebook/BENCHMARKS.md, "Contact rounds"): the collision pass above
+      // pushed the cloth out of the body and so stretched the edges the body holds (the hem on a
+      // thigh lifted into it: 11.7 % on the demo skirt with the limit at 2.5 %). Each round applies
+      // the strain limit again; between rounds a frictionless projection puts the vertices the
+      // limit moved back at the margin, so a held ring slides along the body to where it fits
+      // (Gauss-Seidel on both sets of constraints). Friction is left to the pass above: it measures
+      // slip over the whole sub-step, and repeating it would pin each vertex back where the
+      // sub-step started. The last round is followed by a projection onto the body's surface rather
+      // than the margin, so the strain bound has the last word at the cost of a vertex pulled into
+      // the collision margin (4 mm on the bundled garments), never into the body.
       for (int round = 0; max_stretch > 0.0 && round < settings_.strain_limit_contact_rounds;
            ++round) {
         if (!run_strain_limit(state.x, max_stretch)) break;

@@ -1,5 +1,5 @@
-/* A fixed-timestep game loop driving two characters' cloth through the C API of clothrt (issue 32
- * item 4), the way an engine would:
+/* A fixed-timestep game loop driving two characters' cloth through the C API of clothrt
+ * (runtime/clothrt.h), the way an engine would:
  *  - the game logic runs at a fixed 60 Hz, decoupled from a render rate that varies from frame
  *    to frame (the classic accumulator loop); the cloth players advance with the logic;
  *  - both characters share one database (one cache, one prefetch thread) and write their cloth,

@@ -1,6 +1,7 @@
-// `clothdb view` in a real browser (issue 32 item 3): Debian's headless Chromium (WebGL through
-// SwiftShader) driven by playwright-core. Run by CTest through run_viewer_test.sh, which skips
-// (exit 77) when Chromium, Node or the viewer's npm packages are missing.
+// `clothdb view` in a real browser (docs/guide/viewer.md#the-browser-test): Debian's headless
+// Chromium (WebGL through SwiftShader) driven by playwright-core. Run by CTest through
+// run_viewer_test.sh, which skips (exit 77) when Chromium, Node or the viewer's npm packages are
+// missing.
 //
 //   node viewer_test.mjs CLOTHDB DEMO_DB WORK_DIR [server]
 //

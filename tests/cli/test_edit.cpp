@@ -1,8 +1,8 @@
-// Hand-editing clips (issue 7, precompute/edit/clip_edit.hpp): export and import, the continuity
-// checks at both ends, re-simulation carried forward, delete with re-routing, and an undo that
-// puts back every row. The database is a converged precompute of the small skirt of
-// tests/data/mpi_small.json (CMU 01_01, 192 vertices, 10 nodes, 14 edges), made once by the
-// `clothdb` executable and copied for each test.
+// Hand-editing clips (docs/GUIDE.md#fixing-a-bad-clip, precompute/edit/clip_edit.hpp): export and
+// import, the continuity checks at both ends, re-simulation carried forward, delete with
+// re-routing, and an undo that puts back every row. The database is a converged precompute of the
+// small skirt of tests/data/mpi_small.json (CMU 01_01, 192 vertices, 10 nodes, 14 edges), made once
+// by the `clothdb` executable and copied for each test.
 #include <gtest/gtest.h>
 #include <sqlite3.h>
 #include <sys/wait.h>
@@ -484,8 +484,8 @@ TEST(Edit, AVersion2FileIsMigratedWithItsEditLogAndItsOldEditsAreKeptNotUndone) 
   EXPECT_EQ(log[0].description, "flagged by a v2 tool");
   EXPECT_FALSE(log[0].has_changeset);
   // Edits logged without a changeset (by builds before schema 3) are kept in the log, but the
-  // column-based undo that restored them is gone (issue 13): undo refuses, naming the edit, and
-  // changes nothing.
+  // column-based undo that restored them is gone (docs/DATABASE.md#editing-version-3): undo
+  // refuses, naming the edit, and changes nothing.
   try {
     w.undo_last("test");
     ADD_FAILURE() << "an edit without a changeset was undone";

@@ -1,5 +1,5 @@
-// Hostile inputs to the `clothdb` command (issue 18): every case exits non-zero with a message
-// naming the argument, field or file and what is allowed, and creates or changes no file.
+// Hostile inputs to the `clothdb` command (docs/GUIDE.md#limits): every case exits non-zero with a
+// message naming the argument, field or file and what is allowed, and creates or changes no file.
 #include <gtest/gtest.h>
 #include <unistd.h>
 

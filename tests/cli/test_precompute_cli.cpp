@@ -1,8 +1,8 @@
 // The `clothdb` executable end to end: `graph build --db` puts the motion graph into a database,
 // `precompute` explores on it, and a precompute killed with SIGKILL part-way and rerun with the
 // same command gives the same database content, row for row and blob for blob, as a run that
-// was never interrupted (issue 5), every table compared. Run ids and timestamps are left out of the
-// comparison, by name (tests/support/db_rows.hpp).
+// was never interrupted (docs/GUIDE.md#the-precompute-kim-et-al-2013), every table compared. Run
+// ids and timestamps are left out of the comparison, by name (tests/support/db_rows.hpp).
 #include <gtest/gtest.h>
 #include <signal.h>
 #include <sqlite3.h>
@@ -168,9 +168,9 @@ TEST(PrecomputeCli, RefusesADifferentGraphThanTheDatabaseHolds) {
       << read_file(log);
 }
 
-// The scene's graph block (issue 27): a bad field is refused by name before any file is made, and
-// a database holding a graph built with other settings than the block's is refused; `db info`
-// reports the stored graph's coverage.
+// The scene's graph block (docs/guide/whole_motion.md#the-graph-is-part-of-the-scene): a bad field
+// is refused by name before any file is made, and a database holding a graph built with other
+// settings than the block's is refused; `db info` reports the stored graph's coverage.
 TEST(PrecomputeCli, SceneGraphBlockIsCheckedByFieldAndAgainstTheStoredGraph) {
   const std::filesystem::path dir = work_dir();
   const std::string db = (dir / "graph_block.db").string();
@@ -199,8 +199,9 @@ TEST(PrecomputeCli, SceneGraphBlockIsCheckedByFieldAndAgainstTheStoredGraph) {
       << read_file(log);
 }
 
-// One writer per database (issue 18): a second precompute on a database being written is refused
-// at once naming the first (its pid), and the database ends up equal to a single run's.
+// One writer per database (docs/DATABASE.md#durability-and-concurrency): a second precompute on a
+// database being written is refused at once naming the first (its pid), and the database ends up
+// equal to a single run's.
 TEST(PrecomputeCli, SecondWriterIsRefusedAndTheDatabaseEqualsOneRun) {
   const std::filesystem::path dir = work_dir();
   const std::string scene = small_scene("two_writers_scene");

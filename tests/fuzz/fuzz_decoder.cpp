@@ -6,8 +6,8 @@
 //   2: build frames from the bytes, encode them, decode, and check the error bound;
 //   3, 4: modes 0 and 1 for codec version 2 blobs, decoded with a made-up basis that fits the
 //      blob's header (so mutations reach the subspace reconstruction);
-//   5: mode 2 with codec version 2 and a made-up basis, with or without body frames (issue 17:
-//      cloth relative to the body) as the bytes say.
+//   5: mode 2 with codec version 2 and a made-up basis, with or without body frames (cloth
+//      relative to the body, docs/DATABASE.md, "version 2") as the bytes say.
 // Any crash, sanitizer report, bound violation or non-finite decoded value is a bug.
 #include <algorithm>
 #include <cmath>

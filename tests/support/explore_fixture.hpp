@@ -26,8 +26,10 @@ inline CharacterScene small_scene() {
   file.skirt.length = 0.5;
   file.material.bending_stiffness = 1e-5;  // the demo's is 1e-4 since 2026-12-02
   file.settings.tethers = false;
-  file.settings.stretch_iterations = 0;  // the bundled scene's strain limit (issue 15) is not
-  file.settings.strain_limit = 0.0;      // what these tests measure, and costs 64 passes a step
+  // The bundled scene's strain limit (docs/GUIDE.md#the-solvers) is not what these tests
+  // measure, and costs 64 passes a step.
+  file.settings.stretch_iterations = 0;
+  file.settings.strain_limit = 0.0;
   // Heavy air drag: the cloth forgets its history within about two edges, so the explorer
   // converges in a few dozen clips (a light fabric needs Kim et al.'s CPU-hours).
   file.air_drag = 3.0;
