@@ -679,9 +679,10 @@ TEST(Snapping, SegmentsLastAtLeastMinSegmentExceptAtClipEnds) {
         if (e.kind != EdgeKind::clip) continue;
         const bool at_clip_end =
             e.first_frame == 0 || e.last_frame == g.clips[e.clip].frame_count - 1;
-        if (!at_clip_end)
+        if (!at_clip_end) {
           EXPECT_GE(e.last_frame - e.first_frame, m)
               << g.clips[e.clip].name << " " << e.first_frame << ".." << e.last_frame;
+        }
       }
       EXPECT_GE(closest_inner_nodes(g), m);
       EXPECT_EQ(graph_coverage(g).short_inner_segments, 0);

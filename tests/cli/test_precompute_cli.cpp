@@ -176,7 +176,7 @@ TEST(PrecomputeCli, SceneGraphBlockIsCheckedByFieldAndAgainstTheStoredGraph) {
   const std::string db = (dir / "graph_block.db").string();
   const std::string log = (dir / "graph_block_log.txt").string();
   std::filesystem::remove(log);
-  remove_db(db);
+  remove_database(db);
   const std::string bad = small_scene("bad_graph_block", R"(, "graph": {"min_segment_s": -0.3})");
   int status = 0;
   waitpid(start({"precompute", bad, "--db", db}, log), &status, 0);
