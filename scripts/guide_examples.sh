@@ -41,7 +41,8 @@ export LC_ALL=C TZ=UTC
 clothdb() { "$CLOTHDB" "$@"; }
 
 # What differs between two runs of the same binary, and nothing else: wall and CPU times, the
-# run's timestamps, the user who ran it, and the temporary folder.
+# run's timestamps, CPU times and the forecast made from them, the user who ran it, and the
+# temporary folder.
 mask() {
   sed -E \
     -e "s#$WORK/run/##g; s#$WORK/run#.#g; s#$ROOT/##g" \
@@ -50,6 +51,8 @@ mask() {
     -e 's#[0-9.]+ s this run \([0-9.]+ CPU-s per stored frame\)#<t> s this run (<t> CPU-s per stored frame)#g' \
     -e 's#in [0-9.]+ CPU s#in <t> CPU s#g' \
     -e 's#^(runs +[0-9]+), [0-9.]+ CPU s#\1, <t> CPU s#' \
+    -e 's#[0-9.e+-]+ CPU-h to converge#<t> CPU-h to converge#g' \
+    -e 's#made at [0-9.e+-]+ CPU-h#made at <t> CPU-h#g' \
     -e 's#uid [0-9]+#uid <n>#g'
 }
 
