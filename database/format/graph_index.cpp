@@ -2,23 +2,13 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdarg>
-#include <cstdio>
 #include <numeric>
 #include <set>
 
+#include "database/format/message.hpp"
+
 namespace clothdb::db {
 namespace {
-
-std::string format(const char* fmt, ...) __attribute__((format(printf, 1, 2)));
-std::string format(const char* fmt, ...) {
-  char buf[512];
-  va_list args;
-  va_start(args, fmt);
-  std::vsnprintf(buf, sizeof buf, fmt, args);
-  va_end(args);
-  return buf;
-}
 
 int find_root(std::vector<int>& parent, int i) {
   while (parent[size_t(i)] != i) i = parent[size_t(i)] = parent[size_t(parent[size_t(i)])];
@@ -51,9 +41,9 @@ bool GraphIndex::build(const GraphRows& rows, const GraphFindingSink& sink) {
     const PrimaryClip& p = pcs[size_t(i)];
     // A graph edge spans at least two poses; a shorter one would make a zero-length clip.
     if (p.frame_count < 2 || !(p.frame_rate > 0) || !std::isfinite(p.frame_rate))
-      if (!report("primary clip", format("%lld: %d frames at %g Hz (needs >= 2 frames at a "
-                                         "positive rate)",
-                                         (long long)p.id, p.frame_count, p.frame_rate)))
+      if (!report("primary clip", format_message("%lld: %d frames at %g Hz (needs >= 2 frames at a "
+                                                 "positive rate)",
+                                                 (long long)p.id, p.frame_count, p.frame_rate)))
         return false;
     primaries[size_t(i)].id = p.id;
     primaries[size_t(i)].frames = p.frame_count;
@@ -69,18 +59,19 @@ bool GraphIndex::build(const GraphRows& rows, const GraphFindingSink& sink) {
     auto a = primary_by_id.find(t.from_clip), b = primary_by_id.find(t.to_clip);
     if (a == primary_by_id.end() || b == primary_by_id.end()) {
       if (!dangling("primary transition",
-                    format("%lld: clip %lld or %lld does not exist", (long long)t.id,
-                           (long long)t.from_clip, (long long)t.to_clip)))
+                    format_message("%lld: clip %lld or %lld does not exist", (long long)t.id,
+                                   (long long)t.from_clip, (long long)t.to_clip)))
         return false;
       continue;
     }
     const PrimaryClip& from = pcs[size_t(a->second)];
     if (t.from_frame != from.frame_count - 1 || t.to_frame != 0)
       if (!report("primary transition",
-                  format("%lld: joins frame %d of clip %lld (last %d) to frame %d of clip %lld; "
-                         "transitions join a clip's last frame to the next clip's first",
-                         (long long)t.id, t.from_frame, (long long)t.from_clip,
-                         from.frame_count - 1, t.to_frame, (long long)t.to_clip)))
+                  format_message(
+                      "%lld: joins frame %d of clip %lld (last %d) to frame %d of clip %lld; "
+                      "transitions join a clip's last frame to the next clip's first",
+                      (long long)t.id, t.from_frame, (long long)t.from_clip, from.frame_count - 1,
+                      t.to_frame, (long long)t.to_clip)))
         return false;
     parent[size_t(find_root(parent, 2 * a->second + 1))] = find_root(parent, 2 * b->second);
     joined.insert({a->second, b->second});
@@ -107,15 +98,15 @@ bool GraphIndex::build(const GraphRows& rows, const GraphFindingSink& sink) {
       for (int b : leaving[size_t(node)])
         if (!joined.count({a, b}))
           if (!report("primary transition",
-                      format("missing from clip %lld to clip %lld (both meet at one node)",
-                             (long long)pcs[size_t(a)].id, (long long)pcs[size_t(b)].id)))
+                      format_message("missing from clip %lld to clip %lld (both meet at one node)",
+                                     (long long)pcs[size_t(a)].id, (long long)pcs[size_t(b)].id)))
             return false;
 
   for (const StoredState& s : rows.states) {
     auto p = primary_by_id.find(s.primary_clip);
     if (p == primary_by_id.end()) {
-      if (!dangling("cloth state", format("%lld: primary clip %lld does not exist", (long long)s.id,
-                                          (long long)s.primary_clip)))
+      if (!dangling("cloth state", format_message("%lld: primary clip %lld does not exist",
+                                                  (long long)s.id, (long long)s.primary_clip)))
         return false;
       continue;
     }
@@ -127,10 +118,11 @@ bool GraphIndex::build(const GraphRows& rows, const GraphFindingSink& sink) {
     auto s = state_by_id.find(c.start_state);
     auto p = primary_by_id.find(c.primary_clip);
     if (s == state_by_id.end() || p == primary_by_id.end()) {
-      if (!dangling("cloth clip",
-                    format("%lld: start state %lld or primary clip %lld does not "
-                           "exist",
-                           (long long)c.id, (long long)c.start_state, (long long)c.primary_clip)))
+      if (!dangling(
+              "cloth clip",
+              format_message("%lld: start state %lld or primary clip %lld does not "
+                             "exist",
+                             (long long)c.id, (long long)c.start_state, (long long)c.primary_clip)))
         return false;
       continue;
     }
@@ -138,18 +130,19 @@ bool GraphIndex::build(const GraphRows& rows, const GraphFindingSink& sink) {
     bool ok = true;
     if (c.first_frame != 0 || c.frame_count != pi.frames) {
       ok = false;
-      if (!report("cloth clip", format("%lld: covers frames %d..+%d of primary clip %lld (%d "
-                                       "frames); clips span whole primary clips",
-                                       (long long)c.id, c.first_frame, c.frame_count,
-                                       (long long)pi.id, pi.frames)))
+      if (!report("cloth clip",
+                  format_message("%lld: covers frames %d..+%d of primary clip %lld (%d "
+                                 "frames); clips span whole primary clips",
+                                 (long long)c.id, c.first_frame, c.frame_count, (long long)pi.id,
+                                 pi.frames)))
         return false;
     }
     if (states[size_t(s->second)].node != pi.src_node) {
       ok = false;
       if (!report("cloth clip",
-                  format("%lld: starts from state %lld, which is not at primary "
-                         "clip %lld's source node",
-                         (long long)c.id, (long long)c.start_state, (long long)pi.id)))
+                  format_message("%lld: starts from state %lld, which is not at primary "
+                                 "clip %lld's source node",
+                                 (long long)c.id, (long long)c.start_state, (long long)pi.id)))
         return false;
     }
     if (!ok) continue;
@@ -162,19 +155,20 @@ bool GraphIndex::build(const GraphRows& rows, const GraphFindingSink& sink) {
     auto s = state_by_id.find(e.to_state);
     if (c == clip_by_id.end() || s == state_by_id.end()) {
       if (!dangling("cloth edge",
-                    format("%lld: clip %lld or state %lld does not exist (or was "
-                           "refused above)",
-                           (long long)e.id, (long long)e.from_clip, (long long)e.to_state)))
+                    format_message("%lld: clip %lld or state %lld does not exist (or was "
+                                   "refused above)",
+                                   (long long)e.id, (long long)e.from_clip, (long long)e.to_state)))
         return false;
       continue;
     }
     Clip& ci = clips[size_t(c->second)];
     const Primary& pi = primaries[size_t(ci.primary)];
     if (states[size_t(s->second)].node != pi.tgt_node) {
-      if (!report("cloth edge", format("%lld: leads to state %lld, which is not at the end node "
-                                       "of clip %lld (primary clip %lld)",
-                                       (long long)e.id, (long long)e.to_state,
-                                       (long long)e.from_clip, (long long)pi.id)))
+      if (!report("cloth edge",
+                  format_message("%lld: leads to state %lld, which is not at the end node "
+                                 "of clip %lld (primary clip %lld)",
+                                 (long long)e.id, (long long)e.to_state, (long long)e.from_clip,
+                                 (long long)pi.id)))
         return false;
       continue;
     }
@@ -193,10 +187,11 @@ bool GraphIndex::build(const GraphRows& rows, const GraphFindingSink& sink) {
     auto p = primary_by_id.find(l.primary_clip);
     auto c = clip_by_id.find(l.to_clip);
     if (s == state_by_id.end() || p == primary_by_id.end() || c == clip_by_id.end()) {
-      if (!dangling("cloth link", format("%lld: names a missing state %lld, primary clip %lld or "
-                                         "cloth clip %lld",
-                                         (long long)l.id, (long long)l.from_state,
-                                         (long long)l.primary_clip, (long long)l.to_clip)))
+      if (!dangling("cloth link",
+                    format_message("%lld: names a missing state %lld, primary clip %lld or "
+                                   "cloth clip %lld",
+                                   (long long)l.id, (long long)l.from_state,
+                                   (long long)l.primary_clip, (long long)l.to_clip)))
         return false;
       continue;
     }
@@ -206,21 +201,24 @@ bool GraphIndex::build(const GraphRows& rows, const GraphFindingSink& sink) {
       return report("cloth link", std::move(message));
     };
     if (clips[size_t(c->second)].primary != p->second &&
-        !refuse(format("%lld: continues with cloth clip %lld, which is not along primary clip "
-                       "%lld",
-                       (long long)l.id, (long long)l.to_clip, (long long)l.primary_clip)))
+        !refuse(
+            format_message("%lld: continues with cloth clip %lld, which is not along primary clip "
+                           "%lld",
+                           (long long)l.id, (long long)l.to_clip, (long long)l.primary_clip)))
       return false;
     if (states[size_t(s->second)].node != primaries[size_t(p->second)].src_node &&
-        !refuse(format("%lld: from state %lld, which is not at primary clip %lld's source node",
-                       (long long)l.id, (long long)l.from_state, (long long)l.primary_clip)))
+        !refuse(
+            format_message("%lld: from state %lld, which is not at primary clip %lld's source node",
+                           (long long)l.id, (long long)l.from_state, (long long)l.primary_clip)))
       return false;
     if ((!(l.blend_error >= 0) || !std::isfinite(l.blend_error)) &&
-        !refuse(
-            format("%lld: blend error %g is not a finite length", (long long)l.id, l.blend_error)))
+        !refuse(format_message("%lld: blend error %g is not a finite length", (long long)l.id,
+                               l.blend_error)))
       return false;
     if (explored.count({s->second, p->second}) &&
-        !refuse(format("%lld: state %lld already has a clip along primary clip %lld",
-                       (long long)l.id, (long long)l.from_state, (long long)l.primary_clip)))
+        !refuse(format_message("%lld: state %lld already has a clip along primary clip %lld",
+                               (long long)l.id, (long long)l.from_state,
+                               (long long)l.primary_clip)))
       return false;
     if (ok) links.push_back({l.id, s->second, p->second, c->second, l.blend_error});
   }

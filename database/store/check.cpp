@@ -1,7 +1,6 @@
 #include "database/store/check.hpp"
 
 #include <cmath>
-#include <cstdarg>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -13,6 +12,7 @@
 #include "database/codec/codec.hpp"
 #include "database/format/cloth_graph.hpp"
 #include "database/format/graph_index.hpp"
+#include "database/format/message.hpp"
 #include "database/format/meta_keys.hpp"
 #include "database/sqlite/statement.hpp"
 
@@ -21,28 +21,19 @@ namespace {
 
 using sql::Stmt;
 
-std::string format(const char* fmt, ...) __attribute__((format(printf, 1, 2)));
-std::string format(const char* fmt, ...) {
-  char buf[512];
-  va_list args;
-  va_start(args, fmt);
-  std::vsnprintf(buf, sizeof buf, fmt, args);
-  va_end(args);
-  return buf;
-}
-
 // Runs a query whose rows each describe one problem (first column text) or a count.
 void collect(sqlite3* db, const char* sql, CheckReport& report, const char* prefix) {
   Stmt s(db, sql);
   if (!s.ok()) {
-    report.problems.push_back(format("%s: cannot run check: %s", prefix, sqlite3_errmsg(db)));
+    report.problems.push_back(
+        format_message("%s: cannot run check: %s", prefix, sqlite3_errmsg(db)));
     return;
   }
   int rc;
   while ((rc = s.step()) == SQLITE_ROW)
     report.problems.push_back(std::string(prefix) + ": " + (s.is_null(0) ? "?" : s.text(0)));
   if (rc != SQLITE_DONE)
-    report.problems.push_back(format("%s: check failed: %s", prefix, sqlite3_errmsg(db)));
+    report.problems.push_back(format_message("%s: check failed: %s", prefix, sqlite3_errmsg(db)));
 }
 
 // One check of a blob against its row. `frames`/`vertices`: what the row says (0: unknown).
@@ -62,11 +53,11 @@ codec::BlobInfo check_blob(const void* data, size_t size, const std::string& wha
     return codec::BlobInfo{};
   }
   if (frames > 0 && info.frame_count != frames)
-    report.problems.push_back(format("%s: blob holds %u frames, the row says %lld", what.c_str(),
-                                     info.frame_count, (long long)frames));
+    report.problems.push_back(format_message("%s: blob holds %u frames, the row says %lld",
+                                             what.c_str(), info.frame_count, (long long)frames));
   if (vertices > 0 && info.vertex_count != vertices)
-    report.problems.push_back(format("%s: blob holds %u vertices, expected %lld", what.c_str(),
-                                     info.vertex_count, (long long)vertices));
+    report.problems.push_back(format_message("%s: blob holds %u vertices, expected %lld",
+                                             what.c_str(), info.vertex_count, (long long)vertices));
   return info;
 }
 
@@ -109,7 +100,7 @@ void check_new_state_ends(Reader& reader, CheckReport& report) {
     const std::vector<float> still(x.size(), 0.0f);
     const double d = state_distance(last, still, x, still, 0.0);
     if (d > tolerance)
-      report.problems.push_back(format(
+      report.problems.push_back(format_message(
           "cloth edge %lld: clip %lld ends %.3f mm RMS from state %lld, which its end made (blend "
           "error 0; at most %.3f mm allowed by the codec bound)",
           (long long)e.id, (long long)e.from_clip, 1e3 * d, (long long)e.to_state,
@@ -128,7 +119,8 @@ struct Findings {
     if (++count <= kMax) out->push_back(kind + ": " + what);
   }
   ~Findings() {
-    if (count > kMax) out->push_back(format("%s: ... and %d more", kind.c_str(), count - kMax));
+    if (count > kMax)
+      out->push_back(format_message("%s: ... and %d more", kind.c_str(), count - kMax));
   }
 };
 
@@ -138,7 +130,7 @@ void check_garment(sqlite3* db, CheckReport& report) {
   const uint64_t rows = count(db, "SELECT count(*) FROM garment");
   if (rows != 1) {
     f.add(rows == 0 ? "no garment row: the runtime cannot open this file"
-                    : format("%llu garment rows, expected one", (unsigned long long)rows));
+                    : format_message("%llu garment rows, expected one", (unsigned long long)rows));
     if (rows == 0) return;
   }
   Stmt s(db,
@@ -151,14 +143,14 @@ void check_garment(sqlite3* db, CheckReport& report) {
   const int64_t vertices = s.i64(0), triangles = s.i64(1);
   const uint8_t* tri = static_cast<const uint8_t*>(s.blob(2));
   const int64_t tri_bytes = int64_t(s.bytes(2)), rest_bytes = s.i64(3);
-  if (vertices <= 0) f.add(format("vertex_count %lld", (long long)vertices));
-  if (triangles < 0) f.add(format("triangle_count %lld", (long long)triangles));
+  if (vertices <= 0) f.add(format_message("vertex_count %lld", (long long)vertices));
+  if (triangles < 0) f.add(format_message("triangle_count %lld", (long long)triangles));
   if (rest_bytes != vertices * 12)
-    f.add(format("rest positions hold %lld bytes, %lld vertices need %lld", (long long)rest_bytes,
-                 (long long)vertices, (long long)vertices * 12));
+    f.add(format_message("rest positions hold %lld bytes, %lld vertices need %lld",
+                         (long long)rest_bytes, (long long)vertices, (long long)vertices * 12));
   if (tri_bytes != triangles * 12) {
-    f.add(format("triangle array holds %lld bytes, %lld triangles need %lld (truncated?)",
-                 (long long)tri_bytes, (long long)triangles, (long long)triangles * 12));
+    f.add(format_message("triangle array holds %lld bytes, %lld triangles need %lld (truncated?)",
+                         (long long)tri_bytes, (long long)triangles, (long long)triangles * 12));
   } else if (tri) {
     Findings bad(&report.problems, "garment triangle");
     for (int64_t t = 0; t < triangles; ++t)
@@ -166,8 +158,8 @@ void check_garment(sqlite3* db, CheckReport& report) {
         uint32_t v;
         std::memcpy(&v, tri + 12 * t + 4 * k, 4);
         if (int64_t(v) >= vertices)
-          bad.add(format("triangle %lld: vertex index %u is out of range (%lld vertices)",
-                         (long long)t, v, (long long)vertices));
+          bad.add(format_message("triangle %lld: vertex index %u is out of range (%lld vertices)",
+                                 (long long)t, v, (long long)vertices));
       }
   }
 }
@@ -212,9 +204,9 @@ void check_graph(Reader& reader, CheckReport& report) {
         way_on |= with_cloth.count(b) > 0;
       if (way_on)
         f.add(
-            format("%lld: has no cloth edge out, though its end node has clips with cloth "
-                   "leaving it",
-                   (long long)c.id));
+            format_message("%lld: has no cloth edge out, though its end node has clips with cloth "
+                           "leaving it",
+                           (long long)c.id));
     }
   }
   {
@@ -235,15 +227,15 @@ void check_graph(Reader& reader, CheckReport& report) {
       for (int b : index.leaving[size_t(index.states[s].node)])
         if (with_cloth.count(b) && !explored.count({int(s), b}) && !linked.count({int(s), b}))
           f.add(required
-                    ? format("state %lld has neither a clip nor a link along primary clip %lld "
-                             "(the runtime would have to fall back; run `clothdb precompute` "
-                             "again on this database to link its dead ends)",
-                             (long long)index.states[s].id,
-                             (long long)index.primaries[size_t(b)].id)
-                    : format("state %lld has no clip along primary clip %lld (the runtime falls "
-                             "back to the nearest state that has one)",
-                             (long long)index.states[s].id,
-                             (long long)index.primaries[size_t(b)].id));
+                    ? format_message(
+                          "state %lld has neither a clip nor a link along primary clip %lld "
+                          "(the runtime would have to fall back; run `clothdb precompute` "
+                          "again on this database to link its dead ends)",
+                          (long long)index.states[s].id, (long long)index.primaries[size_t(b)].id)
+                    : format_message(
+                          "state %lld has no clip along primary clip %lld (the runtime falls "
+                          "back to the nearest state that has one)",
+                          (long long)index.states[s].id, (long long)index.primaries[size_t(b)].id));
     }
   }
   const std::vector<PrimaryClip>& pcs = rows.primary_clips;
@@ -366,10 +358,11 @@ CheckReport check_database(const std::string& path) {
     while (s.ok() && s.step() == SQLITE_ROW) {
       const int64_t id = s.i64(0);
       const int64_t vertices = s.i64(2);
-      const std::string what = format("cloth clip %lld", (long long)id);
+      const std::string what = format_message("cloth clip %lld", (long long)id);
       if (garment_vertices > 0 && vertices != garment_vertices)
-        report.problems.push_back(format("%s: %lld vertices, the garment has %lld", what.c_str(),
-                                         (long long)vertices, (long long)garment_vertices));
+        report.problems.push_back(format_message("%s: %lld vertices, the garment has %lld",
+                                                 what.c_str(), (long long)vertices,
+                                                 (long long)garment_vertices));
       const codec::BlobInfo info =
           check_blob(s.blob(3), s.bytes(3), what, s.i64(1), vertices, reader, scratch, report);
       // The bound: the blob's codec bound and the error measured when it was encoded must lie
@@ -379,11 +372,13 @@ CheckReport check_database(const std::string& path) {
       const double bound = s.f64(4), max_error = s.f64(5);
       const double slack = 1 + 1e-9;
       if (info.version != 0 && !s.is_null(4) && info.bound > bound * slack)
-        report.problems.push_back(format("%s: blob bound %g m exceeds the recorded bound %g m",
-                                         what.c_str(), info.bound, bound));
+        report.problems.push_back(
+            format_message("%s: blob bound %g m exceeds the recorded bound %g m", what.c_str(),
+                           info.bound, bound));
       if (!s.is_null(4) && !s.is_null(5) && !(max_error <= bound * slack))
-        report.problems.push_back(format("%s: measured error %g m exceeds the recorded bound %g m",
-                                         what.c_str(), max_error, bound));
+        report.problems.push_back(
+            format_message("%s: measured error %g m exceeds the recorded bound %g m", what.c_str(),
+                           max_error, bound));
     }
   }
   {
@@ -392,12 +387,12 @@ CheckReport check_database(const std::string& path) {
       const int64_t id = s.i64(0);
       const int64_t vertices = s.i64(1);
       if (garment_vertices > 0 && vertices != garment_vertices)
-        report.problems.push_back(format("cloth state %lld: %lld vertices, the garment has %lld",
-                                         (long long)id, (long long)vertices,
-                                         (long long)garment_vertices));
+        report.problems.push_back(
+            format_message("cloth state %lld: %lld vertices, the garment has %lld", (long long)id,
+                           (long long)vertices, (long long)garment_vertices));
       for (int col : {2, 3}) {
-        const std::string what =
-            format("cloth state %lld %s", (long long)id, col == 2 ? "positions" : "velocities");
+        const std::string what = format_message("cloth state %lld %s", (long long)id,
+                                                col == 2 ? "positions" : "velocities");
         check_blob(s.blob(col), s.bytes(col), what, 1, vertices, reader, scratch, report);
       }
     }
@@ -405,8 +400,8 @@ CheckReport check_database(const std::string& path) {
   {
     Stmt s(db, "SELECT id, old_frames FROM edit_log WHERE old_frames IS NOT NULL");
     while (s.ok() && s.step() == SQLITE_ROW)
-      check_blob(s.blob(1), s.bytes(1), format("edit %lld old frames", (long long)s.i64(0)), 0,
-                 garment_vertices, reader, scratch, report);
+      check_blob(s.blob(1), s.bytes(1), format_message("edit %lld old frames", (long long)s.i64(0)),
+                 0, garment_vertices, reader, scratch, report);
   }
   check_new_state_ends(reader, report);
   sqlite3_exec(db, "COMMIT", nullptr, nullptr, nullptr);
