@@ -13,7 +13,7 @@ namespace clothdb::cli {
 
 void register_bench_played(CLI::App& bench) {
   struct Args {
-    std::string db, out, scene;
+    std::string db, out, scene, motions;
     PlayedOptions options;
   };
   auto args = std::make_shared<Args>();
@@ -38,12 +38,16 @@ void register_bench_played(CLI::App& bench) {
       ->check(CLI::Range(0, 1024));
   cmd->add_option("--out", args->out, "Output directory (default: DB.played)");
   cmd->add_option("--scene", args->scene,
-                  "The scene file, if not at the path the database records (its hash must match)");
+                  "The scene file (default: the one the database stores; needed only for files "
+                  "made before scenes were stored)");
+  cmd->add_option("--motions", args->motions,
+                  "Folder holding the motion files, if not at their recorded paths (found by "
+                  "content hash)");
   cmd->add_flag(
       "--quiet", [args](int64_t) { args->options.progress = false; }, "No progress bar");
   cmd->callback([args] {
     db::Reader reader = open_reader(args->db);
-    const DatabaseScene ds = load_database_scene(reader, args->scene);
+    const DatabaseScene ds = load_database_scene(reader, args->scene, args->motions);
     // The solver setting the database was made with (it may be --auto's, not the scene's).
     SolverKind kind = ds.scene.file.solver;
     SolverSettings settings = ds.scene.file.settings;

@@ -243,6 +243,19 @@ Status Reader::motion_files(std::vector<MotionFile>* out, Error* err) {
                            });
 }
 
+Status Reader::source_files(std::vector<SourceFile>* out, Error* err) {
+  out->clear();
+  if (schema_version_ < 5) return Status::Ok;  // not stored before version 5
+  return sql::for_each_row(
+      db_, path_, "SELECT id, role, path, content_hash, bytes FROM source_file ORDER BY id", err,
+      [&](Stmt& s) {
+        SourceFile f{s.i64(0), s.text(1), s.text(2), s.text(3), {}};
+        const auto* p = static_cast<const uint8_t*>(s.blob(4));
+        f.bytes.assign(p, p + s.bytes(4));
+        out->push_back(std::move(f));
+      });
+}
+
 Status Reader::primary_clips(std::vector<PrimaryClip>* out, Error* err) {
   out->clear();
   return sql::for_each_row(db_, path_,

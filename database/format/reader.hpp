@@ -57,6 +57,7 @@ class Reader {
   Status all_meta(std::vector<std::pair<std::string, std::string>>* out, Error* err);
   Status garment(Garment* out, Error* err);  // NotFound if none was stored
   Status motion_files(std::vector<MotionFile>* out, Error* err);
+  Status source_files(std::vector<SourceFile>* out, Error* err);  // empty before schema 5
   Status primary_clips(std::vector<PrimaryClip>* out, Error* err);
   Status primary_transitions(std::vector<PrimaryTransition>* out, Error* err);
   Status cloth_states(std::vector<StoredState>* out, Error* err);

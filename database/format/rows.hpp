@@ -29,6 +29,17 @@ struct MotionFile {
   std::string content_hash;  // e.g. "sha256:..." of the file's bytes
 };
 
+// A file the scene was built from, stored at precompute so that the database rebuilds its scene
+// from any directory (docs/DATABASE.md#stored-sources): the motion manifest, the garment's mesh
+// file (and a glTF's external buffers). The scene file itself is meta `scene`.
+struct SourceFile {
+  int64_t id = 0;
+  std::string role;          // "manifest", "garment_mesh", "garment_mesh_part"
+  std::string path;          // as the referencing file spells it (relative to it, or absolute)
+  std::string content_hash;  // xxh64 of the bytes, as motion_file's
+  std::vector<uint8_t> bytes;
+};
+
 struct PrimaryClip {
   int64_t id = 0;
   std::string name;

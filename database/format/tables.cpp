@@ -7,6 +7,7 @@ const std::vector<TableInfo>& tables() {
       {"meta", 1, true, false},
       {"garment", 1, false, false},
       {"motion_file", 1, false, false},
+      {"source_file", 5, false, false},
       {"primary_clip", 1, false, false},
       {"primary_transition", 1, false, false},
       {"run", 1, true, false},

@@ -87,6 +87,14 @@ std::string table_sql(std::string_view name) {
   path TEXT NOT NULL,
   content_hash TEXT NOT NULL
 );)sql";
+  if (name == "source_file")
+    return R"sql(CREATE TABLE IF NOT EXISTS source_file(
+  id INTEGER PRIMARY KEY,
+  role TEXT NOT NULL CHECK (role IN ('manifest', 'garment_mesh', 'garment_mesh_part')),
+  path TEXT NOT NULL,
+  content_hash TEXT NOT NULL,
+  bytes BLOB NOT NULL
+);)sql";
   if (name == "primary_clip")
     return R"sql(CREATE TABLE IF NOT EXISTS primary_clip(
   id INTEGER PRIMARY KEY,
@@ -431,6 +439,14 @@ int64_t Writer::add_motion_file(const std::string& path, const std::string& cont
   Stmt s(db_, "INSERT INTO motion_file(path, content_hash) VALUES(?, ?)");
   if (!s.ok() || s.bind(1, path).bind(2, content_hash).step() != SQLITE_DONE)
     throw_sql(("adding motion file " + path).c_str());
+  return sqlite3_last_insert_rowid(db_);
+}
+
+int64_t Writer::add_source_file(const SourceFile& f) {
+  Stmt s(db_, "INSERT INTO source_file(role, path, content_hash, bytes) VALUES(?, ?, ?, ?)");
+  s.bind(1, f.role).bind(2, f.path).bind(3, f.content_hash);
+  s.bind_blob(4, f.bytes.data(), f.bytes.size());
+  if (!s.ok() || s.step() != SQLITE_DONE) throw_sql(("storing source file " + f.path).c_str());
   return sqlite3_last_insert_rowid(db_);
 }
 

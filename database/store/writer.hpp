@@ -53,6 +53,7 @@ class Writer {
   void set_meta(const std::string& key, const std::string& value);
   void put_garment(const Garment& garment);  // once; clips must match its vertex count
   int64_t add_motion_file(const std::string& path, const std::string& content_hash);
+  int64_t add_source_file(const SourceFile& file);  // its id; the file's id is not used
   int64_t add_primary_clip(const PrimaryClip& clip);
   int64_t add_primary_transition(const PrimaryTransition& transition);
 

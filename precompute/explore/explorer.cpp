@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <ctime>
 #include <filesystem>
 #include <stdexcept>
 
@@ -16,6 +17,7 @@
 #include "explore/jobs.hpp"
 #include "explore/primary_graph.hpp"
 #include "explore/progress.hpp"
+#include "explore/scene_sources.hpp"
 #include "explore/secondary_graph.hpp"
 #include "graph/motion_graph.hpp"
 #include "quality/clip_quality.hpp"
@@ -127,8 +129,17 @@ double earlier_cpu_seconds(db::Reader& reader, const std::string& path) {
   return seconds;
 }
 
-bool budget_spent(const ExploreOptions& options, const ExploreReport& report) {
-  return (options.cpu_hours > 0 && report.cpu_seconds >= options.cpu_hours * 3600) ||
+// The CPU the run has used, for the budget: the process's (every thread, the error floor and the
+// set-up included), and at least what the simulations reported (MPI workers run elsewhere).
+double run_cpu_seconds(const ExploreOptions& options, double explore_start) {
+  const double start = options.process_cpu_start >= 0 ? options.process_cpu_start : explore_start;
+  return process_cpu_seconds() - start;
+}
+
+bool budget_spent(const ExploreOptions& options, ExploreReport& report, double explore_start) {
+  report.budget_cpu_seconds = std::max(run_cpu_seconds(options, explore_start),
+                                       options.cpu_seconds_spent + report.cpu_seconds);
+  return (options.cpu_hours > 0 && report.budget_cpu_seconds >= options.cpu_hours * 3600) ||
          (options.max_frames > 0 && report.frames_this_run >= options.max_frames);
 }
 
@@ -174,6 +185,12 @@ void close_run(const SecondaryGraph& sg, const ExploreGraph& graph, db::Writer& 
 
 }  // namespace
 
+double process_cpu_seconds() {
+  timespec t{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return double(t.tv_sec) + 1e-9 * double(t.tv_nsec);
+}
+
 std::vector<db::NodeEdge> node_edges(const ExploreGraph& graph) {
   std::vector<db::NodeEdge> out;
   out.reserve(graph.edges.size());
@@ -197,7 +214,8 @@ ExploreGraph explore_graph(const CharacterScene& scene, const MotionGraph& graph
   return make_explore_graph(graph, scene.clips, where);
 }
 
-DatabaseScene load_database_scene(db::Reader& reader, const std::string& scene_file) {
+DatabaseScene load_database_scene(db::Reader& reader, const std::string& scene_file,
+                                  const std::string& motions_dir) {
   const std::string& path = reader.path();
   db::Error err;
   auto meta = [&](const char* key) {
@@ -207,20 +225,38 @@ DatabaseScene load_database_scene(db::Reader& reader, const std::string& scene_f
                                "': not made by `clothdb precompute`, so its scene is unknown");
     return value;
   };
-  const std::string scene_path = scene_file.empty() ? meta(db::meta::kScenePath) : scene_file;
-  const std::string scene_hash = meta(db::meta::kSceneHash);
-  if (!std::filesystem::exists(scene_path))
-    throw std::runtime_error(
-        path + ": its scene file " + scene_path +
-        " does not exist (a relative path is relative to where `precompute` ran; "
-        "give the scene file explicitly)");
-  const SceneFile file = load_scene_file(scene_path);
-  const std::string now = content_hash(file.text);
-  if (now != scene_hash)
-    throw std::runtime_error(path + ": the scene file " + scene_path +
-                             " changed since this database was made (" + scene_hash + ", now " +
-                             now + ")");
-  DatabaseScene out{build_character_scene(file), {}};
+  std::vector<db::MotionFile> motion_files;
+  db::throw_if_error(reader.motion_files(&motion_files, &err), err);
+  DatabaseScene out;
+  if (scene_file.empty() && has_stored_scene(reader)) {
+    // The scene, manifest and garment mesh the database stores: the same scene from anywhere.
+    out.scene = build_stored_scene(reader, motions_dir);
+  } else {
+    const std::string stored_path = meta(db::meta::kScenePath);
+    const std::string scene_path = scene_file.empty() ? stored_path : scene_file;
+    const std::string scene_hash = meta(db::meta::kSceneHash);
+    if (!std::filesystem::exists(scene_path))
+      throw std::runtime_error(
+          scene_file.empty()
+              ? path +
+                    ": made before databases stored their scene's manifest and mesh "
+                    "(docs/DATABASE.md#stored-sources), and its scene file " +
+                    stored_path +
+                    " does not exist from here (a relative path is relative to where `precompute` "
+                    "ran): give the scene file with --scene"
+              : path + ": --scene " + scene_path + ": no such file");
+    SceneFile file = load_scene_file(scene_path);
+    if (const std::string now = content_hash(file.text); now != scene_hash) {
+      const std::string field = json_difference(meta(db::meta::kScene), file.text);
+      throw std::runtime_error(path + ": the scene file " + scene_path +
+                               " is not the one this database was made from (" +
+                               (field.empty() ? scene_hash + ", now " + now : field) + ")");
+    }
+    if (const std::string d = scene_difference(reader, file); !d.empty())
+      throw std::runtime_error(d);
+    relocate_motion_files(file, motion_files, motions_dir, path);
+    out.scene = build_character_scene(file);
+  }
   nlohmann::json graph_json;
   try {
     graph_json = nlohmann::json::parse(meta(db::meta::kMotionGraph));
@@ -250,30 +286,45 @@ void prepare_database(db::Writer& writer, const CharacterScene& scene, ExploreGr
     throw std::runtime_error(writer.path() + ": " + std::string(err.message));
   const std::string scene_hash = content_hash(scene.file.text);
   const bool has_graph = attach_primary_graph(reader, graph, graph_json);
-  check_motion_files(reader);
+  check_motion_files(reader, scene_motion_files(scene.file));
 
   db::Garment existing;
   if (reader.garment(&existing, &err) == db::Status::Ok) {
     // Resuming: the scene must be the one this database was made from.
+    // Named by its first differing field (the stored scene, manifest and mesh against these).
     std::string stored;
-    if (reader.meta(db::meta::kSceneHash, &stored, &err) == db::Status::Ok && stored != scene_hash)
-      throw std::runtime_error(writer.path() + ": was made from a different version of " +
-                               scene.file.path.string() + " (scene hash " + stored + ", now " +
-                               scene_hash + "); use a new --db, or restore the scene file");
+    if (reader.meta(db::meta::kSceneHash, &stored, &err) == db::Status::Ok &&
+        stored != scene_hash) {
+      std::string stored_text;
+      std::string field;
+      if (reader.meta(db::meta::kScene, &stored_text, &err) == db::Status::Ok)
+        field = json_difference(stored_text, scene.file.text);
+      throw std::runtime_error(
+          writer.path() + ": was made from another version of " + scene.file.path.string() + " (" +
+          (field.empty() ? "scene hash " + stored + ", now " + scene_hash : field) +
+          "); use a new --db, or give the scene it was made from");
+    }
+    if (const std::string d = scene_difference(reader, scene.file); !d.empty())
+      throw std::runtime_error(d + "; use a new --db, or give the files it was made from");
     if (existing.vertex_count() != static_cast<uint32_t>(scene.model.vertex_count()))
       throw std::runtime_error(
           writer.path() + ": garment has " + std::to_string(existing.vertex_count()) +
           " vertices, the scene makes " + std::to_string(scene.model.vertex_count()));
     if (!has_graph) throw std::runtime_error(writer.path() + ": has a garment but no motion graph");
+    std::vector<db::SourceFile> stored_sources;
+    db::throw_if_error(reader.source_files(&stored_sources, &err), err);
+    if (stored_sources.empty()) {
+      // Made before the sources were stored: the scene is the stored one, so store them now.
+      reader.close();
+      db::Writer::Transaction tx(writer);
+      for (const db::SourceFile& f : scene_sources(scene.file)) writer.add_source_file(f);
+      tx.commit();
+    }
     return;
   }
   db::Writer::Transaction tx(writer);
-  if (!has_graph) {
-    std::vector<std::string> files;
-    for (const auto& name : scene.file.clips)
-      files.push_back(scene.file.manifest.clips[scene.file.manifest.require(name)].file.string());
-    write_primary_graph(writer, graph, graph_json, files);
-  }
+  if (!has_graph) write_primary_graph(writer, graph, graph_json, scene_motion_files(scene.file));
+  for (const db::SourceFile& f : scene_sources(scene.file)) writer.add_source_file(f);
   db::Garment g;
   for (const auto& t : scene.model.mesh.triangles)
     for (int k = 0; k < 3; ++k) g.triangles.push_back(static_cast<uint32_t>(t[k]));
@@ -319,6 +370,8 @@ db::RunSettings make_run_settings(const CharacterScene& scene, const ExploreOpti
 
 ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db::Writer& writer,
                       const ExploreOptions& options, const BatchRunner& given_runner) {
+  const double explore_start = process_cpu_seconds();
+  int batches = 0;
   const db::RunSettings run = make_run_settings(scene, options, writer.codec());
   check_codec_schedule_options(options);
   const BatchRunner runner =
@@ -348,7 +401,13 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
     // Kim et al.: the dead ends whose unresolved error is largest (this project: times the edge's
     // reach, and a batch of fixed size, so the result does not depend on the thread count).
     const std::vector<Job> batch = choose_batch(sg, failed, queue, options.batch);
-    if (batch.empty() || budget_spent(options, report)) break;
+    const double spent_before = report.budget_cpu_seconds;
+    const bool spent = budget_spent(options, report, explore_start);
+    if (batches > 0)  // the CPU from the last check to this one: that batch's
+      report.largest_batch_cpu_seconds =
+          std::max(report.largest_batch_cpu_seconds, report.budget_cpu_seconds - spent_before);
+    if (batch.empty() || spent) break;
+    ++batches;
     // Kim et al.: simulate each along its edge from its state (this project: steered ends).
     std::vector<JobResult> results(batch.size());
     runner(job_inputs(scene, graph, sg, batch, options, writer.codec(), bases.basis, bases.body),

@@ -120,10 +120,15 @@ BatchRunner openmp_runner(const CharacterScene& scene, const ExploreGraph& graph
 std::vector<size_t> longest_first(const ExploreGraph& graph, const std::vector<JobInput>& jobs);
 
 struct ExploreOptions {
-  double epsilon = 0.005;    // m: link back when the state distance is at most this
-  double cpu_hours = 0.0;    // budget (0: none): CPU time of the simulations
-  long max_frames = 0;       // budget (0: none): frames simulated in this run
-  int threads = 1;           // OpenMP threads across jobs (each job's solver runs on one)
+  double epsilon = 0.005;  // m: link back when the state distance is at most this
+  // Budget (0: none): CPU time of everything the run does (process CPU since process_cpu_start,
+  // and at least cpu_seconds_spent + the simulations' CPU, which is what MPI workers report),
+  // checked before each batch: a run overshoots it by at most one batch.
+  double cpu_hours = 0.0;
+  double process_cpu_start = -1;  // process_cpu_seconds() when the run began (< 0: explore's start)
+  double cpu_seconds_spent = 0;   // CPU spent before exploring (the error floor's simulations)
+  long max_frames = 0;            // budget (0: none): frames simulated in this run
+  int threads = 1;                // OpenMP threads across jobs (each job's solver runs on one)
   int batch = 8;             // dead ends per batch (fixed: the result does not depend on threads)
   bool progress = true;      // a progress bar on stderr
   bool auto_solver = false;  // recorded in the run: the scene's solver was chosen by --auto
@@ -213,9 +218,15 @@ struct ExploreReport {
   int clips_v2 = 0;
   double integrate_seconds = 0;   // wall time spent integrating them into the database
   double cpu_seconds_before = 0;  // simulation CPU of the file's earlier runs (the run table)
+  // What the --cpu-hours budget counted when the run stopped (all the run's CPU, the error floor
+  // included), and the most one batch added to it: the budget's overshoot is at most that.
+  double budget_cpu_seconds = 0, largest_batch_cpu_seconds = 0;
   Forecast forecast;              // made at the end of this run (meta forecast)
   std::vector<CurvePoint> curve;  // one point per batch (this run)
 };
+
+// CPU time of this process, all threads, s (CLOCK_PROCESS_CPUTIME_ID).
+double process_cpu_seconds();
 
 // The graph's edges as the cloth-graph contract sees them (database/cloth_graph.hpp), where the
 // node-anchor, start-clip and start-state rules are defined.
@@ -241,9 +252,14 @@ struct DatabaseScene {
   CharacterScene scene;
   ExploreGraph graph;
 };
-// scene_file (optional): read the scene from this path instead of meta `scene_path` (which is
-// as given to `precompute`, so relative to where it ran); the hash must still match.
-DatabaseScene load_database_scene(db::Reader& reader, const std::string& scene_file = "");
+// Without scene_file, the scene the database stores (meta `scene` and table source_file,
+// explore/scene_sources.hpp), so it works from any directory; a file made before those were
+// stored reads the scene file at meta `scene_path` (as given to `precompute`, so relative to where
+// it ran) and asks for scene_file when it is not there. scene_file: read the scene from this path;
+// refused, naming the first differing field, unless it is the one stored. Motion files are found
+// by content hash at their recorded path or under motions_dir (optional).
+DatabaseScene load_database_scene(db::Reader& reader, const std::string& scene_file = "",
+                                  const std::string& motions_dir = "");
 
 // Writes the garment, scene and graph metadata into a new database (no-op for what is there). A
 // primary graph already in the database (`clothdb graph build --db`) must be `graph_json`

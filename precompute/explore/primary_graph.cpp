@@ -128,14 +128,16 @@ bool attach_primary_graph(db::Reader& reader, ExploreGraph& graph, const std::st
   return true;
 }
 
-void check_motion_files(db::Reader& reader) {
+void check_motion_files(db::Reader& reader, const std::vector<std::string>& now_at) {
   db::Error err;
   std::vector<db::MotionFile> files;
   db::throw_if_error(reader.motion_files(&files, &err), err);
-  for (const auto& f : files) {
-    const std::string now = file_content_hash(f.path);
+  for (size_t i = 0; i < files.size(); ++i) {
+    const db::MotionFile& f = files[i];
+    const std::string path = i < now_at.size() ? now_at[i] : f.path;
+    const std::string now = file_content_hash(path);
     if (now != f.content_hash)
-      throw std::runtime_error(reader.path() + ": motion file " + f.path +
+      throw std::runtime_error(reader.path() + ": motion file " + path +
                                " changed since this database was made (" + f.content_hash +
                                ", now " + now + "); refusing to mix results");
   }

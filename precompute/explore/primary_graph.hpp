@@ -37,7 +37,9 @@ std::string stored_motion_graph(db::Reader& reader);
 // edges, sets every edge's db_clip and returns true. Returns false when it holds none.
 bool attach_primary_graph(db::Reader& reader, ExploreGraph& graph, const std::string& graph_json);
 
-// Throws if a motion file recorded in the database changed since (its content hash differs).
-void check_motion_files(db::Reader& reader);
+// Throws if a motion file recorded in the database changed since (its content hash differs):
+// `files` are where the scene's manifest points now, in the recorded order; a recorded file
+// without one is checked at its recorded path.
+void check_motion_files(db::Reader& reader, const std::vector<std::string>& files);
 
 }  // namespace clothdb

@@ -22,8 +22,10 @@ inline const std::string kClothdbExe = CLOTHDB_EXE;
 
 // Starts `clothdb args...` with stdout and stderr appended to `log` (stderr to `err_log` instead
 // when one is given); returns its pid.
+// `cwd` (optional): the folder it runs in.
 inline pid_t start_clothdb(const std::vector<std::string>& args, const std::string& log,
-                           bool append = true, const std::string& err_log = "") {
+                           bool append = true, const std::string& err_log = "",
+                           const std::string& cwd = "") {
   std::vector<std::string> all = {kClothdbExe};
   all.insert(all.end(), args.begin(), args.end());
   std::vector<char*> argv;
@@ -38,6 +40,7 @@ inline pid_t start_clothdb(const std::vector<std::string>& args, const std::stri
   else
     posix_spawn_file_actions_addopen(&actions, 2, err_log.c_str(),
                                      O_WRONLY | O_CREAT | (append ? O_APPEND : O_TRUNC), 0644);
+  if (!cwd.empty()) posix_spawn_file_actions_addchdir_np(&actions, cwd.c_str());
   pid_t pid = 0;
   const int rc = posix_spawn(&pid, kClothdbExe.c_str(), &actions, nullptr, argv.data(), environ);
   posix_spawn_file_actions_destroy(&actions);
@@ -62,6 +65,12 @@ inline CliResult wait_clothdb(pid_t pid, const std::string& log) {
 // Runs `clothdb args...` to the end, its output logged to `log` (overwritten).
 inline CliResult run_clothdb(const std::vector<std::string>& args, const std::string& log) {
   return wait_clothdb(start_clothdb(args, log, false), log);
+}
+
+// The same, run in the folder `cwd`.
+inline CliResult run_clothdb_in(const std::string& cwd, const std::vector<std::string>& args,
+                                const std::string& log) {
+  return wait_clothdb(start_clothdb(args, log, false, "", cwd), log);
 }
 
 // Arguments split at spaces (for arguments without spaces of their own).
