@@ -24,7 +24,7 @@ std::string default_author() {
 }
 
 struct Common {
-  std::string file, scene, author = default_author();
+  std::string file, scene, motions, author = default_author();
   int64_t id = 0;
   double epsilon_mm = 0;
 };
@@ -33,14 +33,19 @@ void add_common(CLI::App* cmd, Common& c, bool with_id = true) {
   cmd->add_option("FILE", c.file, "clothdb database")->required();
   if (with_id) cmd->add_option("ID", c.id, "Cloth clip id (see `clothdb clips list`)")->required();
   cmd->add_option("--scene", c.scene,
-                  "Scene file the database was made from, if not at its stored path");
+                  "Scene file the database was made from (default: the scene, manifest and "
+                  "garment mesh the database stores; needed only for files made before they were "
+                  "stored; refused, naming the field, if it is not the stored one)");
+  cmd->add_option("--motions", c.motions,
+                  "Folder holding the motion files, if they are not at their recorded paths "
+                  "(found by content hash)");
   cmd->add_option("--epsilon", c.epsilon_mm,
                   "Error bound in mm for the continuity checks (default: the precompute's)");
   cmd->add_option("--author", c.author, "Name in the edit log")->capture_default_str();
 }
 
 EditContext open(const Common& c) {
-  return open_edit(c.file, c.scene, 1e-3 * c.epsilon_mm, c.author);
+  return open_edit(c.file, c.scene, 1e-3 * c.epsilon_mm, c.author, c.motions);
 }
 
 void print_edges(const std::vector<EdgeCheck>& edges, double epsilon) {
@@ -73,6 +78,7 @@ void register_edit_commands(CLI::App& app) {
   struct ExportArgs {
     Common c;
     std::string out;
+    bool no_body = false;
   };
   auto ea = std::make_shared<ExportArgs>();
   CLI::App* exp = clip.add_subcommand(
@@ -82,13 +88,21 @@ void register_edit_commands(CLI::App& app) {
       "DIR/body.pc2, in the clip's character space; edit, then `clip import FILE ID DIR`");
   add_common(exp, ea->c);
   exp->add_option("--out", ea->out, "Folder to write (created)")->required();
+  exp->add_flag("--no-body", ea->no_body,
+                "Export the cloth alone (without it, an export whose scene cannot be rebuilt "
+                "fails and writes nothing)");
   exp->callback([ea] {
     db::Reader reader = open_reader(ea->c.file);
-    const ExportedClip files = export_clip(reader, ea->c.id, ea->out, ea->c.scene);
+    const ExportedClip files =
+        export_clip(reader, ea->c.id, ea->out, ea->c.scene, ea->c.motions, !ea->no_body);
     std::printf("clip %lld -> %s, %s%s%s%s, %s\n", (long long)ea->c.id, files.cloth_obj.c_str(),
                 files.cloth_pc2.c_str(), files.body_obj.empty() ? "" : ", ", files.body_obj.c_str(),
                 files.body_pc2.empty() ? "" : (", " + files.body_pc2).c_str(),
                 files.info_json.c_str());
+    std::printf(
+        "%d frames at %g fps: in Blender, Mesh Cache frame start 0, frame scale 1, scene frames "
+        "0-%d at %g fps (docs/guide/blender.md)\n",
+        files.frames, files.frame_rate, files.frames - 1, files.frame_rate);
   });
 
   // import
@@ -103,7 +117,9 @@ void register_edit_commands(CLI::App& app) {
       "Read an edited clip back (a PC2, or the folder `clip export` wrote): checks vertex and "
       "frame counts, re-encodes within the codec bound, re-measures its quality and checks "
       "continuity at both ends; an end whose edges' blend error would exceed epsilon is refused, "
-      "re-blended or ramped (--on-break)");
+      "re-blended or ramped (--on-break). Frames that are no edit (frozen, shifted, retimed, "
+      "rotated or in world space) are refused naming the cause; frames equal to the stored clip "
+      "within the codec bound write and log nothing and exit with status 3 (no change)");
   add_common(imp, ia->c);
   imp->add_option("PATH", ia->path, "cloth.pc2, or the folder holding it")->required();
   imp->add_option("--on-break", ia->on_break,
@@ -119,12 +135,21 @@ void register_edit_commands(CLI::App& app) {
     EditContext ctx = open(ia->c);
     db::ClothClip row;
     read_clip_frames(ctx.reader, ia->c.id, &row);
-    std::vector<float> frames = read_edited_frames(
-        ia->path, static_cast<uint32_t>(ctx.scene.scene.model.vertex_count()), row.frame_count);
+    EditedCache cache =
+        read_edited_cache(ia->path, static_cast<uint32_t>(ctx.scene.scene.model.vertex_count()),
+                          row.frame_count, ctx.scene.graph.rate);
     ImportOptions o;
     o.on_break = on_break;
     o.ramp_frames = ia->ramp_frames;
-    const ImportReport r = import_clip(ctx, ia->c.id, std::move(frames), o);
+    o.header_start_frame = cache.start_frame;
+    ImportReport r;
+    try {
+      r = import_clip(ctx, ia->c.id, std::move(cache.frames), o);
+    } catch (const NoChange& e) {
+      std::fprintf(stderr, "clothdb: %s: clip %lld: %s\n", ia->c.file.c_str(), (long long)ia->c.id,
+                   e.what());
+      throw CLI::RuntimeError(kNoChangeExitStatus);
+    }
     std::printf(
         "clip %lld: the edit moves its start by %.2f mm and its end by %.2f mm (epsilon "
         "%.2f mm)%s%s\n",
@@ -135,7 +160,11 @@ void register_edit_commands(CLI::App& app) {
       throw std::runtime_error(ia->c.file + ": clip " + std::to_string(ia->c.id) +
                                ": the edit breaks continuity at the edges marked above; nothing "
                                "was written (--on-break reblend or ramp to accept it)");
+    std::printf("  before (the stored clip, decoded):\n  ");
+    print_metrics(r.metrics_before);
+    std::printf("  after (the edit, re-encoded):\n  ");
     print_metrics(r.metrics);
+    if (!r.strain_warning.empty()) std::printf("warning: %s\n", r.strain_warning.c_str());
     std::printf("imported as edit %lld (codec error %.3f mm); `clothdb undo %s` reverts it\n",
                 (long long)r.edit, 1e3 * r.codec_error, ia->c.file.c_str());
   });

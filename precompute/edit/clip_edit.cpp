@@ -159,12 +159,12 @@ std::string mm(double metres) {
 }  // namespace
 
 EditContext open_edit(const std::string& path, const std::string& scene_file, double epsilon,
-                      const std::string& author) {
+                      const std::string& author, const std::string& motions_dir) {
   if (!std::filesystem::exists(path)) fail("cannot open " + path + ": no such file");
   EditContext ctx{path, db::Writer::open(path), {}, {}, 0, author};
   db::Error err;
   check(ctx.reader.open_borrowed(ctx.writer.handle(), ctx.writer.path(), &err), err);
-  ctx.scene = load_database_scene(ctx.reader, scene_file);
+  ctx.scene = load_database_scene(ctx.reader, scene_file, motions_dir);
   db::Garment garment;
   check(ctx.reader.garment(&garment, &err), err);
   if (garment.vertex_count() != static_cast<uint32_t>(ctx.scene.scene.model.vertex_count()))
@@ -197,7 +197,8 @@ std::vector<float> read_clip_frames(db::Reader& reader, int64_t clip, db::ClothC
 // ---- export / import ----------------------------------------------------------------------------
 
 ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& dir,
-                         const std::string& scene_file) {
+                         const std::string& scene_file, const std::string& motions_dir,
+                         bool with_body) {
   db::ClothClip row;
   const std::vector<float> frames = read_clip_frames(reader, clip, &row);
   db::Garment garment;
@@ -208,8 +209,45 @@ ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& di
   for (size_t k = 0; k < triangles.size(); ++k)
     triangles[k] = {int(garment.triangles[3 * k]), int(garment.triangles[3 * k + 1]),
                     int(garment.triangles[3 * k + 2])};
-  std::filesystem::create_directories(dir);
   ExportedClip out;
+  // The body first: when the scene cannot be rebuilt nothing is written.
+  PointCache body;
+  int caps = 0;
+  std::string body_note;
+  double rate = 0;
+  try {
+    DatabaseScene scene = load_database_scene(reader, scene_file, motions_dir);
+    rate = scene.graph.rate;
+    const ExploreEdge* edge = nullptr;
+    for (const auto& e : scene.graph.edges)
+      if (e.db_clip == row.primary_clip) edge = &e;
+    if (!edge || static_cast<int>(edge->poses.size()) != row.frame_count)
+      fail("its motion graph has no edge of " + std::to_string(row.frame_count) +
+           " frames along primary clip " + std::to_string(row.primary_clip));
+    if (with_body) {
+      const auto capsules = character_space_capsules(scene.scene, edge->poses);
+      body.frame_count = row.frame_count;
+      for (const auto& at : capsules) append_capsule_mesh_positions(at, body.positions);
+      caps = capsules.empty() ? 0 : static_cast<int>(capsules.front().size());
+      body.vertex_count =
+          static_cast<int>(body.positions.size() / 3 / std::max(1, row.frame_count));
+    } else {
+      body_note = "not exported (--no-body)";
+    }
+  } catch (const std::exception& e) {
+    if (with_body)
+      fail("clip export: " + reader.path() + ": cannot rebuild the scene for the body: " +
+           e.what() + " (--no-body exports the cloth alone)");
+    body_note = std::string("not exported (--no-body): ") + e.what();
+  }
+  if (rate <= 0) {
+    // Without the scene: the primary clip's recorded rate.
+    std::vector<db::PrimaryClip> primaries;
+    check(reader.primary_clips(&primaries, &err), err);
+    for (const auto& p : primaries)
+      if (p.id == row.primary_clip) rate = p.frame_rate;
+  }
+  std::filesystem::create_directories(dir);
   out.cloth_obj = dir + "/cloth.obj";
   out.cloth_pc2 = dir + "/cloth.pc2";
   out.info_json = dir + "/clip.json";
@@ -219,33 +257,19 @@ ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& di
   cache.frame_count = row.frame_count;
   cache.positions = frames;
   write_pc2(out.cloth_pc2, cache);
-  std::string body_note = "no body: ";
-  double rate = 30;
-  try {
-    DatabaseScene scene = load_database_scene(reader, scene_file);
-    rate = scene.graph.rate;
-    const ExploreEdge* edge = nullptr;
-    for (const auto& e : scene.graph.edges)
-      if (e.db_clip == row.primary_clip) edge = &e;
-    if (!edge || static_cast<int>(edge->poses.size()) != row.frame_count)
-      fail("its motion graph has no edge of " + std::to_string(row.frame_count) +
-           " frames along primary clip " + std::to_string(row.primary_clip));
-    const auto capsules = character_space_capsules(scene.scene, edge->poses);
-    PointCache body;
-    body.frame_count = row.frame_count;
-    for (const auto& at : capsules) append_capsule_mesh_positions(at, body.positions);
-    const int caps = capsules.empty() ? 0 : static_cast<int>(capsules.front().size());
-    body.vertex_count = static_cast<int>(body.positions.size() / 3 / std::max(1, row.frame_count));
+  if (body.vertex_count > 0) {
     out.body_obj = dir + "/body.obj";
     out.body_pc2 = dir + "/body.pc2";
     write_obj(out.body_obj, "body", body.positions.data(), body.vertex_count,
               capsule_mesh_triangles(caps));
     write_pc2(out.body_pc2, body);
-    body_note = "";
-  } catch (const std::exception& e) {
-    body_note += e.what();
-    std::fprintf(stderr, "clip export: %s\n", body_note.c_str());
   }
+  out.frame_rate = rate;
+  out.frames = row.frame_count;
+  std::string import =
+      "clothdb clip import " + reader.path() + " " + std::to_string(clip) + " " + dir;
+  if (!scene_file.empty()) import += " --scene " + scene_file;
+  if (!motions_dir.empty()) import += " --motions " + motions_dir;
   nlohmann::json info = {
       {"database", reader.path()},
       {"clip", clip},
@@ -254,44 +278,143 @@ ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& di
       {"frames", row.frame_count},
       {"vertices", n},
       {"frame_rate", rate},
+      {"frame_start", 0},
+      {"frame_end", row.frame_count - 1},
       {"space", "character space of each frame (docs/SECONDARY_GRAPH.md), metres, y up"},
       {"codec_bound_m", row.error_bound},
-      {"import", "clothdb clip import " + reader.path() + " " + std::to_string(clip) + " " + dir},
+      {"import", import},
   };
   if (!body_note.empty()) info["body"] = body_note;
   write_file_atomic(out.info_json, info.dump(2) + "\n");
   return out;
 }
 
-std::vector<float> read_edited_frames(const std::string& path, uint32_t vertex_count,
-                                      int32_t frame_count) {
+EditedCache read_edited_cache(const std::string& path, uint32_t vertex_count, int32_t frame_count,
+                              double rate) {
   const std::string file =
       std::filesystem::is_directory(path) ? path + "/cloth.pc2" : std::string(path);
   if (!std::filesystem::exists(file))
     fail(file + ": no such file (a .pc2, or a folder with cloth.pc2)");
   const PointCache cache = read_pc2(file);
+  char clip_range[160];
+  std::snprintf(clip_range, sizeof clip_range,
+                "frames 0-%d at %g fps, as `clip export` wrote them (header start frame 0, "
+                "sample rate 1)",
+                frame_count - 1, rate);
   if (cache.vertex_count != static_cast<int>(vertex_count))
     fail(file + ": points: " + std::to_string(cache.vertex_count) + " vertices, the clip has " +
          std::to_string(vertex_count) + " (the topology changed: keep the vertex order)");
-  if (cache.frame_count != frame_count)
-    fail(file + ": samples: " + std::to_string(cache.frame_count) + " frames, the clip has " +
-         std::to_string(frame_count) + " (the clip follows its primary edge frame by frame)");
+  if (cache.sample_rate != 1.0f) {
+    char b[400];
+    std::snprintf(b, sizeof b,
+                  "%s: header sample rate %g (frames between samples): a retimed or sub-sampled "
+                  "export; the clip has one sample per frame (%s). Export every frame, with the "
+                  "Mesh Cache's frame scale 1 (docs/guide/blender.md)",
+                  file.c_str(), cache.sample_rate, clip_range);
+    fail(b);
+  }
+  if (cache.frame_count != frame_count) {
+    char b[500];
+    std::snprintf(b, sizeof b,
+                  "%s: samples: %d frames, the clip has %d (the clip follows its primary edge "
+                  "frame by frame). Its header says frames %g-%g; the clip's are %s: export "
+                  "exactly that range (docs/guide/blender.md)",
+                  file.c_str(), cache.frame_count, frame_count, cache.start_frame,
+                  cache.start_frame + cache.frame_count - 1, clip_range);
+    fail(b);
+  }
   for (size_t i = 0; i < cache.positions.size(); ++i)
     if (!std::isfinite(cache.positions[i]))
       fail(file + ": frame " + std::to_string(i / 3 / vertex_count) + " vertex " +
            std::to_string(i / 3 % vertex_count) + ": not a finite coordinate");
-  return cache.positions;
+  return {cache.positions, cache.start_frame, file};
 }
 
+std::vector<float> read_edited_frames(const std::string& path, uint32_t vertex_count,
+                                      int32_t frame_count) {
+  return read_edited_cache(path, vertex_count, frame_count, 30).frames;
+}
+
+namespace {
+
+// RMS distance between frames `a` and `b` (each per_frame floats) over every `step`-th vertex.
+double frame_rms(const float* a, const float* b, size_t per_frame, size_t step) {
+  double sum = 0;
+  size_t count = 0;
+  for (size_t i = 0; i < per_frame; i += 3 * step, ++count)
+    for (int k = 0; k < 3; ++k) sum += double(a[i + k] - b[i + k]) * (a[i + k] - b[i + k]);
+  return std::sqrt(sum / double(std::max<size_t>(1, count)));
+}
+
+// RMS over every frame k of `frames` against the original clip at time offset + scale * k (linear
+// between frames, held at either end as Blender's Mesh Cache does).
+double timing_rms(const std::vector<float>& frames, const std::vector<float>& original,
+                  size_t per_frame, int n, double offset, double scale, size_t step) {
+  std::vector<float> at(per_frame);
+  double sum = 0;
+  for (int k = 0; k < n; ++k) {
+    const double t = std::clamp(offset + scale * k, 0.0, double(n - 1));
+    const int f0 = std::min(int(t), n - 1), f1 = std::min(f0 + 1, n - 1);
+    const float w = float(t - f0);
+    const float* a = original.data() + per_frame * f0;
+    const float* b = original.data() + per_frame * f1;
+    for (size_t i = 0; i < per_frame; i += 3 * step)
+      for (int c = 0; c < 3; ++c) at[i + c] = a[i + c] + w * (b[i + c] - a[i + c]);
+    const double r = frame_rms(frames.data() + per_frame * k, at.data(), per_frame, step);
+    sum += r * r;
+  }
+  return std::sqrt(sum / n);
+}
+
+}  // namespace
+
 // Frames that are not an edit of the clip at all, refused whatever --on-break says
-// (docs/GUIDE.md#fixing-a-bad-clip). A rigid axis rotation of the whole clip about the origin is
-// what a DCC's axis conversion writes (Blender's PC2 export "Convert to Y-up":
-// (x, y, z) -> (x, z, -y) in its frame); a change that moves most vertices farther than the
-// garment is big is no edit either.
+// (docs/guide/blender.md#what-import-checks). In order: a frozen cache (every frame the same while
+// the clip moves: an export without the Mesh Cache evaluated); no change (within the codec's
+// bound: NoChange); a rigid axis rotation of the whole clip about the origin (what a DCC's axis
+// conversion writes, Blender's PC2 export "Convert to Y-up": (x, y, z) -> (x, z, -y)); another
+// rigid move, with scale (world space of an object with a transform); the clip shifted by whole
+// frames or retimed (a Mesh Cache frame start or frame scale other than the clip's); a change
+// that moves most vertices farther than the garment is big.
 void refuse_foreign_frames(const std::vector<float>& frames, const std::vector<float>& original,
-                           size_t per_frame) {
+                           size_t per_frame, double position_bound, float header_start,
+                           double rate) {
   const size_t vertices = per_frame / 3, count = original.size() / 3;
   if (vertices == 0 || count == 0) return;
+  const int n = static_cast<int>(count / vertices);
+  // Every step-th vertex, at most about 512, for the timing and rigid fits (enough to tell).
+  const size_t step = std::max<size_t>(1, vertices / 512);
+  char b[600];
+
+  double frozen = 0, moving = 0;
+  for (int k = 1; k < n; ++k) {
+    frozen =
+        std::max(frozen, frame_rms(frames.data() + per_frame * k, frames.data(), per_frame, 1));
+    moving =
+        std::max(moving, frame_rms(original.data() + per_frame * k, original.data(), per_frame, 1));
+  }
+  if (n > 1 && frozen <= 0.1 * position_bound && moving > 10 * position_bound) {
+    std::snprintf(b, sizeof b,
+                  "clip import: all %d frames are the same (a frozen cache; the clip moves up to "
+                  "%.2f mm RMS from its first frame): the exporter wrote the mesh without its "
+                  "animation. In Blender's PC2 export turn on \"Apply Modifiers\" so that the Mesh "
+                  "Cache is evaluated (docs/guide/blender.md); refused whatever --on-break says",
+                  n, 1e3 * moving);
+    fail(b);
+  }
+  double largest = 0;
+  for (size_t i = 0; i < original.size(); ++i)
+    largest = std::max(largest, double(std::abs(frames[i] - original[i])));
+  if (largest <= position_bound) {
+    std::snprintf(b, sizeof b,
+                  "clip import: no change: the frames are the stored clip's (largest difference "
+                  "%.4f mm, within the codec's bound %.4f mm); nothing written or logged. A "
+                  "shape-key edit over a Mesh Cache needs its Deform Mode \"Integrate\" and the "
+                  "export's \"Apply Modifiers\" (docs/guide/blender.md)",
+                  1e3 * largest, 1e3 * position_bound);
+    throw NoChange(b);
+  }
+
   // Garment size: the diagonal of the original first frame's bounding box.
   Vec3 lo = Vec3::Constant(1e300), hi = -lo;
   for (size_t v = 0; v < vertices; ++v) {
@@ -311,42 +434,112 @@ void refuse_foreign_frames(const std::vector<float>& frames, const std::vector<f
     return std::sqrt(sum / double(count));
   };
   const double as_is = rms(Eigen::Matrix3d::Identity());
-  if (as_is < 0.1 * size) return;  // an edit, large or small: the continuity checks judge it
-  // The 23 other rotations that map axes onto axes (signed permutations with determinant +1).
-  const int perms[6][3] = {{0, 1, 2}, {0, 2, 1}, {1, 0, 2}, {1, 2, 0}, {2, 0, 1}, {2, 1, 0}};
-  double best = as_is;
-  Eigen::Matrix3d best_r = Eigen::Matrix3d::Identity();
-  for (const auto& p : perms)
-    for (int signs = 0; signs < 8; ++signs) {
-      Eigen::Matrix3d r = Eigen::Matrix3d::Zero();
-      for (int k = 0; k < 3; ++k) r(k, p[k]) = (signs >> k & 1) ? -1.0 : 1.0;
-      if (r.determinant() < 0 || r.isIdentity()) continue;
-      const double d = rms(r);
-      if (d < best) {
-        best = d;
-        best_r = r;
+  if (as_is >= 0.1 * size) {
+    // The 23 other rotations that map axes onto axes (signed permutations with determinant +1).
+    const int perms[6][3] = {{0, 1, 2}, {0, 2, 1}, {1, 0, 2}, {1, 2, 0}, {2, 0, 1}, {2, 1, 0}};
+    double best = as_is;
+    Eigen::Matrix3d best_r = Eigen::Matrix3d::Identity();
+    for (const auto& p : perms)
+      for (int signs = 0; signs < 8; ++signs) {
+        Eigen::Matrix3d r = Eigen::Matrix3d::Zero();
+        for (int k = 0; k < 3; ++k) r(k, p[k]) = (signs >> k & 1) ? -1.0 : 1.0;
+        if (r.determinant() < 0 || r.isIdentity()) continue;
+        const double d = rms(r);
+        if (d < best) {
+          best = d;
+          best_r = r;
+        }
       }
+    if (best < 0.02 * size) {
+      const Eigen::AngleAxisd aa(best_r);
+      const Vec3 axis = aa.axis();
+      int k = 0;
+      axis.cwiseAbs().maxCoeff(&k);
+      const bool y_up =
+          best_r.isApprox((Eigen::Matrix3d() << 1, 0, 0, 0, 0, 1, 0, -1, 0).finished()) ||
+          best_r.isApprox((Eigen::Matrix3d() << 1, 0, 0, 0, 0, -1, 0, 1, 0).finished());
+      std::snprintf(b, sizeof b,
+                    "clip import: the frames are the clip rotated by %.0f degrees about %s%c (RMS "
+                    "%.3g mm from that rotation, %.3g m from the clip): an axis conversion in the "
+                    "exporter, not an edit. %s; refused whatever --on-break says",
+                    aa.angle() * 180.0 / 3.14159265358979323846, axis[k] < 0 ? "-" : "", "XYZ"[k],
+                    1e3 * best, as_is,
+                    y_up ? "In Blender's PC2 export (io_export_pc2) turn off \"Convert to Y-up\" "
+                           "and export again (docs/guide/blender.md)"
+                         : "Export again with the exporter's axis conversion off");
+      fail(b);
     }
-  char b[400];
-  if (best < 0.02 * size) {
-    const Eigen::AngleAxisd aa(best_r);
-    const Vec3 axis = aa.axis();
-    int k = 0;
-    axis.cwiseAbs().maxCoeff(&k);
-    const bool y_up =
-        best_r.isApprox((Eigen::Matrix3d() << 1, 0, 0, 0, 0, 1, 0, -1, 0).finished()) ||
-        best_r.isApprox((Eigen::Matrix3d() << 1, 0, 0, 0, 0, -1, 0, 1, 0).finished());
-    std::snprintf(b, sizeof b,
-                  "clip import: the frames are the clip rotated by %.0f degrees about %s%c (RMS "
-                  "%.3g mm from that rotation, %.3g m from the clip): an axis conversion in the "
-                  "exporter, not an edit. %s",
-                  aa.angle() * 180.0 / 3.14159265358979323846, axis[k] < 0 ? "-" : "", "XYZ"[k],
-                  1e3 * best, as_is,
-                  y_up ? "In Blender's PC2 export (io_export_pc2) turn off \"Convert to Y-up\" "
-                         "and export again (docs/GUIDE.md, \"Fixing a bad clip\")"
-                       : "Export again with the exporter's axis conversion off");
-    fail(b);
+    // A rigid move with scale of the whole clip (Umeyama 1991, least squares): the object's
+    // transform applied, i.e. world space.
+    Eigen::Matrix3Xd src(3, 0), dst(3, 0);
+    {
+      std::vector<double> s_, d_;
+      for (int f = 0; f < n; ++f)
+        for (size_t v = 0; v < vertices; v += step) {
+          const size_t i = 3 * (size_t(f) * vertices + v);
+          for (int c = 0; c < 3; ++c) s_.push_back(original[i + c]), d_.push_back(frames[i + c]);
+        }
+      src = Eigen::Map<Eigen::Matrix3Xd>(s_.data(), 3, Eigen::Index(s_.size() / 3));
+      dst = Eigen::Map<Eigen::Matrix3Xd>(d_.data(), 3, Eigen::Index(d_.size() / 3));
+    }
+    const Eigen::Matrix4d t = Eigen::umeyama(src, dst, true);
+    const Eigen::Matrix3d sr = t.topLeftCorner<3, 3>();
+    const double scale = std::cbrt(sr.determinant());
+    const Eigen::Matrix3Xd fitted = (sr * src).colwise() + t.topRightCorner<3, 1>();
+    const double residual = std::sqrt((fitted - dst).colwise().squaredNorm().mean());
+    if (scale > 0 && residual < 0.02 * size) {
+      const Eigen::AngleAxisd aa(Eigen::Matrix3d(sr / scale));
+      const Vec3 tr = t.topRightCorner<3, 1>();
+      std::snprintf(b, sizeof b,
+                    "clip import: the frames are the clip moved rigidly (translation %.3f %.3f "
+                    "%.3f m, rotation %.1f degrees, scale %.3f; RMS %.3g mm from that move, %.3g "
+                    "m from the clip): world space, from an object with a transform, not the "
+                    "clip's own (local) space. Export in the object's local space, or clear its "
+                    "location, rotation and scale (docs/guide/blender.md); refused whatever "
+                    "--on-break says",
+                    tr.x(), tr.y(), tr.z(), aa.angle() * 180.0 / 3.14159265358979323846, scale,
+                    1e3 * residual, as_is);
+      fail(b);
+    }
   }
+
+  // Timing: the clip at time offset + scale * k in frame k, against the frames as they are.
+  if (n >= 4) {
+    const double at_once = timing_rms(frames, original, per_frame, n, 0, 1, step);
+    double best = at_once, best_offset = 0, best_scale = 1;
+    for (int offset = -3; offset <= 3; ++offset)
+      for (int sc = 50; sc <= 200; ++sc) {
+        if (offset == 0 && sc == 100) continue;
+        const double r = timing_rms(frames, original, per_frame, n, offset, sc / 100.0, step);
+        if (r < best) best = r, best_offset = offset, best_scale = sc / 100.0;
+      }
+    if (best < 0.5 * at_once) {
+      if (best_scale == 1.0) {
+        const int d = static_cast<int>(best_offset);
+        std::snprintf(
+            b, sizeof b,
+            "clip import: the frames are the clip shifted by %d frame%s (frame k holds the clip's "
+            "frame k%+d; RMS %.3g mm from that, %.3g mm from the clip as is): exported %s (PC2 "
+            "header start frame %g; the clip's frame 0 is at the Mesh Cache's frame start). "
+            "Export frames 0-%d with the Mesh Cache's frame start 0 (docs/guide/blender.md); "
+            "refused whatever --on-break says",
+            std::abs(d), std::abs(d) == 1 ? "" : "s", d, 1e3 * best, 1e3 * at_once,
+            d > 0 ? "early: the cache runs ahead of the scene" : "late: the cache lags the scene",
+            header_start, n - 1);
+      } else {
+        std::snprintf(b, sizeof b,
+                      "clip import: the frames are the clip retimed by %.2f (frame k holds the "
+                      "clip at frame %g + %.2f k; RMS %.3g mm from that, %.3g mm from the clip as "
+                      "is): the Mesh Cache's frame scale, or the scene's fps, is not the clip's "
+                      "(%g fps). Set frame scale 1 and the scene to %g fps "
+                      "(docs/guide/blender.md); refused whatever --on-break says",
+                      best_scale, best_offset, best_scale, 1e3 * best, 1e3 * at_once, rate, rate);
+      }
+      fail(b);
+    }
+  }
+
+  if (as_is < 0.1 * size) return;  // an edit, large or small: the continuity checks judge it
   // Gross change: most vertices, in some frame, farther from the clip than the garment's size.
   for (size_t f = 0; f < count / vertices; ++f) {
     size_t far = 0;
@@ -384,8 +577,9 @@ ImportReport import_clip(EditContext& ctx, int64_t clip, std::vector<float> fram
   if (frames.size() != original.size())
     fail("clip import: " + std::to_string(frames.size() / per_frame) + " frames given, clip " +
          std::to_string(clip) + " has " + std::to_string(n));
-  refuse_foreign_frames(frames, original, per_frame);
   const double rate = ctx.scene.graph.rate;
+  refuse_foreign_frames(frames, original, per_frame, ctx.writer.codec().position_bound,
+                        options.header_start_frame, rate);
   std::vector<db::ClothEdge> all_edges;
   db::Error err;
   check(ctx.reader.cloth_edges(&all_edges, &err), err);
@@ -453,6 +647,21 @@ ImportReport import_clip(EditContext& ctx, int64_t clip, std::vector<float> fram
   quality.halved_steps = -1;  // not simulated: unknown
   report.metrics = to_clip_metrics(quality);
   report.codec_error = codec_error;
+  // The stored clip measured as the edit is (its decoded frames), so that before and after differ
+  // by the edit alone: the stored metrics were measured on the simulated, unquantised frames.
+  ClipQuality before = measure_clip(ctx.scene.scene, edge.poses, original);
+  before.halved_steps = -1;
+  report.metrics_before = to_clip_metrics(before);
+  if (report.metrics.max_strain > 0.10 ||
+      report.metrics.max_strain > 2 * report.metrics_before.max_strain) {
+    char w[300];
+    std::snprintf(w, sizeof w,
+                  "max strain %.2f %% after the edit, %.2f %% before (both on the decoded "
+                  "frames): above %s; the edit stretches the cloth",
+                  100 * report.metrics.max_strain, 100 * report.metrics_before.max_strain,
+                  report.metrics.max_strain > 0.10 ? "10 %" : "twice the stored clip's");
+    report.strain_warning = w;
+  }
 
   db::Writer::Edit edit(ctx.writer, clip, "import", ctx.author);
   ctx.writer.replace_clip_blob(clip, blob, codec_error, db::ClipStatus::Edited);

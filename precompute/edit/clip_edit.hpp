@@ -32,10 +32,11 @@ struct EditContext {
   std::string author;
 };
 
-// scene_file: as for load_database_scene ("" = meta scene_path). epsilon <= 0: the newest run's
-// (run settings "epsilon_m"). Throws std::runtime_error naming the file and what is missing.
+// scene_file, motions_dir: as for load_database_scene ("" = the scene the database stores).
+// epsilon <= 0: the newest run's (run settings "epsilon_m"). Throws std::runtime_error naming the
+// file and what is missing.
 EditContext open_edit(const std::string& path, const std::string& scene_file, double epsilon,
-                      const std::string& author);
+                      const std::string& author, const std::string& motions_dir = "");
 
 // The frames of a clip as stored (decoded), frame_count * V * 3 floats in character space.
 std::vector<float> read_clip_frames(db::Reader& reader, int64_t clip, db::ClothClip* row);
@@ -43,18 +44,40 @@ std::vector<float> read_clip_frames(db::Reader& reader, int64_t clip, db::ClothC
 // ---- export / import
 
 struct ExportedClip {
-  std::string cloth_obj, cloth_pc2, body_obj, body_pc2, info_json;  // body_*: "" without scene
+  std::string cloth_obj, cloth_pc2, body_obj, body_pc2, info_json;  // body_*: "" without body
+  double frame_rate = 0;                                            // Hz
+  int frames = 0;
 };
-// Writes DIR/cloth.obj (frame 0) + DIR/cloth.pc2 (every frame) and, when the scene can be rebuilt,
-// DIR/body.obj + DIR/body.pc2 (the colliding capsules), all in the clip's character space (the
-// space the database stores, so an import is exact up to float rounding), and DIR/clip.json.
+// Writes DIR/cloth.obj (frame 0) + DIR/cloth.pc2 (every frame; header start frame 0 and sample
+// rate 1, the clip's frame k at frame k), DIR/body.obj + DIR/body.pc2 (the colliding capsules),
+// all in the clip's character space (the space the database stores, so an import is exact up to
+// float rounding), and DIR/clip.json (frames, rate, the import command). The body needs the scene
+// (load_database_scene with scene_file and motions_dir); when it cannot be rebuilt the export
+// fails naming why, unless with_body is false.
 ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& dir,
-                         const std::string& scene_file);
+                         const std::string& scene_file, const std::string& motions_dir = "",
+                         bool with_body = true);
 
 // Reads PATH (a .pc2 file, or a folder holding cloth.pc2) and checks it has the clip's vertex and
-// frame counts and only finite coordinates; throws std::runtime_error naming the file otherwise.
+// frame counts, a sample rate of 1 (one sample per frame) and only finite coordinates; throws
+// std::runtime_error naming the file, and for a wrong frame count the header's frame range and
+// the clip's (`rate`: the clip's fps, for the message).
+struct EditedCache {
+  std::vector<float> frames;
+  float start_frame = 0;  // the PC2 header's (`clip export` writes 0)
+  std::string file;
+};
+EditedCache read_edited_cache(const std::string& path, uint32_t vertex_count, int32_t frame_count,
+                              double rate);
 std::vector<float> read_edited_frames(const std::string& path, uint32_t vertex_count,
                                       int32_t frame_count);
+
+// An import whose frames are the stored clip's within the codec's bound: nothing to write and
+// nothing logged (`clothdb clip import` exits with kNoChangeExitStatus).
+struct NoChange : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+inline constexpr int kNoChangeExitStatus = 3;
 
 enum class OnBreak {
   Refuse,   // a broken end: nothing is written
@@ -75,6 +98,7 @@ struct EdgeCheck {
 struct ImportOptions {
   OnBreak on_break = OnBreak::Refuse;
   int ramp_frames = 8;
+  float header_start_frame = 0;  // the PC2 header's, named when the frames are shifted
 };
 
 struct ImportReport {
@@ -82,9 +106,18 @@ struct ImportReport {
   double start_move = 0, end_move = 0;  // m
   std::vector<EdgeCheck> edges;
   bool ramped_start = false, ramped_end = false;
-  db::ClipMetrics metrics;
-  double codec_error = 0;  // m, the re-encoded clip's largest error
+  db::ClipMetrics metrics;         // measured on the re-encoded frames (what the runtime plays)
+  db::ClipMetrics metrics_before;  // the stored clip measured the same way (decoded frames)
+  double codec_error = 0;          // m, the re-encoded clip's largest error
+  // Non-empty when the edit's max strain is above 10 % or above twice the stored clip's.
+  std::string strain_warning;
 };
+// Before any continuity check, whatever options.on_break says, frames that are no edit of the
+// clip are refused naming the cause (docs/guide/blender.md#what-import-checks): every frame the
+// same (a frozen cache), the clip shifted by whole frames or retimed (frame scale, fps), the clip
+// under an axis conversion (Y-up) or a rigid move (world space instead of the object's local
+// space), or a change larger than the garment. Frames equal to the stored clip within the codec's
+// bound throw NoChange.
 ImportReport import_clip(EditContext& ctx, int64_t clip, std::vector<float> frames,
                          const ImportOptions& options);
 
