@@ -86,7 +86,10 @@ void register_precompute(CLI::App& app) {
                   "Budget: cloth frames to simulate in this run (0: none)")
       ->capture_default_str();
   cmd->add_option("--cpu-hours", args->explore.cpu_hours,
-                  "Budget: CPU hours of simulation in this run (0: none)")
+                  "Budget: CPU hours of everything this run does (0: none): the set-up, the "
+                  "error floor's measurement and every simulation, all threads; checked before "
+                  "each batch, so a run overshoots it by at most one batch (`budget` in the "
+                  "summary shows what was counted and the largest batch)")
       ->capture_default_str();
   cmd->add_option(
          "--threads", args->explore.threads,
@@ -192,6 +195,8 @@ void register_precompute(CLI::App& app) {
         "states       %d\nclips        %d\ndead ends    %d (%s)\nframes       %ld stored, %ld this "
         "run\n"
         "cpu          %.1f s this run (%.3f CPU-s per stored frame)\n"
+        "budget       %.1f CPU s counted (everything the run did: set-up, error floor, "
+        "simulations; --cpu-hours %g), largest batch %.1f CPU s\n"
         "worst error  %s unresolved (%s weighted by reach; %d unexplored ways out: state alone "
         "at its node, error unknown), %.2f mm largest blend on an edge (epsilon %.1f mm)\n"
         "linked       %.1f %% of clip ends linked back within epsilon\n"
@@ -206,6 +211,7 @@ void register_precompute(CLI::App& app) {
         report.converged ? "converged" : "budget reached", report.frames, report.frames_this_run,
         report.cpu_seconds,
         report.frames_this_run > 0 ? report.cpu_seconds / report.frames_this_run : 0.0,
+        report.budget_cpu_seconds, request.explore.cpu_hours, report.largest_batch_cpu_seconds,
         mm(report.worst_error).c_str(), mm(report.weighted_worst_error).c_str(),
         report.curve.empty() ? 0 : report.curve.back().unexplored, 1e3 * report.worst_blend_error,
         *epsilon_mm, 100 * report.linked_fraction, report.links, 1e3 * report.mean_link_error,

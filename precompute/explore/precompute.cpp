@@ -235,9 +235,12 @@ std::string choose_solver(const PrecomputeRequest& request, CharacterScene& scen
 
 PrecomputeOutcome run_precompute(const PrecomputeRequest& request, std::FILE* log) {
   PrecomputeOutcome out;
+  // --cpu-hours counts everything from here: the scene, --auto's calibration, the error floor.
+  const double process_cpu_start = process_cpu_seconds();
   const SceneFile file = load_scene_file(request.scene);
   CharacterScene scene = build_character_scene(file);
   ExploreOptions options = request.explore;
+  options.process_cpu_start = process_cpu_start;
   options.auto_solver = request.automatic;
   options.threads = options.threads > 0
                         ? options.threads
@@ -310,6 +313,7 @@ PrecomputeOutcome run_precompute(const PrecomputeRequest& request, std::FILE* lo
   const ErrorFloorOptions floor_options = floor_options_for(request, options);
   const std::optional<ErrorFloor> measured = check_error_floor(
       request, scene, eg, chosen.json, options.epsilon, exists, floor_options, out, log);
+  if (measured) options.cpu_seconds_spent = measured->cpu_seconds;
   db::Writer writer = db::Writer::open_or_create(request.db, request.position_bound);
   prepare_database(writer, scene, eg, chosen.json);
   if (!out.auto_table.empty()) db::set_meta_text(writer, db::meta::kAutoSolver, out.auto_table);
