@@ -16,6 +16,9 @@ PACKAGES=(cmake g++ make pkg-config libeigen3-dev libomp-dev libassimp-dev assim
 # The browser test of `clothdb view` (tests/browser/) needs Debian's Chromium (about 100 MB more):
 # only when asked, as .ci/run does. Without it that test is skipped.
 if [ "${CLOTHDB_BROWSER:-0}" = 1 ]; then PACKAGES+=(chromium); fi
+# The Blender round trip's test (tests/blender/, the add-on in blender/) needs Debian's Blender
+# (about 300 MB more): only when asked, as .ci/run does. Without it that test is skipped.
+if [ "${CLOTHDB_BLENDER:-0}" = 1 ]; then PACKAGES+=(blender); fi
 missing=()
 for p in "${PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
