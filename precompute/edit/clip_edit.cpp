@@ -489,7 +489,9 @@ void refuse_foreign_frames(const std::vector<float>& frames, const std::vector<f
     const double residual = std::sqrt((fitted - dst).colwise().squaredNorm().mean());
     if (scale > 0 && residual < 0.02 * size) {
       const Eigen::AngleAxisd aa(Eigen::Matrix3d(sr / scale));
-      const Vec3 tr = t.topRightCorner<3, 1>();
+      // Rounded to the mm printed, without a "-0.000".
+      const Vec3 tr =
+          (1e3 * t.topRightCorner<3, 1>()).array().round().matrix() * 1e-3 + Vec3::Constant(0.0);
       std::snprintf(b, sizeof b,
                     "clip import: the frames are the clip moved rigidly (translation %.3f %.3f "
                     "%.3f m, rotation %.1f degrees, scale %.3f; RMS %.3g mm from that move, %.3g "

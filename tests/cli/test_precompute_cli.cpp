@@ -252,3 +252,34 @@ TEST(PrecomputeCli, SecondWriterIsRefusedAndTheDatabaseEqualsOneRun) {
   EXPECT_FALSE(std::filesystem::exists(two + ".lock")) << "the lock file is removed at the end";
   clothdb::test::expect_same_rows(one, two);
 }
+
+// --cpu-hours counts everything the run does, the error floor's measurement included, and is
+// checked before each batch: the CPU counted when the run stopped is at most the budget plus the
+// largest batch, and includes the floor's CPU (the figures the run prints, from CPU clocks).
+TEST(PrecomputeCli, CpuHoursCountsTheErrorFloorAndOvershootsByAtMostOneBatch) {
+  const std::string db = (work_dir() / "budget.db").string();
+  const std::string log = (work_dir() / "budget.log").string();
+  remove_database(db);
+  const double budget_hours = 0.001;  // 3.6 CPU s
+  run({"precompute", small_scene("budget"), "--db", db, "--epsilon", "0.5", "--batch", "2",
+       "--threads", "1", "--quiet", "--force", "--cpu-hours", std::to_string(budget_hours)},
+      log);
+  const std::string out = read_file(log);
+  double floor_cpu = -1, counted = -1, largest = -1;
+  const size_t f = out.find("measured in ");
+  ASSERT_NE(f, std::string::npos) << out;
+  floor_cpu = std::stod(out.substr(f + 12));
+  const size_t b = out.find("budget       ");
+  ASSERT_NE(b, std::string::npos) << out;
+  counted = std::stod(out.substr(b + 13));
+  const size_t l = out.find("largest batch ", b);
+  ASSERT_NE(l, std::string::npos) << out;
+  largest = std::stod(out.substr(l + 14));
+  EXPECT_NE(out.find("budget reached"), std::string::npos) << out;
+  EXPECT_GT(floor_cpu, 0) << out;
+  EXPECT_GE(counted, floor_cpu) << out;                      // the floor is counted
+  EXPECT_GE(counted, budget_hours * 3600) << out;            // it stopped for the budget
+  // At most one batch over (printed to 1 ms).
+  EXPECT_LE(counted, budget_hours * 3600 + largest + 0.002) << out;
+  EXPECT_GT(largest, 0) << out;
+}
