@@ -536,7 +536,8 @@ void register_clip_quality_commands(CLI::App& app) {
                    ".svg; needs the scene)");
   show->add_option(
       "--scene", sa->scene,
-      "Scene file the database was made from, if not at its stored path (for the body)");
+      "Scene file the database was made from, for the body (default: the one the database "
+      "stores; needed only for files made before scenes were stored)");
   show->add_option("--tiles", sa->tiles, "Frames on the sheet")
       ->capture_default_str()
       ->check(number_in(1, 64));

@@ -609,8 +609,9 @@ void register_view_command(CLI::App& app) {
   cmd->add_option("--assets", a->assets,
                   "The page's folder (default: viewer/ of the source tree this was built from)");
   cmd->add_option("--scene", a->scene,
-                  "Scene file the database was made from, if not at its stored path (for the "
-                  "body capsules)");
+                  "Scene file the database was made from, for the body capsules (default: the "
+                  "one the database stores; needed only for files made before scenes were "
+                  "stored)");
   cmd->add_option("--seed", a->seed, "Seed of the random walk")->capture_default_str();
   cmd->callback([a] { run_view(*a); });
 }
