@@ -165,6 +165,11 @@ void register_edit_commands(CLI::App& app) {
     std::printf("  after (the edit, re-encoded):\n  ");
     print_metrics(r.metrics);
     if (!r.strain_warning.empty()) std::printf("warning: %s\n", r.strain_warning.c_str());
+    if (o.header_start_frame != 0)
+      std::printf(
+          "note: the PC2 header's start frame is %g, `clip export` writes 0; its frames match the "
+          "clip's frame by frame (checked by content), so they were taken as frames 0-%d\n",
+          o.header_start_frame, row.frame_count - 1);
     std::printf("imported as edit %lld (codec error %.3f mm); `clothdb undo %s` reverts it\n",
                 (long long)r.edit, 1e3 * r.codec_error, ia->c.file.c_str());
   });

@@ -577,6 +577,11 @@ TEST(EditImportChecks, TheHeaderFrameRangeAndSampleRateAreCheckedAgainstTheClip)
   EXPECT_EQ(import_pc2(f, "rate", f.frames, &out, 0, 0.8f), 1);
   EXPECT_NE(out.find("header sample rate 0.8"), std::string::npos) << out;
   EXPECT_EQ(rows(f.path), f.before);
+  // Another start frame with the clip's frames frame by frame: taken as frames 0-N, with a note.
+  std::vector<float> edited = f.frames;
+  for (int v = 0; v < f.v; ++v) edited[size_t(3 * f.v) * size_t(f.n / 2) + 3 * v + 1] += 0.002f;
+  EXPECT_EQ(import_pc2(f, "start1", edited, &out, 1), 0) << out;
+  EXPECT_NE(out.find("note: the PC2 header's start frame is 1"), std::string::npos) << out;
 }
 
 TEST(EditImportChecks, ARetimedCacheIsRefusedNamingTheFactor) {
