@@ -809,5 +809,51 @@ TEST(SelfContained, AnOlderFileAsksForTheSceneAndADifferentSceneIsRefusedByField
   EXPECT_EQ(rows(self_contained_db()), before);
 }
 
+// A mesh garment: its mesh file is stored with the scene and the scene rebuilt without it.
+TEST(SelfContained, AMeshGarmentsFileIsStoredAndTheSceneRebuiltWithoutIt) {
+  const std::string src = work("mesh_src"), db = work("mesh.db");
+  test::remove_database(db);
+  ASSERT_EQ(run_cli("clip export " + base_db() + " 1 --out " + src + " --no-body"), 0);
+  fs::rename(src + "/cloth.obj", src + "/skirt.obj");
+  const ObjMesh mesh = read_obj(src + "/skirt.obj");
+  float top = -1e9f;
+  for (size_t i = 1; i < mesh.positions.size(); i += 3) top = std::max(top, mesh.positions[i]);
+  write_text(src + "/scene.json",
+             R"({"name": "mesh", "manifest": ")" + kSource + R"(/motions/cmu_walk.json",
+  "clips": ["01_01"],
+  "garment": {"type": "mesh", "file": "skirt.obj", "scale": 1, "bone": "Hips",
+              "pins": {"height_band": [)" +
+                 std::to_string(top - 0.03) + ", " + std::to_string(top + 0.01) + R"(]}},
+  "solver": {"name": "xpbd", "substeps": 6, "iterations": 1},
+  "colliders": {"bones": ["LowerBack", "LeftUpLeg", "RightUpLeg"]},
+  "air_drag": 3.0, "settle_frames": 10})");
+  test::CliResult r = test::run_clothdb_in(
+      src,
+      test::split_arguments("precompute scene.json --db " + db +
+                            " --epsilon 10 --batch 4 --threads 1 --frames 40 --quiet --no-floor"),
+      work("mesh.log"));
+  ASSERT_EQ(r.code, 0) << r.output;
+  const std::string obj_bytes = test::read_text(src + "/skirt.obj");
+  fs::remove_all(src);
+  {
+    db::Reader reader;
+    db::Error err;
+    ASSERT_EQ(reader.open(db, &err), db::Status::Ok);
+    std::vector<db::SourceFile> sources;
+    ASSERT_EQ(reader.source_files(&sources, &err), db::Status::Ok);
+    bool stored = false;
+    for (const auto& f : sources)
+      if (f.role == "garment_mesh") {
+        EXPECT_EQ(f.path, "skirt.obj");
+        EXPECT_EQ(std::string(f.bytes.begin(), f.bytes.end()), obj_bytes);
+        stored = true;
+      }
+    EXPECT_TRUE(stored);
+  }
+  r = run_elsewhere("clip export " + db + " 1 --out mesh_exp");
+  EXPECT_EQ(r.code, 0) << r.output;
+  EXPECT_TRUE(fs::exists(work("elsewhere/mesh_exp/body.pc2"))) << r.output;
+}
+
 }  // namespace
 }  // namespace clothdb
