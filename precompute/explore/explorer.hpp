@@ -243,9 +243,9 @@ int node_of_primary_clip(const ExploreGraph& graph, int64_t primary_clip);
 ExploreGraph explore_graph(const CharacterScene& scene, const MotionGraph& graph,
                            const std::string& where);
 
-// The scene and primary graph a database was made from, rebuilt from its meta: the scene file at
-// meta `scene_path` (refused if its hash is not meta `scene_hash`: the file changed since) and
-// the motion graph in meta `motion_graph`; each edge's db_clip is set from the primary clips.
+// The scene and primary graph a database was made from, rebuilt from what it stores: the scene
+// (below) and the motion graph in meta `motion_graph`; each edge's db_clip is set from the
+// primary clips.
 // What tools that re-simulate or draw a stored clip with its body need. Throws
 // std::runtime_error naming the database and what is missing or different.
 struct DatabaseScene {

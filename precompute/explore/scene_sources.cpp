@@ -207,7 +207,7 @@ std::string locate_motion_file(const db::MotionFile& file, const std::string& re
       throw std::runtime_error("--motions " + motions_dir + ": not a folder");
     const fs::path by_name = fs::path(motions_dir) / fs::path(file.path).filename();
     if (matches(by_name)) return by_name.string();
-    // Renamed: every file under it of the same size class is hashed (motion files are a few MB).
+    // Renamed: every file under it is hashed until one matches (xxh64 of a few MB is quick).
     for (auto it = fs::recursive_directory_iterator(motions_dir, ec);
          it != fs::recursive_directory_iterator(); it.increment(ec)) {
       if (ec) break;
