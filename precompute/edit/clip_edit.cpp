@@ -369,8 +369,8 @@ double timing_rms(const std::vector<float>& frames, const std::vector<float>& or
 }  // namespace
 
 // Frames that are not an edit of the clip at all, refused whatever --on-break says
-// (docs/guide/blender.md#what-clip-import-checks). In order: a frozen cache (every frame the same while
-// the clip moves: an export without the Mesh Cache evaluated); no change (within the codec's
+// (docs/guide/blender.md#what-clip-import-checks). In order: a frozen cache (every frame the same
+// while the clip moves: an export without the Mesh Cache evaluated); no change (within the codec's
 // bound: NoChange); a rigid axis rotation of the whole clip about the origin (what a DCC's axis
 // conversion writes, Blender's PC2 export "Convert to Y-up": (x, y, z) -> (x, z, -y)); another
 // rigid move, with scale (world space of an object with a transform); the clip shifted by whole

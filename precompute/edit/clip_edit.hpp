@@ -113,9 +113,9 @@ struct ImportReport {
   std::string strain_warning;
 };
 // Before any continuity check, whatever options.on_break says, frames that are no edit of the
-// clip are refused naming the cause (docs/guide/blender.md#what-clip-import-checks): every frame the
-// same (a frozen cache), the clip shifted by whole frames or retimed (frame scale, fps), the clip
-// under an axis conversion (Y-up) or a rigid move (world space instead of the object's local
+// clip are refused naming the cause (docs/guide/blender.md#what-clip-import-checks): every frame
+// the same (a frozen cache), the clip shifted by whole frames or retimed (frame scale, fps), the
+// clip under an axis conversion (Y-up) or a rigid move (world space instead of the object's local
 // space), or a change larger than the garment. Frames equal to the stored clip within the codec's
 // bound throw NoChange.
 ImportReport import_clip(EditContext& ctx, int64_t clip, std::vector<float> frames,
