@@ -264,8 +264,17 @@ void run_play(const PlayArgs& a) {
     triangles[t] = {int(tri[3 * t]), int(tri[3 * t + 1]), int(tri[3 * t + 2])};
   Staging stage(a.out);
   std::vector<std::string> written = {"garment.obj", "cloth.pc2", "path.csv"};
-  write_obj(stage.path("garment.obj"), "garment", pc.positions.data(), pc.vertex_count, triangles);
-  write_pc2(stage.path("cloth.pc2"), pc);
+  {
+    // The artist's topology (docs/guide/mesh_garments.md): their vertex order, faces, UVs.
+    db::Reader reader;
+    db::ArtistMesh artist;
+    Error err;
+    if (reader.open(a.file, &err) != Status::Ok || reader.artist_mesh(&artist, &err) != Status::Ok)
+      throw std::runtime_error(err.message);
+    const PointCache artist_pc = artist_order(artist, pc);
+    write_artist_obj(stage.path("garment.obj"), "garment", artist_pc.positions.data(), artist);
+    write_pc2(stage.path("cloth.pc2"), artist_pc);
+  }
   write_file_atomic(stage.path("path.csv"), csv.str());
   int previews = 0;
   if (a.preview_every > 0) {

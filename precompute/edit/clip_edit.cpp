@@ -201,23 +201,25 @@ ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& di
   db::ClothClip row;
   const std::vector<float> frames = read_clip_frames(reader, clip, &row);
   db::Garment garment;
+  db::ArtistMesh artist;
   db::Error err;
   check(reader.garment(&garment, &err), err);
-  const int n = static_cast<int>(garment.vertex_count());
-  std::vector<std::array<int, 3>> triangles(garment.triangles.size() / 3);
-  for (size_t k = 0; k < triangles.size(); ++k)
-    triangles[k] = {int(garment.triangles[3 * k]), int(garment.triangles[3 * k + 1]),
-                    int(garment.triangles[3 * k + 2])};
+  check(reader.artist_mesh(&artist, &err), err);
+  const int n = static_cast<int>(artist.vertex_count());
   std::filesystem::create_directories(dir);
   ExportedClip out;
   out.cloth_obj = dir + "/cloth.obj";
   out.cloth_pc2 = dir + "/cloth.pc2";
   out.info_json = dir + "/clip.json";
-  write_obj(out.cloth_obj, "cloth_clip_" + std::to_string(clip), frames.data(), n, triangles);
   PointCache cache;
-  cache.vertex_count = n;
+  cache.vertex_count = static_cast<int>(garment.vertex_count());
   cache.frame_count = row.frame_count;
   cache.positions = frames;
+  // In the artist's topology (docs/guide/mesh_garments.md): their vertex order, faces and UVs;
+  // `clip import` maps it back.
+  cache = artist_order(artist, cache);
+  write_artist_obj(out.cloth_obj, "cloth_clip_" + std::to_string(clip), cache.positions.data(),
+                   artist);
   write_pc2(out.cloth_pc2, cache);
   std::string body_note = "no body: ";
   double rate = 30;
@@ -253,6 +255,9 @@ ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& di
       {"start_state", row.start_state},
       {"frames", row.frame_count},
       {"vertices", n},
+      {"simulation_vertices", garment.vertex_count()},
+      {"topology", artist.source.empty() ? "the simulation mesh (a procedural garment)"
+                                         : "the artist's mesh of " + artist.source},
       {"frame_rate", rate},
       {"space", "character space of each frame (docs/SECONDARY_GRAPH.md), metres, y up"},
       {"codec_bound_m", row.error_bound},
@@ -263,24 +268,35 @@ ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& di
   return out;
 }
 
-std::vector<float> read_edited_frames(const std::string& path, uint32_t vertex_count,
-                                      int32_t frame_count) {
+std::vector<float> read_edited_frames(const std::string& path, const db::ArtistMesh& artist,
+                                      uint32_t vertex_count, int32_t frame_count) {
   const std::string file =
       std::filesystem::is_directory(path) ? path + "/cloth.pc2" : std::string(path);
   if (!std::filesystem::exists(file))
     fail(file + ": no such file (a .pc2, or a folder with cloth.pc2)");
   const PointCache cache = read_pc2(file);
-  if (cache.vertex_count != static_cast<int>(vertex_count))
+  // Either topology: the artist's vertex order (what `clip export` writes) or the simulation's.
+  if (cache.vertex_count != static_cast<int>(vertex_count) &&
+      cache.vertex_count != static_cast<int>(artist.vertex_count()))
     fail(file + ": points: " + std::to_string(cache.vertex_count) + " vertices, the clip has " +
-         std::to_string(vertex_count) + " (the topology changed: keep the vertex order)");
+         std::to_string(artist.vertex_count()) +
+         (artist.vertex_count() != vertex_count
+              ? " in the artist's mesh and " + std::to_string(vertex_count) + " simulated"
+              : std::string()) +
+         " (the topology changed: keep the vertex order)");
   if (cache.frame_count != frame_count)
     fail(file + ": samples: " + std::to_string(cache.frame_count) + " frames, the clip has " +
          std::to_string(frame_count) + " (the clip follows its primary edge frame by frame)");
+  const size_t n = size_t(cache.vertex_count);
   for (size_t i = 0; i < cache.positions.size(); ++i)
     if (!std::isfinite(cache.positions[i]))
-      fail(file + ": frame " + std::to_string(i / 3 / vertex_count) + " vertex " +
-           std::to_string(i / 3 % vertex_count) + ": not a finite coordinate");
-  return cache.positions;
+      fail(file + ": frame " + std::to_string(i / 3 / n) + " vertex " + std::to_string(i / 3 % n) +
+           ": not a finite coordinate");
+  try {
+    return simulation_order(artist, vertex_count, cache, file).positions;
+  } catch (const ExchangeError& e) {
+    fail(e.what());
+  }
 }
 
 // Frames that are not an edit of the clip at all, refused whatever --on-break says

@@ -51,10 +51,12 @@ struct ExportedClip {
 ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& dir,
                          const std::string& scene_file);
 
-// Reads PATH (a .pc2 file, or a folder holding cloth.pc2) and checks it has the clip's vertex and
-// frame counts and only finite coordinates; throws std::runtime_error naming the file otherwise.
-std::vector<float> read_edited_frames(const std::string& path, uint32_t vertex_count,
-                                      int32_t frame_count);
+// Reads PATH (a .pc2 file, or a folder holding cloth.pc2) in the artist's vertex order (what
+// export_clip writes) or the simulation's, checks its frame count and finite coordinates, and
+// returns the frames in simulation order (vertex_count vertices); throws std::runtime_error naming
+// the file otherwise.
+std::vector<float> read_edited_frames(const std::string& path, const db::ArtistMesh& artist,
+                                      uint32_t vertex_count, int32_t frame_count);
 
 enum class OnBreak {
   Refuse,   // a broken end: nothing is written
