@@ -5,6 +5,7 @@
 // honoured, nothing is allocated per frame after warm-up; a file without an artist's mesh renders
 // its simulation mesh.
 #include <gtest/gtest.h>
+#include <sqlite3.h>
 
 #include <algorithm>
 #include <atomic>
@@ -191,6 +192,30 @@ TEST(RuntimeRender, ProceduralGarmentRendersItsSimulationMesh) {
   out.normal_stride = 14;
   EXPECT_EQ(clothrt_player_get_render_mesh(h.player, &out, nullptr), CLOTHRT_ERR_INVALID);
   EXPECT_EQ(clothrt_player_get_render_mesh(h.player, nullptr, nullptr), CLOTHRT_ERR_INVALID);
+}
+
+TEST(RuntimeRender, DamagedMapIsRefusedAtOpen) {
+  test::TempDir dir;
+  const std::string path = dir.file("bad_map.clothdb");
+  synthetic::Spec spec = synthetic::demo_spec(kSide);
+  spec.artist_mesh = true;
+  synthetic::build(path, spec);
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+  // The last artist vertex maps to a simulation vertex the garment does not have.
+  ASSERT_EQ(sqlite3_exec(db,
+                         "UPDATE garment_mesh SET map_vertices = "
+                         "substr(map_vertices, 1, length(map_vertices) - 12) || "
+                         "x'FFFF0000FFFF0000FFFF0000'",
+                         nullptr, nullptr, nullptr),
+            SQLITE_OK);
+  sqlite3_close(db);
+  clothrt_db* rt = nullptr;
+  EXPECT_EQ(clothrt_db_open(path.c_str(), nullptr, &rt), CLOTHRT_ERR_CORRUPT);
+  EXPECT_EQ(rt, nullptr);
+  EXPECT_NE(std::string(clothrt_last_open_errmsg()).find("maps to simulation vertex 65535"),
+            std::string::npos)
+      << clothrt_last_open_errmsg();
 }
 
 TEST(RuntimeRender, NoAllocationPerFrameAfterWarmUp) {
