@@ -41,7 +41,7 @@ struct ArtistGroup {
 // makes is appended after them, in order of first use.
 constexpr uint32_t kNoAttribute = 0xFFFFFFFFu;  // a corner or render vertex without a UV/normal
 struct ArtistMesh {
-  std::string source;                    // the file as the scene names it; "" for a procedural one
+  std::string source;  // the garment file (resolved against the scene's folder); "" if procedural
   std::vector<float> positions;          // 3 per artist vertex: rest, bind space, metres
   std::vector<uint32_t> face_sizes;      // corners per face (3 or more), faces in file order
   std::vector<uint32_t> corners;         // artist vertex per corner, face by face
