@@ -83,8 +83,9 @@ void register_edit_commands(CLI::App& app) {
   auto ea = std::make_shared<ExportArgs>();
   CLI::App* exp = clip.add_subcommand(
       "export",
-      "Write a clip for Blender: DIR/cloth.obj + DIR/cloth.pc2 (import the OBJ keeping vertex "
-      "order, add a Mesh Cache modifier with the PC2) and the body capsules as DIR/body.obj + "
+      "Write a clip for Blender: DIR/cloth.obj + DIR/cloth.pc2 on the artist's mesh (its vertex "
+      "order, faces, UVs and normals; import the OBJ keeping vertex order, add a Mesh Cache "
+      "modifier with the PC2) and the body capsules as DIR/body.obj + "
       "DIR/body.pc2, in the clip's character space; edit, then `clip import FILE ID DIR`");
   add_common(exp, ea->c);
   exp->add_option("--out", ea->out, "Folder to write (created)")->required();
@@ -114,8 +115,9 @@ void register_edit_commands(CLI::App& app) {
   auto ia = std::make_shared<ImportArgs>();
   CLI::App* imp = clip.add_subcommand(
       "import",
-      "Read an edited clip back (a PC2, or the folder `clip export` wrote): checks vertex and "
-      "frame counts, re-encodes within the codec bound, re-measures its quality and checks "
+      "Read an edited clip back (a PC2, or the folder `clip export` wrote; in the artist's vertex "
+      "order or the simulation's): checks vertex and frame counts, re-encodes within the codec "
+      "bound, re-measures its quality and checks "
       "continuity at both ends; an end whose edges' blend error would exceed epsilon is refused, "
       "re-blended or ramped (--on-break). Frames that are no edit (frozen, shifted, retimed, "
       "rotated or in world space) are refused naming the cause; frames equal to the stored clip "
@@ -135,9 +137,13 @@ void register_edit_commands(CLI::App& app) {
     EditContext ctx = open(ia->c);
     db::ClothClip row;
     read_clip_frames(ctx.reader, ia->c.id, &row);
-    EditedCache cache =
-        read_edited_cache(ia->path, static_cast<uint32_t>(ctx.scene.scene.model.vertex_count()),
-                          row.frame_count, ctx.scene.graph.rate);
+    db::ArtistMesh artist;
+    db::Error mesh_err;
+    if (ctx.reader.artist_mesh(&artist, &mesh_err) != db::Status::Ok)
+      throw std::runtime_error(mesh_err.message);
+    EditedCache cache = read_edited_cache(
+        ia->path, artist, static_cast<uint32_t>(ctx.scene.scene.model.vertex_count()),
+        row.frame_count, ctx.scene.graph.rate);
     ImportOptions o;
     o.on_break = on_break;
     o.ramp_frames = ia->ramp_frames;

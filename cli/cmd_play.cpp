@@ -264,8 +264,17 @@ void run_play(const PlayArgs& a) {
     triangles[t] = {int(tri[3 * t]), int(tri[3 * t + 1]), int(tri[3 * t + 2])};
   Staging stage(a.out);
   std::vector<std::string> written = {"garment.obj", "cloth.pc2", "path.csv"};
-  write_obj(stage.path("garment.obj"), "garment", pc.positions.data(), pc.vertex_count, triangles);
-  write_pc2(stage.path("cloth.pc2"), pc);
+  {
+    // The artist's topology (docs/guide/mesh_garments.md): their vertex order, faces, UVs.
+    db::Reader reader;
+    db::ArtistMesh artist;
+    Error err;
+    if (reader.open(a.file, &err) != Status::Ok || reader.artist_mesh(&artist, &err) != Status::Ok)
+      throw std::runtime_error(err.message);
+    const PointCache artist_pc = artist_order(artist, pc);
+    write_artist_obj(stage.path("garment.obj"), "garment", artist_pc.positions.data(), artist);
+    write_pc2(stage.path("cloth.pc2"), artist_pc);
+  }
   write_file_atomic(stage.path("path.csv"), csv.str());
   int previews = 0;
   if (a.preview_every > 0) {
@@ -363,11 +372,15 @@ struct Scenario {
 Scenario run_scenario(const std::string& name, const std::string& path,
                       const clothrt_db_options& options, int players, int frames, double dt,
                       int warm_frames, bool pre_decode, bool world, double zfrac,
-                      bool stagger = false, bool paced = false) {
+                      bool stagger = false, bool paced = false, int render = 0) {
   Runtime rt(path, options);
   const std::vector<int64_t> clips = cloth_clip_ids(path);
-  const uint32_t vertices = clothrt_db_vertex_count(rt.db);
-  std::vector<std::vector<float>> out(size_t(players), std::vector<float>(size_t(vertices) * 3));
+  // render 0: simulation positions; 1: the render mesh's positions and normals, interleaved as a
+  // vertex buffer (position, normal, tangent: 40-byte stride); 2: with tangents too.
+  const uint32_t vertices =
+      render ? clothrt_db_render_vertex_count(rt.db) : clothrt_db_vertex_count(rt.db);
+  std::vector<std::vector<float>> out(size_t(players),
+                                      std::vector<float>(size_t(vertices) * (render ? 10 : 3)));
   for (int i = 0; i < players; ++i) {
     clothrt_player* p = rt.add_player();
     rt.check(clothrt_player_set_random(p, 1, uint64_t(7919 * i + 1)), "random", p);
@@ -384,7 +397,13 @@ Scenario run_scenario(const std::string& name, const std::string& path,
       clothrt_player* p = rt.players[i];
       const int rc = clothrt_player_advance(p, dt);
       if (rc != CLOTHRT_OK) rt.check(rc, "advance", p);
-      clothrt_player_get_positions(p, out[i].data(), 12, world ? root : nullptr);
+      if (render) {
+        float* vb = out[i].data();
+        const clothrt_render_output ro{vb, 40, vb + 3, 40, render > 1 ? vb + 6 : nullptr, 40};
+        clothrt_player_get_render_mesh(p, &ro, world ? root : nullptr);
+      } else {
+        clothrt_player_get_positions(p, out[i].data(), 12, world ? root : nullptr);
+      }
     }
   };
   for (int f = 0; f < warm_frames; ++f) frame();
@@ -485,7 +504,10 @@ void run_bench(const BenchArgs& a) {
     small = (tmp / "sheet2k.clothdb").string();
     std::fprintf(stderr, "building synthetic databases in %s ...\n", tmp.c_str());
     const auto t0 = Clock::now();
-    const auto b = synthetic::build(big, synthetic::bench_spec(100, 4));
+    // The large garment with an artist's mesh (quads, a UV seam): the render-mesh scenarios.
+    synthetic::Spec big_spec = synthetic::bench_spec(100, 4);
+    big_spec.artist_mesh = true;
+    const auto b = synthetic::build(big, big_spec);
     const auto s = synthetic::build(small, synthetic::bench_spec(45, 16));
     std::printf(
         "synthetic databases (runtime/tools/synthetic_db.hpp; smooth made-up motion, not "
@@ -553,6 +575,22 @@ void run_bench(const BenchArgs& a) {
                    small, many, a.players, a.frames / 3, 1.0 / 30, 0, false, false, zsmall, true);
   print_scenario(s5, a.players);
   std::printf("\n");
+  uint32_t render_vertices = 0;
+  {
+    Runtime rt(big, clothrt_db_options{size_t(1) << 20, 0, 1.0});
+    render_vertices = clothrt_db_render_vertex_count(rt.db);
+  }
+  Scenario s6 = run_scenario(
+      "[6] as [2] on the render mesh (" + std::to_string(render_vertices) +
+          " vertices, seam copies included): positions + normals into a 40-byte-stride vertex "
+          "buffer",
+      big, warm, 1, a.frames, 1.0 / 60, 600, true, true, zbig, false, false, 1);
+  print_scenario(s6, 1);
+  std::printf("\n");
+  Scenario s7 = run_scenario("[7] as [6] with tangents (the mesh has UVs)", big, warm, 1, a.frames,
+                             1.0 / 60, 600, true, true, zbig, false, false, 2);
+  print_scenario(s7, 1);
+  std::printf("\n");
   if (!tmp.empty()) std::filesystem::remove_all(tmp);
 }
 
@@ -563,7 +601,8 @@ void register_play_commands(CLI::App& app) {
   CLI::App* cmd = app.add_subcommand(
       "play",
       "Plays a path through a database's motion graph with the runtime library and writes "
-      "DIR/garment.obj + DIR/cloth.pc2 (Blender: import the OBJ, add a Mesh Cache modifier with "
+      "DIR/garment.obj + DIR/cloth.pc2 on the artist's mesh (Blender: import the OBJ, add a Mesh "
+      "Cache modifier with "
       "the PC2), DIR/path.csv (clip, state, blend and fallback per frame) and PNG previews in "
       "DIR/previews/. Positions are in character space.");
   cmd->add_option("FILE", a->file, "Database")->required();
@@ -592,9 +631,10 @@ void register_bench_runtime(CLI::App& bench) {
       "runtime",
       "Per-frame cost of the playback runtime: one player of the largest garment with its clips "
       "decoded and with decoding included, and many players of a smaller one sharing a "
-      "database; memory; shares of SQLite, zstd, decoding and playback. FILE 'synthetic' builds "
-      "a 10,000- and a 2,025-vertex database in a temporary directory; a real file is used for "
-      "all scenarios.");
+      "database; the render mesh's positions and normals (and tangents); memory; shares of "
+      "SQLite, zstd, decoding and playback. FILE 'synthetic' builds a 10,000-vertex database "
+      "(with an artist's mesh: quads, a UV seam) and a 2,025-vertex one in a temporary "
+      "directory; a real file is used for all scenarios.");
   cmd->add_option("FILE", a->file, "Database, or 'synthetic'")->required();
   cmd->add_option("--frames", a->frames, "Timed frames per single-player scenario")
       ->capture_default_str();

@@ -36,9 +36,9 @@ void register_simulate(CLI::App& app) {
   auto args = std::make_shared<Args>();
   CLI::App* cmd = app.add_subcommand(
       "simulate",
-      "Simulates one clip of a scene and writes DIR/garment.obj + DIR/cloth.pc2 (Blender: import "
-      "the "
-      "OBJ, add a Mesh Cache modifier with the PC2), DIR/body.obj + DIR/body.pc2 (the colliding "
+      "Simulates one clip of a scene and writes DIR/garment.obj + DIR/cloth.pc2 on the artist's "
+      "mesh (its vertex order, faces, UVs and normals; Blender: import the OBJ, add a Mesh Cache "
+      "modifier with the PC2), DIR/body.obj + DIR/body.pc2 (the colliding "
       "capsules), DIR/metrics.csv, DIR/summary.json and PNG previews in DIR/previews/.");
   cmd->add_option("SCENE", args->scene, "Scene file (JSON), e.g. motions/skirt_walk.json")
       ->required();
@@ -144,9 +144,12 @@ void register_simulate(CLI::App& app) {
     pc.vertex_count = scene.model.vertex_count();
     pc.frame_count = frames;
     pc.positions = std::move(cloth);
-    write_obj(args->out + "/garment.obj", scene.garment.name, pc.positions.data(), pc.vertex_count,
-              scene.model.mesh.triangles);
-    write_pc2(args->out + "/cloth.pc2", pc);
+    // The artist's topology (docs/guide/mesh_garments.md): their vertex order, faces, UVs.
+    const db::ArtistMesh artist = artist_mesh_of(scene.garment);
+    const PointCache artist_pc = artist_order(artist, pc);
+    write_artist_obj(args->out + "/garment.obj", scene.garment.name, artist_pc.positions.data(),
+                     artist);
+    write_pc2(args->out + "/cloth.pc2", artist_pc);
     PointCache bc;
     bc.vertex_count = static_cast<int>(body.size() / 3 / frames);
     bc.frame_count = frames;

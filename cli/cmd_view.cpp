@@ -4,14 +4,15 @@
 //
 // How frames reach the page: cpp-httplib 0.11 (Debian) has no WebSocket, so the page pulls, over
 // a keep-alive connection: `GET /api/frames?dt=SECONDS&n=4&wait=MS` advances the server's one
-// player four times by dt and answers with the four frames' positions (character space, float32)
-// and body capsules as the body and the player's state at each as a JSON header. The page shows one
-// per animation frame and always has the next request in flight, held by the server for `wait` ms
-// (until the page's queue runs low), so a request's fixed cost is shared by four frames, its
-// latency is hidden, and the connection never idles in cpp-httplib's polling keep-alive loop (the
-// body's capsules come with each frame for the same reason: no other connection is kept busy). The
-// mesh's triangles and the clip table are fetched once. Nobody asking (a paused page) costs
-// nothing.
+// player four times by dt and answers with the four frames' cloth on the render mesh (the artist's
+// vertices, seam copies split: positions, then normals, character space, float32, from
+// clothrt_player_get_render_mesh) and body capsules as the body and the player's state at each as a
+// JSON header. The page shows one per animation frame and always has the next request in flight,
+// held by the server for `wait` ms (until the page's queue runs low), so a request's fixed cost is
+// shared by four frames, its latency is hidden, and the connection never idles in cpp-httplib's
+// polling keep-alive loop (the body's capsules come with each frame for the same reason: no other
+// connection is kept busy). The render mesh's triangles and the clip table are fetched once. Nobody
+// asking (a paused page) costs nothing.
 #include <pthread.h>
 #include <signal.h>
 #include <sys/resource.h>
@@ -212,9 +213,10 @@ void open_viewer(Viewer& v, const ViewArgs& a) {
   if (rc != CLOTHRT_OK)
     throw std::runtime_error(std::string(clothrt_last_open_errmsg()) + " (" +
                              clothrt_status_name(rc) + ")");
-  v.vertices = clothrt_db_vertex_count(v.db);
-  v.triangles.resize(size_t(clothrt_db_triangle_count(v.db)) * 3);
-  if (clothrt_db_triangles(v.db, v.triangles.data(), v.triangles.size()) != CLOTHRT_OK)
+  // The render mesh (clothrt.h): what a game draws, with normals from the runtime.
+  v.vertices = clothrt_db_render_vertex_count(v.db);
+  v.triangles.resize(size_t(clothrt_db_render_triangle_count(v.db)) * 3);
+  if (clothrt_db_render_triangles(v.db, v.triangles.data(), v.triangles.size()) != CLOTHRT_OK)
     throw std::runtime_error(a.file + ": triangles: " + clothrt_db_errmsg(v.db));
   {
     db::Reader reader = open_reader(a.file);
@@ -243,9 +245,10 @@ void open_viewer(Viewer& v, const ViewArgs& a) {
     throw std::runtime_error(a.file + ": creating a player: " + clothrt_db_errmsg(v.db));
   check(v, clothrt_player_set_random(v.player, 0, a.seed), "random mode");
   check(v, clothrt_player_start(v.player, 0), a.file + ": start");
-  std::vector<float> first(size_t(v.vertices) * 3);
-  check(v, clothrt_player_get_positions(v.player, first.data(), 12, nullptr),
-        a.file + ": positions");
+  std::vector<float> first(size_t(v.vertices) * 6);
+  const clothrt_render_output first_out{first.data(), 12, first.data() + size_t(v.vertices) * 3, 12,
+                                        nullptr,      0};
+  check(v, clothrt_player_get_render_mesh(v.player, &first_out, nullptr), a.file + ": positions");
   load_body(v, a.scene);
 
   json metrics = json::array();
@@ -468,7 +471,8 @@ void add_routes(httplib::Server& svr, Viewer& v) {
                                     ? parse_int("wait", req.get_param_value("wait"), 0, kMaxWaitMs)
                                     : 0;
         if (wait_ms > 0) std::this_thread::sleep_for(std::chrono::milliseconds(wait_ms));
-        const size_t floats = size_t(v.vertices) * 3 + v.capsule_count * 7;  // one frame's
+        // One frame's: positions, normals, capsules.
+        const size_t floats = size_t(v.vertices) * 6 + v.capsule_count * 7;
         std::string body(size_t(n) * floats * sizeof(float), '\0');
         json states = json::array();
         std::lock_guard<std::mutex> lock(v.mu);
@@ -476,8 +480,9 @@ void add_routes(httplib::Server& svr, Viewer& v) {
           const auto t0 = Clock::now();
           const int rc = clothrt_player_advance(v.player, dt);
           float* out = reinterpret_cast<float*>(body.data()) + size_t(k) * floats;
-          clothrt_player_get_positions(v.player, out, 12, nullptr);
-          body_at(v, out + size_t(v.vertices) * 3);
+          const clothrt_render_output ro{out, 12, out + size_t(v.vertices) * 3, 12, nullptr, 0};
+          clothrt_player_get_render_mesh(v.player, &ro, nullptr);
+          body_at(v, out + size_t(v.vertices) * 6);
           v.last_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
           ++v.frames_served;
           json state = frame_state(v);

@@ -139,6 +139,53 @@ int clothrt_db_triangles(const clothrt_db* db, uint32_t* out, size_t capacity) {
   return CLOTHRT_OK;
 }
 
+uint32_t clothrt_db_render_vertex_count(const clothrt_db* db) {
+  return db ? db->impl.render_vertex_count : 0;
+}
+
+uint32_t clothrt_db_render_triangle_count(const clothrt_db* db) {
+  return db ? uint32_t(db->impl.render_triangles.size() / 3) : 0;
+}
+
+int clothrt_db_render_triangles(const clothrt_db* db, uint32_t* out, size_t capacity) {
+  if (!db) return CLOTHRT_ERR_INVALID;
+  const auto& t = db->impl.render_triangles;
+  if (!out || capacity < t.size())
+    return db_fail(db, CLOTHRT_ERR_INVALID, "clothrt_db_render_triangles: output buffer too small");
+  if (!t.empty()) std::memcpy(out, t.data(), t.size() * sizeof(uint32_t));
+  return CLOTHRT_OK;
+}
+
+int clothrt_db_render_has_uvs(const clothrt_db* db) {
+  return db && !db->impl.render_uvs.empty();
+}
+
+int clothrt_db_render_uvs(const clothrt_db* db, float* out, size_t stride_bytes) {
+  if (!db) return CLOTHRT_ERR_INVALID;
+  if (!out || stride_bytes < 2 * sizeof(float) || stride_bytes % sizeof(float) != 0)
+    return db_fail(db, CLOTHRT_ERR_INVALID,
+                   "clothrt_db_render_uvs: need an output buffer and a stride >= 8 that is a "
+                   "multiple of 4");
+  if (db->impl.render_uvs.empty())
+    return db_fail(db, CLOTHRT_ERR_NOT_FOUND, "clothrt_db_render_uvs: the render mesh has no UVs");
+  const size_t s = stride_bytes / sizeof(float);
+  for (size_t r = 0; r < db->impl.render_vertex_count; ++r) {
+    out[r * s] = db->impl.render_uvs[2 * r];
+    out[r * s + 1] = db->impl.render_uvs[2 * r + 1];
+  }
+  return CLOTHRT_OK;
+}
+
+int clothrt_db_render_source_vertices(const clothrt_db* db, uint32_t* out, size_t capacity) {
+  if (!db) return CLOTHRT_ERR_INVALID;
+  const auto& v = db->impl.render_source;
+  if (!out || capacity < v.size())
+    return db_fail(db, CLOTHRT_ERR_INVALID,
+                   "clothrt_db_render_source_vertices: output buffer too small");
+  std::memcpy(out, v.data(), v.size() * sizeof(uint32_t));
+  return CLOTHRT_OK;
+}
+
 size_t clothrt_db_clip_count(const clothrt_db* db) {
   return db ? db->impl.primaries.size() : 0;
 }
@@ -294,6 +341,16 @@ int clothrt_player_get_positions(clothrt_player* player, float* out, size_t stri
                                  const float* root_transform) {
   if (!player) return CLOTHRT_ERR_INVALID;
   return player->impl.positions(out, stride_bytes, root_transform);
+}
+
+int clothrt_player_get_render_mesh(clothrt_player* player, const clothrt_render_output* out,
+                                   const float* root_transform) {
+  if (!player) return CLOTHRT_ERR_INVALID;
+  if (!out) {
+    player->impl.error.set(clothdb::Status::InvalidArgument, "get_render_mesh: output is NULL");
+    return CLOTHRT_ERR_INVALID;
+  }
+  return player->impl.render(*out, root_transform);
 }
 
 int clothrt_player_info(const clothrt_player* player, clothrt_frame_info* out) {

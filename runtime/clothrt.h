@@ -28,6 +28,10 @@
  *    read-only SQLite connection) that decode the clips players will need next. With 0, the same
  *    work runs on the callers' threads inside clothrt_player_advance (at most one clip per call).
  *
+ *  - The render-mesh functions follow the same rules: clothrt_db_render_* read immutable data of
+ *    the database (any thread); clothrt_player_get_render_mesh uses the player's own scratch
+ *    buffers (one thread per player at a time, like every player call).
+ *
  * MEMORY: decoded clips live in a cache shared by all players of a database, capped by
  * clothrt_db_options.cache_bytes (clips a player is playing or about to play are pinned and may
  * push it over the cap until released). After warm-up, advancing and sampling a player allocate
@@ -83,6 +87,53 @@ uint32_t clothrt_db_vertex_count(const clothrt_db* db);
 uint32_t clothrt_db_triangle_count(const clothrt_db* db);
 /* Copies 3 * triangle_count vertex indices into out (capacity in indices). */
 int clothrt_db_triangles(const clothrt_db* db, uint32_t* out, size_t capacity);
+
+/* THE RENDER MESH. A game draws the artist's garment mesh, not the welded, triangulated
+ * simulation mesh above: the artist's vertex order, their UVs, vertices split where UV or normal
+ * seams run (docs/DATABASE.md, "The artist's mesh"). Render vertex i < the artist's vertex count
+ * is artist vertex i; each further (vertex, UV, normal) combination a seam makes follows, so a
+ * seam vertex appears once per side. A database of a procedural garment (or one written before
+ * the artist's mesh was stored) has the simulation mesh as its render mesh (the identity map, no
+ * UVs). Vertex count, index buffer (3 indices per triangle, the artist's faces fanned from their
+ * first corner, in face order) and UVs are fixed for the database: read them once. */
+uint32_t clothrt_db_render_vertex_count(const clothrt_db* db);
+uint32_t clothrt_db_render_triangle_count(const clothrt_db* db);
+/* Copies 3 * render_triangle_count indices into out (capacity in indices). */
+int clothrt_db_render_triangles(const clothrt_db* db, uint32_t* out, size_t capacity);
+/* 1 when the render mesh has UVs (then clothrt_player_get_render_mesh can give tangents). */
+int clothrt_db_render_has_uvs(const clothrt_db* db);
+/* Writes render_vertex_count UVs (2 floats each) at out, out + stride_bytes, ... (stride_bytes >=
+ * 8, a multiple of 4). CLOTHRT_ERR_NOT_FOUND when the mesh has none. A vertex without a UV gets (0,
+ * 0). */
+int clothrt_db_render_uvs(const clothrt_db* db, float* out, size_t stride_bytes);
+/* Copies, per render vertex, the artist's vertex it is (its index in the artist's file) into out
+ * (capacity in indices). */
+int clothrt_db_render_source_vertices(const clothrt_db* db, uint32_t* out, size_t capacity);
+
+/* Where clothrt_player_get_render_mesh writes, per render vertex: 3 floats at each stride. A NULL
+ * pointer skips that output. Strides are in bytes, multiples of 4, >= 12 (>= 16 for tangents). */
+typedef struct clothrt_render_output {
+  float* positions;
+  size_t position_stride;
+  /* Unit normals, area-weighted over the simulation mesh's triangles around each vertex, so both
+   * copies of a seam vertex get the same normal (hard edges of the artist's normals are not kept).
+   */
+  float* normals;
+  size_t normal_stride;
+  /* 4 floats: unit tangent along +u (orthogonal to the normal) and w = +-1, the bitangent's sign
+   * (bitangent = w * cross(normal, tangent)), per render vertex, from the triangles around it in
+   * UV space (Lengyel 2001). Only when the mesh has UVs (CLOTHRT_ERR_INVALID otherwise). */
+  float* tangents;
+  size_t tangent_stride;
+} clothrt_render_output;
+
+/* Samples the player like clothrt_player_get_positions and writes the render mesh's positions
+ * (seam copies duplicated), and normals and tangents if asked, computed from the sampled frame.
+ * root_transform as for clothrt_player_get_positions (NULL: character space); normals and
+ * tangents are turned by its upper 3x3 and renormalised (exact for rotations and uniform scale).
+ * After warm-up it allocates nothing. */
+int clothrt_player_get_render_mesh(clothrt_player* player, const clothrt_render_output* out,
+                                   const float* root_transform);
 
 typedef struct clothrt_clip_info {
   int64_t id;          /* primary clip id */

@@ -112,6 +112,33 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
                       "%s: garment triangle %zu has vertex index %u (the garment has %u vertices)",
                       file.c_str(), i / 3, triangles[i], vertex_count);
 
+  // The render mesh: the artist's (checked by the reader against the garment) or, for a
+  // procedural garment, the simulation mesh itself.
+  {
+    ArtistMesh artist;
+    if (Status st = reader.artist_mesh(&artist, err); st != Status::Ok) return st;
+    render_vertex_count = artist.render_vertex_count();
+    render_triangles = std::move(artist.render_triangles);
+    render_sim.resize(size_t(render_vertex_count) * 3);
+    render_weights.resize(size_t(render_vertex_count) * 3);
+    render_source.resize(render_vertex_count);
+    const bool uvs = !artist.uvs.empty();
+    if (uvs) render_uvs.assign(size_t(render_vertex_count) * 2, 0.0f);
+    for (uint32_t r = 0; r < render_vertex_count; ++r) {
+      const uint32_t v = artist.render_vertices[3 * r], uv = artist.render_vertices[3 * r + 1];
+      render_source[r] = v;
+      for (size_t k = 0; k < 3; ++k) {
+        render_sim[3 * r + k] = artist.map_vertices[3 * size_t(v) + k];
+        render_weights[3 * r + k] = artist.map_weights[3 * size_t(v) + k];
+      }
+      all_indexed = all_indexed && render_weights[3 * r] == 1.0f;
+      if (uvs && uv != kNoAttribute) {
+        render_uvs[2 * r] = artist.uvs[2 * size_t(uv)];
+        render_uvs[2 * r + 1] = artist.uvs[2 * size_t(uv) + 1];
+      }
+    }
+  }
+
   // Codec version 2 bases: every blob that names one decodes with it (normally one per file).
   std::vector<BasisRow> basis_rows;
   if (Status st = list_bases(reader.handle(), file, &basis_rows, err); st != Status::Ok) return st;
@@ -233,12 +260,15 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
   queue_seen.assign(clips.size(), 0);
   pool.reserve(clips.size());
   players.reserve(64);
-  metadata_bytes = primaries.size() * sizeof(PrimaryInfo) + successors.size() * sizeof(int) +
-                   candidates.size() * sizeof(int) + states.size() * sizeof(StateInfo) +
-                   clips.size() * (sizeof(ClipInfo) + sizeof(Entry)) +
-                   slot_count * (sizeof(int32_t) + sizeof(float)) + queue.size() * sizeof(int64_t) +
-                   triangles.size() * sizeof(uint32_t) +
-                   (primary_by_id.size() + clip_by_id.size()) * 32;
+  metadata_bytes =
+      primaries.size() * sizeof(PrimaryInfo) + successors.size() * sizeof(int) +
+      candidates.size() * sizeof(int) + states.size() * sizeof(StateInfo) +
+      clips.size() * (sizeof(ClipInfo) + sizeof(Entry)) +
+      slot_count * (sizeof(int32_t) + sizeof(float)) + queue.size() * sizeof(int64_t) +
+      triangles.size() * sizeof(uint32_t) +
+      (render_triangles.size() + render_sim.size() + render_source.size()) * sizeof(uint32_t) +
+      (render_weights.size() + render_uvs.size()) * sizeof(float) +
+      (primary_by_id.size() + clip_by_id.size()) * 32;
   for (const PrimaryInfo& p : primaries) metadata_bytes += p.name.size();
   for (const auto& b : bases) metadata_bytes += b.memory_bytes();
 

@@ -129,6 +129,15 @@ struct Db {
   clothdb::db::Reader reader;
   uint32_t vertex_count = 0;
   std::vector<uint32_t> triangles;
+  // The render mesh (clothrt_db_render_*, db::ArtistMesh): per render vertex its simulation
+  // vertices and weights; all_indexed when every weight is (1, 0, 0), so sampling copies.
+  uint32_t render_vertex_count = 0;
+  std::vector<uint32_t> render_triangles;
+  std::vector<uint32_t> render_sim;     // 3 per render vertex
+  std::vector<float> render_weights;    // 3 per render vertex
+  std::vector<uint32_t> render_source;  // artist vertex per render vertex
+  std::vector<float> render_uvs;        // 2 per render vertex; empty: no UVs
+  bool all_indexed = true;
   std::vector<PrimaryInfo> primaries;
   std::vector<int> successors;  // primary indices
   std::vector<int> candidates;  // clip indices, grouped by primary clip, by state id
@@ -207,6 +216,7 @@ struct Player {
   void set_random(bool enabled, uint64_t seed);
   int advance(double dt);
   int positions(float* out, size_t stride, const float* m);
+  int render(const clothrt_render_output& out, const float* m);
   void info(clothrt_frame_info* out) const;
   size_t memory() const;
 
@@ -225,6 +235,8 @@ struct Player {
   int load_current();
   template <typename Out>
   void sample(Out&& out) const;
+  // The current pose in character space into dst (vertex_count * 3 floats).
+  void sample_into(float* dst);
 
   bool started_ = false;
   int primary_ = -1;
@@ -236,6 +248,9 @@ struct Player {
   // The pose shown is clip(t) + max(0, r0 - t / blend_span) * offset_. When holding it is offset_.
   std::vector<float> offset_;
   std::vector<float> local_;  // character-space pose before a transform or a strided copy
+  // Render-mesh scratch, sized at creation: simulation-vertex normals, and per render vertex the
+  // tangent and bitangent sums (only when the mesh has UVs).
+  std::vector<float> normals_, tangent_sums_;
   double r0_ = 0, blend_span_ = 1;
   bool fallback_ = false, holding_ = false;
   int next_k_ = -1;  // successor chosen for the node ahead (-1: not yet)

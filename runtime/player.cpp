@@ -119,6 +119,8 @@ Player::Player(Db* d) : db(d) {
   const size_t n = size_t(db->vertex_count) * 3;
   offset_.assign(n, 0.0f);
   local_.assign(n, 0.0f);
+  normals_.assign(n, 0.0f);
+  if (!db->render_uvs.empty()) tangent_sums_.assign(size_t(db->render_vertex_count) * 6, 0.0f);
   pinned_.assign(db->max_successors, -1);
   pending_.assign(db->max_successors, 0);
   std::lock_guard<std::mutex> lk(db->mu);
@@ -136,7 +138,9 @@ Player::~Player() {
 }
 
 size_t Player::memory() const {
-  return sizeof(Player) + (offset_.capacity() + local_.capacity()) * sizeof(float) +
+  return sizeof(Player) +
+         (offset_.capacity() + local_.capacity() + normals_.capacity() + tangent_sums_.capacity()) *
+             sizeof(float) +
          pinned_.capacity() * sizeof(int) + pending_.capacity();
 }
 
@@ -515,6 +519,36 @@ int Player::advance(double dt) {
   return code;
 }
 
+void Player::sample_into(float* dst) {
+  const size_t n = size_t(db->vertex_count) * 3;
+  if (holding_) {
+    std::memcpy(dst, offset_.data(), n * sizeof(float));
+    return;
+  }
+  const size_t last = size_t(view_.frames - 1);
+  double whole = std::floor(t_);
+  size_t f0 = size_t(std::clamp(whole, 0.0, double(last)));
+  float a = float(t_ - whole);
+  if (f0 >= last) {
+    f0 = last;
+    a = 0;
+  }
+  const size_t f1 = std::min(f0 + 1, last);
+  const float r = r0_ > 0 ? float(std::max(0.0, r0_ - t_ / blend_span_)) : 0.0f;
+  const float* d = offset_.data();
+  if (a > 0) {
+    if (r > 0)
+      sample_view<true, true>(view_, n, f0, f1, a, d, r, dst);
+    else
+      sample_view<true, false>(view_, n, f0, f1, a, d, r, dst);
+  } else {
+    if (r > 0)
+      sample_view<false, true>(view_, n, f0, f1, a, d, r, dst);
+    else
+      sample_view<false, false>(view_, n, f0, f1, a, d, r, dst);
+  }
+}
+
 int Player::positions(float* out, size_t stride, const float* m) {
   if (!out || stride < 3 * sizeof(float) || stride % sizeof(float) != 0) {
     error.set(Status::InvalidArgument,
@@ -529,35 +563,9 @@ int Player::positions(float* out, size_t stride, const float* m) {
   const bool timed = db->timing.load(std::memory_order_relaxed);
   Clock::time_point t0;
   if (timed) t0 = Clock::now();
-  const size_t n = size_t(db->vertex_count) * 3;
   const bool direct = stride == 3 * sizeof(float) && !m;
   float* dst = direct ? out : local_.data();
-  if (holding_) {
-    std::memcpy(dst, offset_.data(), n * sizeof(float));
-  } else {
-    const size_t last = size_t(view_.frames - 1);
-    double whole = std::floor(t_);
-    size_t f0 = size_t(std::clamp(whole, 0.0, double(last)));
-    float a = float(t_ - whole);
-    if (f0 >= last) {
-      f0 = last;
-      a = 0;
-    }
-    const size_t f1 = std::min(f0 + 1, last);
-    const float r = r0_ > 0 ? float(std::max(0.0, r0_ - t_ / blend_span_)) : 0.0f;
-    const float* d = offset_.data();
-    if (a > 0) {
-      if (r > 0)
-        sample_view<true, true>(view_, n, f0, f1, a, d, r, dst);
-      else
-        sample_view<true, false>(view_, n, f0, f1, a, d, r, dst);
-    } else {
-      if (r > 0)
-        sample_view<false, true>(view_, n, f0, f1, a, d, r, dst);
-      else
-        sample_view<false, false>(view_, n, f0, f1, a, d, r, dst);
-    }
-  }
+  sample_into(dst);
   if (!direct) {
     const size_t vs = stride / sizeof(float);
     const size_t vertices = db->vertex_count;
@@ -566,6 +574,201 @@ int Player::positions(float* out, size_t stride, const float* m) {
       transform(src, vertices, m, out, vs);
     } else {
       for (size_t v = 0; v < vertices; ++v) std::memcpy(out + v * vs, src + 3 * v, 12);
+    }
+  }
+  if (timed) add(sample_ns, ns_since(t0));
+  add(frames, 1);
+  return CLOTHRT_OK;
+}
+
+namespace {
+
+// Area-weighted vertex normals of the simulation mesh (the cross product of a triangle's edges is
+// its normal times twice its area), normalised; a vertex of no triangle gets +y.
+CLOTHRT_MULTIVERSION void vertex_normals(const float* __restrict x, const uint32_t* __restrict tri,
+                                         size_t triangles, size_t vertices, float* __restrict out) {
+  std::memset(out, 0, vertices * 3 * sizeof(float));
+  for (size_t t = 0; t < triangles; ++t) {
+    const uint32_t a = tri[3 * t], b = tri[3 * t + 1], c = tri[3 * t + 2];
+    const float* pa = x + 3 * size_t(a);
+    const float* pb = x + 3 * size_t(b);
+    const float* pc = x + 3 * size_t(c);
+    const float e0 = pb[0] - pa[0], e1 = pb[1] - pa[1], e2 = pb[2] - pa[2];
+    const float f0 = pc[0] - pa[0], f1 = pc[1] - pa[1], f2 = pc[2] - pa[2];
+    const float n0 = e1 * f2 - e2 * f1, n1 = e2 * f0 - e0 * f2, n2 = e0 * f1 - e1 * f0;
+    for (const uint32_t v : {a, b, c}) {
+      float* o = out + 3 * size_t(v);
+      o[0] += n0;
+      o[1] += n1;
+      o[2] += n2;
+    }
+  }
+  for (size_t v = 0; v < vertices; ++v) {
+    float* o = out + 3 * v;
+    const float l2 = o[0] * o[0] + o[1] * o[1] + o[2] * o[2];
+    if (l2 > 0) {
+      const float s = 1.0f / std::sqrt(l2);
+      o[0] *= s;
+      o[1] *= s;
+      o[2] *= s;
+    } else {
+      o[0] = 0, o[1] = 1, o[2] = 0;
+    }
+  }
+}
+
+// A vector of a render vertex from per-simulation-vertex values: a copy, or the map's weighted sum.
+inline void gather(const float* src, const uint32_t* sim, const float* w, bool indexed, float* o) {
+  if (indexed) {
+    const float* p = src + 3 * size_t(sim[0]);
+    o[0] = p[0], o[1] = p[1], o[2] = p[2];
+    return;
+  }
+  const float* p = src + 3 * size_t(sim[0]);
+  const float* q = src + 3 * size_t(sim[1]);
+  const float* r = src + 3 * size_t(sim[2]);
+  for (int k = 0; k < 3; ++k) o[k] = w[0] * p[k] + w[1] * q[k] + w[2] * r[k];
+}
+
+inline void normalise(float* v) {
+  const float l2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+  if (l2 > 0) {
+    const float s = 1.0f / std::sqrt(l2);
+    v[0] *= s, v[1] *= s, v[2] *= s;
+  }
+}
+
+bool bad_stride(const float* buffer, size_t stride, size_t least) {
+  return buffer && (stride < least || stride % sizeof(float) != 0);
+}
+
+}  // namespace
+
+int Player::render(const clothrt_render_output& out, const float* m) {
+  if (bad_stride(out.positions, out.position_stride, 12) ||
+      bad_stride(out.normals, out.normal_stride, 12) ||
+      bad_stride(out.tangents, out.tangent_stride, 16)) {
+    error.set(Status::InvalidArgument,
+              "get_render_mesh: strides must be multiples of 4, >= 12 (>= 16 for tangents)");
+    return CLOTHRT_ERR_INVALID;
+  }
+  if (out.tangents && db->render_uvs.empty()) {
+    error.set(Status::InvalidArgument, "get_render_mesh: tangents need UVs; the mesh has none");
+    return CLOTHRT_ERR_INVALID;
+  }
+  if (!started_) {
+    error.set(Status::InvalidArgument, "get_render_mesh: the player has not been started");
+    return CLOTHRT_ERR_INVALID;
+  }
+  const bool timed = db->timing.load(std::memory_order_relaxed);
+  Clock::time_point t0;
+  if (timed) t0 = Clock::now();
+  float* x = local_.data();
+  sample_into(x);
+  const bool want_normals = out.normals || out.tangents;
+  if (want_normals)
+    vertex_normals(x, db->triangles.data(), db->triangles.size() / 3, db->vertex_count,
+                   normals_.data());
+  const size_t rn = db->render_vertex_count;
+  const uint32_t* sim = db->render_sim.data();
+  const float* w = db->render_weights.data();
+  const bool indexed = db->all_indexed;
+  // The root transform's linear part turns normals and tangents (renormalised after).
+  auto turn = [m](const float* v, float* o) {
+    const float a = v[0], b = v[1], c = v[2];
+    o[0] = m[0] * a + m[4] * b + m[8] * c;
+    o[1] = m[1] * a + m[5] * b + m[9] * c;
+    o[2] = m[2] * a + m[6] * b + m[10] * c;
+  };
+  if (out.positions) {
+    const size_t s = out.position_stride / sizeof(float);
+    for (size_t r = 0; r < rn; ++r) {
+      float p[3];
+      gather(x, sim + 3 * r, w + 3 * r, indexed, p);
+      float* o = out.positions + r * s;
+      if (m) {
+        turn(p, o);
+        o[0] += m[12], o[1] += m[13], o[2] += m[14];
+      } else {
+        o[0] = p[0], o[1] = p[1], o[2] = p[2];
+      }
+    }
+  }
+  if (out.normals) {
+    const size_t s = out.normal_stride / sizeof(float);
+    for (size_t r = 0; r < rn; ++r) {
+      float nv[3];
+      gather(normals_.data(), sim + 3 * r, w + 3 * r, indexed, nv);
+      float* o = out.normals + r * s;
+      if (m) {
+        turn(nv, o);
+        normalise(o);
+      } else {
+        if (!indexed) normalise(nv);
+        o[0] = nv[0], o[1] = nv[1], o[2] = nv[2];
+      }
+    }
+  }
+  if (out.tangents) {
+    // Per triangle in UV space, the directions of increasing u and v (Lengyel 2001, "Computing
+    // tangent space basis vectors"), summed per render vertex; then Gram-Schmidt against the
+    // normal, and w from the bitangent's side.
+    float* sums = tangent_sums_.data();
+    std::memset(sums, 0, rn * 6 * sizeof(float));
+    const uint32_t* tri = db->render_triangles.data();
+    const float* uv = db->render_uvs.data();
+    for (size_t t = 0; t < db->render_triangles.size() / 3; ++t) {
+      const uint32_t i[3] = {tri[3 * t], tri[3 * t + 1], tri[3 * t + 2]};
+      float p[3][3];
+      for (int k = 0; k < 3; ++k)
+        gather(x, sim + 3 * size_t(i[k]), w + 3 * size_t(i[k]), indexed, p[k]);
+      const float e1[3] = {p[1][0] - p[0][0], p[1][1] - p[0][1], p[1][2] - p[0][2]};
+      const float e2[3] = {p[2][0] - p[0][0], p[2][1] - p[0][1], p[2][2] - p[0][2]};
+      const float du1 = uv[2 * i[1]] - uv[2 * i[0]], dv1 = uv[2 * i[1] + 1] - uv[2 * i[0] + 1];
+      const float du2 = uv[2 * i[2]] - uv[2 * i[0]], dv2 = uv[2 * i[2] + 1] - uv[2 * i[0] + 1];
+      const float det = du1 * dv2 - du2 * dv1;
+      if (det == 0) continue;  // degenerate in UV space: contributes nothing
+      const float f = 1.0f / det;
+      float tu[3], tv[3];
+      for (int k = 0; k < 3; ++k) {
+        tu[k] = f * (dv2 * e1[k] - dv1 * e2[k]);
+        tv[k] = f * (du1 * e2[k] - du2 * e1[k]);
+      }
+      for (const uint32_t v : i)
+        for (int k = 0; k < 3; ++k) {
+          sums[6 * size_t(v) + size_t(k)] += tu[k];
+          sums[6 * size_t(v) + 3 + size_t(k)] += tv[k];
+        }
+    }
+    const size_t s = out.tangent_stride / sizeof(float);
+    for (size_t r = 0; r < rn; ++r) {
+      float nv[3];
+      gather(normals_.data(), sim + 3 * r, w + 3 * r, indexed, nv);
+      normalise(nv);
+      const float* tu = sums + 6 * r;
+      const float* tv = tu + 3;
+      const float d = nv[0] * tu[0] + nv[1] * tu[1] + nv[2] * tu[2];
+      float tg[3] = {tu[0] - d * nv[0], tu[1] - d * nv[1], tu[2] - d * nv[2]};
+      if (tg[0] * tg[0] + tg[1] * tg[1] + tg[2] * tg[2] <= 0) {
+        // No UV gradient here: any unit vector orthogonal to the normal.
+        tg[0] = std::fabs(nv[0]) < 0.9f ? 1.0f : 0.0f;
+        tg[1] = tg[0] == 0 ? 1.0f : 0.0f;
+        tg[2] = 0;
+        const float e = nv[0] * tg[0] + nv[1] * tg[1];
+        tg[0] -= e * nv[0], tg[1] -= e * nv[1], tg[2] -= e * nv[2];
+      }
+      normalise(tg);
+      const float c[3] = {nv[1] * tg[2] - nv[2] * tg[1], nv[2] * tg[0] - nv[0] * tg[2],
+                          nv[0] * tg[1] - nv[1] * tg[0]};
+      const float hand = c[0] * tv[0] + c[1] * tv[1] + c[2] * tv[2] < 0 ? -1.0f : 1.0f;
+      float* o = out.tangents + r * s;
+      if (m) {
+        turn(tg, o);
+        normalise(o);
+      } else {
+        o[0] = tg[0], o[1] = tg[1], o[2] = tg[2];
+      }
+      o[3] = hand;
     }
   }
   if (timed) add(sample_ns, ns_since(t0));

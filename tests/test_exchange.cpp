@@ -4,6 +4,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <vector>
 
 #include "exchange/point_cache.hpp"
 
@@ -61,9 +62,30 @@ TEST(Obj, RoundTripAndPolygons) {
   EXPECT_EQ(m.triangles.size(), 2u);
   EXPECT_EQ(m.triangles[1], (std::array<int, 3>{0, 2, 3}));
   EXPECT_EQ(m.groups[0], "sheet");
-  std::ofstream(temp("quad.obj"))
-      << "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1/1/1 2/2/2 3/3/3 -1/4/4\n";
-  EXPECT_EQ(read_obj(temp("quad.obj")).triangles.size(), 2u);
+  std::ofstream(temp("quad.obj")) << "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
+                                     "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 0 1\n"
+                                     "g front\nusemtl cloth\nf 1/1/1 2/2/1 3/3/1 -1/4/-1\n";
+  const ObjMesh quad = read_obj(temp("quad.obj"));
+  EXPECT_EQ(quad.triangles.size(), 2u);
+  // The face as given: one quad, its corners' vertices, UVs and normals.
+  EXPECT_EQ(quad.face_sizes, (std::vector<uint32_t>{4}));
+  EXPECT_EQ(quad.corners, (std::vector<uint32_t>{0, 1, 2, 3}));
+  EXPECT_EQ(quad.corner_uvs, (std::vector<uint32_t>{0, 1, 2, 3}));
+  EXPECT_EQ(quad.corner_normals, (std::vector<uint32_t>{0, 0, 0, 0}));
+  EXPECT_EQ(quad.uvs.size(), 8u);
+  ASSERT_EQ(quad.face_groups.size(), 1u);
+  EXPECT_EQ(quad.face_groups[0].name, "front");
+  EXPECT_EQ(quad.face_groups[0].material, "cloth");
+  // A corner naming a UV the file does not have is refused with its line.
+  std::ofstream(temp("no_uv.obj")) << "v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1/1 2/2 3/3\n";
+  try {
+    read_obj(temp("no_uv.obj"));
+    FAIL();
+  } catch (const ExchangeError& e) {
+    EXPECT_NE(std::string(e.what()).find("no_uv.obj:4: face texture coordinate index 1/1"),
+              std::string::npos)
+        << e.what();
+  }
   std::ofstream(temp("bad.obj")) << "v 0 0 0\nv 1 0 0\nf 1 2 9\n";
   try {
     read_obj(temp("bad.obj"));

@@ -9,11 +9,17 @@
 #include <filesystem>
 #include <fstream>
 #include <utility>
+#include <vector>
 
 #include "bench/character_bench.hpp"
 #include "character_scene/character_scene.hpp"
+#include "database/format/artist_mesh.hpp"
+#include "database/store/writer.hpp"
+#include "edit/clip_edit.hpp"
+#include "exchange/point_cache.hpp"
 #include "garment/garment.hpp"
 #include "support/cli.hpp"
+#include "support/temp_dir.hpp"
 
 using namespace clothdb;
 
@@ -429,5 +435,172 @@ TEST(Garment, FastLimbsOnBoxingDoNotTunnel) {
     EXPECT_TRUE(r->stable) << r->message;
     EXPECT_EQ(r->frames, 299);
     EXPECT_LE(r->max_penetration, file.material.thickness) << r->solver;  // worst over all frames
+  }
+}
+
+// ---- the artist's topology kept (docs/guide/mesh_garments.md) ----------------------------------
+
+namespace {
+
+// The committed test garment: quads, a pentagon, two triangles, a UV seam, per-vertex normals
+// and two groups without materials (scripts/make_quad_skirt.py).
+const std::string kQuadSkirt = kMotions + "garments/quad_skirt.obj";
+
+// The faces of an OBJ as (vertex, UV, normal) per corner, face by face.
+std::vector<std::array<uint32_t, 3>> obj_corners(const ObjMesh& m) {
+  std::vector<std::array<uint32_t, 3>> out;
+  for (size_t c = 0; c < m.corners.size(); ++c)
+    out.push_back({m.corners[c], m.corner_uvs.empty() ? kObjNone : m.corner_uvs[c],
+                   m.corner_normals.empty() ? kObjNone : m.corner_normals[c]});
+  return out;
+}
+
+}  // namespace
+
+TEST(Garment, MeshGarmentKeepsTheArtistsTopologyAndGroups) {
+  const SceneFile file = load_scene_file(kMotions + "quad_skirt_walk.json");
+  const LoadedMotion motion = load_clip(file.manifest, 0);
+  const Garment g = import_garment(motion.skeleton, file.mesh);
+  const ObjMesh obj = read_obj(kQuadSkirt);
+  const db::ArtistMesh& a = g.artist;
+  // As given: the file's vertex order, faces (quads, a pentagon, triangles), UVs and normals.
+  ASSERT_EQ(a.vertex_count(), obj.positions.size() / 3);
+  EXPECT_EQ(a.face_sizes, obj.face_sizes);
+  EXPECT_EQ(a.corners, obj.corners);
+  EXPECT_EQ(a.uvs, obj.uvs);
+  EXPECT_EQ(a.corner_uvs, obj.corner_uvs);
+  EXPECT_EQ(a.normals, obj.normals);
+  EXPECT_EQ(a.corner_normals, obj.corner_normals);
+  EXPECT_EQ(std::count(a.face_sizes.begin(), a.face_sizes.end(), 5u), 1);
+  EXPECT_EQ(std::count(a.face_sizes.begin(), a.face_sizes.end(), 3u), 2);
+  // The UV seam splits the 10 vertices of the ring's first column: one render vertex more each.
+  EXPECT_EQ(a.render_vertex_count(), a.vertex_count() + 10);
+  // Faces fanned: a quad gives 2 triangles, the pentagon 3.
+  EXPECT_EQ(a.render_triangle_count(), 214u * 2 + 3 + 2);
+  // Nothing to weld: the map is the identity and the simulation mesh has the artist's vertices.
+  EXPECT_EQ(g.mesh.vertex_count(), int(a.vertex_count()));
+  for (uint32_t v = 0; v < a.vertex_count(); ++v) {
+    EXPECT_EQ(a.map_vertices[3 * v], v);
+    EXPECT_EQ(a.map_weights[3 * v], 1.0f);
+  }
+  // OBJ groups without materials are vertex groups: `waist` is the top two rings.
+  EXPECT_EQ(g.pins.size(), 48u);
+  ASSERT_EQ(a.groups.size(), 2u);
+  EXPECT_EQ(a.groups[0].name, "waist");
+  EXPECT_EQ(a.groups[0].faces.size(), 24u);
+  EXPECT_EQ(a.groups[0].material, "");
+}
+
+TEST(Garment, WeldedSeamMapsBothCopiesToOneSimulationVertex) {
+  // The apron of ImportedMeshIsWeldedAndPinned: two objects whose shared edge is duplicated.
+  const std::string obj =
+      write_temp("apron_map.obj",
+                 "o left\nv -0.2 1.0 0.2\nv 0 1.0 0.2\nv 0 0.6 0.2\nv -0.2 0.6 0.2\nf 1 4 3 2\n"
+                 "o right\nv 0 1.0 0.2\nv 0.2 1.0 0.2\nv 0.2 0.6 0.2\nv 0 0.6 0.2\nf 5 8 7 6\n");
+  const SceneFile file = load_scene_file(temp_scene(
+      "apron_map.json", "\"clips\": [\"01_01\"], \"garment\": {\"type\": \"mesh\", \"file\": \"" +
+                            obj +
+                            "\", \"bone\": \"Hips\", \"pins\": {\"vertex_group\": \"right\"}}"));
+  const LoadedMotion motion = load_clip(file.manifest, 0);
+  const Garment g = import_garment(motion.skeleton, file.mesh);
+  ASSERT_EQ(g.artist.vertex_count(), 8u);
+  EXPECT_EQ(g.mesh.vertex_count(), 6);
+  EXPECT_EQ(g.pins.size(), 4u);  // the group `right`, which has no material of its own
+  EXPECT_EQ(g.artist.map_vertices[3 * 1], g.artist.map_vertices[3 * 4]);  // (0, 1.0) twice
+  EXPECT_EQ(g.artist.map_vertices[3 * 2], g.artist.map_vertices[3 * 7]);  // (0, 0.6) twice
+  // Frames in artist order map back to the same simulation positions.
+  std::vector<float> sim(18), artist(24), back(18);
+  for (size_t i = 0; i < sim.size(); ++i) sim[i] = float(i) * 0.25f;
+  db::to_artist_order(g.artist, sim.data(), artist.data());
+  std::string why;
+  ASSERT_TRUE(db::to_simulation_order(g.artist, 6, artist.data(), back.data(), &why)) << why;
+  EXPECT_EQ(back, sim);
+}
+
+TEST(Garment, ArtistsMeshRoundTripsThroughTheDatabaseAndClipExport) {
+  const SceneFile file = load_scene_file(kMotions + "quad_skirt_walk.json");
+  const LoadedMotion motion = load_clip(file.manifest, 0);
+  const Garment g = import_garment(motion.skeleton, file.mesh);
+  const uint32_t n = uint32_t(g.mesh.vertex_count());
+  test::TempDir dir;
+  const std::string path = dir.file("quad.clothdb");
+  constexpr int kFrames = 4;
+  std::vector<float> frames;  // the rest shape, swung a little more each frame
+  for (int f = 0; f < kFrames; ++f)
+    for (uint32_t v = 0; v < n; ++v) {
+      const Vec3 p = g.mesh.rest.col(v);
+      frames.insert(frames.end(), {float(p.x() + 0.01 * f * (0.1 - p.y())), float(p.y()),
+                                   float(p.z() + 0.003 * f)});
+    }
+  int64_t clip = 0;
+  {
+    db::Writer w = db::Writer::create(path);
+    db::Garment row;
+    for (const auto& t : g.mesh.triangles)
+      for (int k = 0; k < 3; ++k) row.triangles.push_back(uint32_t(t[size_t(k)]));
+    for (uint32_t v = 0; v < n; ++v)
+      for (int k = 0; k < 3; ++k) row.rest_positions.push_back(float(g.mesh.rest(k, v)));
+    row.material = row.solver = "{}";
+    w.put_garment(row);
+    w.put_artist_mesh(g.artist);
+    db::PrimaryClip p;
+    p.name = "walk";
+    p.frame_count = kFrames;
+    const int64_t primary = w.add_primary_clip(p);
+    const std::vector<float> zero(size_t(n) * 3, 0.0f);
+    db::NewClothClip c;
+    c.start_state = w.add_cloth_state(primary, 0, frames.data(), zero.data(), n);
+    c.primary_clip = primary;
+    clip = w.add_cloth_clip(c, frames.data(), kFrames, n);
+  }
+  db::Reader r;
+  db::Error err;
+  ASSERT_EQ(r.open(path, &err), db::Status::Ok) << err.message;
+  db::ArtistMesh stored;
+  ASSERT_EQ(r.artist_mesh(&stored, &err), db::Status::Ok) << err.message;
+  EXPECT_EQ(stored.positions, g.artist.positions);
+  EXPECT_EQ(stored.face_sizes, g.artist.face_sizes);
+  EXPECT_EQ(stored.corners, g.artist.corners);
+  EXPECT_EQ(stored.uvs, g.artist.uvs);
+  EXPECT_EQ(stored.corner_uvs, g.artist.corner_uvs);
+  EXPECT_EQ(stored.normals, g.artist.normals);
+  EXPECT_EQ(stored.corner_normals, g.artist.corner_normals);
+  EXPECT_EQ(stored.render_triangles, g.artist.render_triangles);
+  EXPECT_EQ(stored.map_vertices, g.artist.map_vertices);
+  ASSERT_EQ(stored.groups.size(), g.artist.groups.size());
+  EXPECT_EQ(stored.groups[1].faces, g.artist.groups[1].faces);
+
+  // clip export: the artist's OBJ (same faces, UVs, normals as the file) and an artist-order PC2.
+  testing::internal::CaptureStderr();  // it says it writes no body (no scene in this file)
+  const ExportedClip out = export_clip(r, clip, dir.file("export"), "");
+  testing::internal::GetCapturedStderr();
+  const ObjMesh original = read_obj(kQuadSkirt), exported = read_obj(out.cloth_obj);
+  EXPECT_EQ(exported.face_sizes, original.face_sizes);
+  EXPECT_EQ(obj_corners(exported), obj_corners(original));
+  EXPECT_EQ(exported.uvs, original.uvs);
+  EXPECT_EQ(exported.normals, original.normals);
+  EXPECT_EQ(exported.face_groups.size(), original.face_groups.size());
+  const PointCache pc = read_pc2(out.cloth_pc2);
+  ASSERT_EQ(pc.vertex_count, int(stored.vertex_count()));
+  ASSERT_EQ(pc.frame_count, kFrames);
+  // Import of the artist-order PC2 reaches the same simulation positions.
+  const std::vector<float> back = read_edited_frames(out.cloth_pc2, stored, n, kFrames);
+  std::vector<float> decoded;
+  codec::DecodeScratch scratch;
+  std::vector<uint8_t> blob;
+  ASSERT_EQ(r.clip_blob(clip, &blob, &err), db::Status::Ok);
+  ASSERT_EQ(r.decode_all(blob, &decoded, scratch, &err), db::Status::Ok);
+  ASSERT_EQ(back.size(), decoded.size());
+  for (size_t i = 0; i < back.size(); ++i) ASSERT_EQ(back[i], decoded[i]) << i;
+  // A cache of neither topology is refused, naming both counts.
+  PointCache wrong = pc;
+  wrong.vertex_count = 7;
+  wrong.positions.resize(size_t(kFrames) * 7 * 3);
+  write_pc2(dir.file("wrong.pc2"), wrong);
+  try {
+    read_edited_frames(dir.file("wrong.pc2"), stored, n, kFrames);
+    FAIL();
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("7 vertices"), std::string::npos) << e.what();
   }
 }

@@ -3,8 +3,8 @@
 //
 // Frames: one `GET /api/frame?dt=...` in flight at a time, started at an animation frame when
 // none is in flight; dt is the wall time since the previous request (times the slow-motion
-// factor), so the cloth plays in real time whatever the frame rate. Normals are computed here,
-// per frame, from the triangles (three.js computeVertexNormals: area-weighted face normals).
+// factor), so the cloth plays in real time whatever the frame rate. The cloth is the render mesh
+// (the artist's vertices, seam copies split) with the normals the runtime computed.
 import * as THREE from 'three';
 import {OrbitControls} from 'three/addons/controls/OrbitControls.js';
 
@@ -166,8 +166,12 @@ async function request(dt, n, wait) {
     const states = JSON.parse(r.headers.get('X-Clothdb-Frames'));
     const all = new Float32Array(await r.arrayBuffer());
     const size = all.length / states.length, cloth = 3 * state.info.vertices;
-    states.forEach((f, k) => queue.push({f, positions: all.subarray(k * size, k * size + cloth),
-      capsules: all.subarray(k * size + cloth, (k + 1) * size)}));
+    states.forEach((f, k) => queue.push({
+      f,
+      positions: all.subarray(k * size, k * size + cloth),
+      normals: all.subarray(k * size + cloth, k * size + 2 * cloth),
+      capsules: all.subarray(k * size + 2 * cloth, (k + 1) * size)
+    }));
   } catch (e) {
     showError(`${e.message} (is clothdb view still running?)`);
     setPaused(true);
@@ -214,16 +218,18 @@ function pull(now) {
 // After a jump the queued frames are from before it.
 function flush() { queue.length = 0; }
 
-function applyFrame({f, positions, capsules}) {
+function applyFrame({f, positions, normals, capsules}) {
   const attr = geometry.attributes.position;
   if (!attr) {
-    geometry.setAttribute('position', new THREE.BufferAttribute(positions, 3));
+    geometry.setAttribute('position', new THREE.BufferAttribute(positions.slice(), 3));
+    geometry.setAttribute('normal', new THREE.BufferAttribute(normals.slice(), 3));
     frameCamera(positions);
   } else {
     attr.array.set(positions);
     attr.needsUpdate = true;
+    geometry.attributes.normal.array.set(normals);
+    geometry.attributes.normal.needsUpdate = true;
   }
-  geometry.computeVertexNormals();
   const changed = !state.frame || state.frame.primary_clip !== f.primary_clip ||
       state.frame.next_clip !== f.next_clip;
   state.frame = f;

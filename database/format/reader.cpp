@@ -4,8 +4,10 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <type_traits>
 #include <utility>
 
+#include "database/format/artist_mesh.hpp"
 #include "database/format/meta_keys.hpp"
 #include "database/sqlite/statement.hpp"
 
@@ -232,6 +234,70 @@ Status Reader::garment(Garment* out, Error* err) {
   if (bad)
     return fail(err, Status::Corrupt, "%s: garment arrays do not match its counts", path_.c_str());
   if (!found) return fail(err, Status::NotFound, "%s: no garment stored", path_.c_str());
+  return Status::Ok;
+}
+
+Status Reader::artist_mesh(ArtistMesh* out, Error* err) {
+  Garment g;
+  if (Status st = garment(&g, err); st != Status::Ok) return st;
+  bool found = false, bad = false;
+  if (schema_version_ >= 5) {
+    ArtistMesh m;
+    const Status st = sql::for_each_row(
+        db_, path_,
+        "SELECT source, vertex_count, face_count, render_vertex_count, render_triangle_count, "
+        "positions, face_sizes, corners, uvs, corner_uvs, normals, corner_normals, "
+        "render_vertices, render_triangles, map_vertices, map_weights FROM garment_mesh",
+        err, [&](Stmt& s) {
+          found = true;
+          m.source = s.text(0);
+          int c = 5;
+          auto read = [&](auto* v) {
+            using T = typename std::remove_pointer_t<decltype(v)>::value_type;
+            const size_t bytes = s.bytes(c);
+            if (bytes % sizeof(T) != 0) bad = true;
+            v->resize(bytes / sizeof(T));
+            if (!v->empty()) std::memcpy(v->data(), s.blob(c), v->size() * sizeof(T));
+            ++c;
+          };
+          read(&m.positions);
+          read(&m.face_sizes);
+          read(&m.corners);
+          read(&m.uvs);
+          read(&m.corner_uvs);
+          read(&m.normals);
+          read(&m.corner_normals);
+          read(&m.render_vertices);
+          read(&m.render_triangles);
+          read(&m.map_vertices);
+          read(&m.map_weights);
+          if (uint64_t(s.i64(1)) != m.vertex_count() || uint64_t(s.i64(2)) != m.face_count() ||
+              uint64_t(s.i64(3)) != m.render_vertex_count() ||
+              uint64_t(s.i64(4)) != m.render_triangle_count())
+            bad = true;
+        });
+    if (st != Status::Ok) return st;
+    if (bad)
+      return fail(err, Status::Corrupt, "%s: garment_mesh arrays do not match its counts",
+                  path_.c_str());
+    if (found) {
+      const Status gs = sql::for_each_row(
+          db_, path_, "SELECT name, material, faces FROM garment_group ORDER BY id", err,
+          [&](Stmt& s) {
+            ArtistGroup group{s.text(0), s.text(1), {}};
+            group.faces.resize(s.bytes(2) / sizeof(uint32_t));
+            if (!group.faces.empty())
+              std::memcpy(group.faces.data(), s.blob(2), group.faces.size() * sizeof(uint32_t));
+            m.groups.push_back(std::move(group));
+          });
+      if (gs != Status::Ok) return gs;
+      if (Status cs = check_artist_mesh(m, g.vertex_count(), path_, err); cs != Status::Ok)
+        return cs;
+      *out = std::move(m);
+      return Status::Ok;
+    }
+  }
+  *out = identity_artist_mesh(g);
   return Status::Ok;
 }
 

@@ -56,6 +56,9 @@ class Reader {
   Status meta(const std::string& key, std::string* value, Error* err);
   Status all_meta(std::vector<std::pair<std::string, std::string>>* out, Error* err);
   Status garment(Garment* out, Error* err);  // NotFound if none was stored
+  // The artist's mesh (rows.hpp), checked (db::check_artist_mesh); for a file without one (a
+  // procedural garment, or schema < 5) the identity mesh of the garment. NotFound if no garment.
+  Status artist_mesh(ArtistMesh* out, Error* err);
   Status motion_files(std::vector<MotionFile>* out, Error* err);
   Status source_files(std::vector<SourceFile>* out, Error* err);  // empty before schema 5
   Status primary_clips(std::vector<PrimaryClip>* out, Error* err);

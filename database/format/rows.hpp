@@ -23,6 +23,49 @@ struct Garment {
   uint32_t vertex_count() const { return uint32_t(rest_positions.size() / 3); }
 };
 
+// A group of the artist's faces (an OBJ `g`/`o`, a glTF or FBX mesh), with the material its
+// faces use ("" when none). Its vertices are the corners of its faces: a pin rule's vertex group.
+struct ArtistGroup {
+  std::string name;
+  std::string material;
+  std::vector<uint32_t> faces;  // indices into ArtistMesh::face_sizes
+};
+
+// The artist's garment mesh as given, the triangulation an engine draws, and the map to the
+// simulation mesh (docs/DATABASE.md, "The artist's mesh"; database/format/artist_mesh.hpp builds
+// and checks it). "Artist vertices" are the file's vertices in its order (an OBJ's `v` lines, what
+// Blender's vertex order and a PC2 follow); a face corner names an artist vertex and, separately,
+// a UV and a normal, so UV and normal seams split corners, not vertices. "Render vertices" are
+// what an engine's vertex buffer holds: render vertex i < vertex_count() is artist vertex i (with
+// the UV and normal of its first corner); each further (vertex, UV, normal) combination a seam
+// makes is appended after them, in order of first use.
+constexpr uint32_t kNoAttribute = 0xFFFFFFFFu;  // a corner or render vertex without a UV/normal
+struct ArtistMesh {
+  std::string source;  // the garment file (resolved against the scene's folder); "" if procedural
+  std::vector<float> positions;          // 3 per artist vertex: rest, bind space, metres
+  std::vector<uint32_t> face_sizes;      // corners per face (3 or more), faces in file order
+  std::vector<uint32_t> corners;         // artist vertex per corner, face by face
+  std::vector<float> uvs;                // 2 per UV; empty: the mesh has none
+  std::vector<uint32_t> corner_uvs;      // per corner (kNoAttribute: none); empty: no UVs
+  std::vector<float> normals;            // 3 per normal as given; empty: none
+  std::vector<uint32_t> corner_normals;  // per corner; empty: no normals
+  std::vector<ArtistGroup> groups;
+  // The engine's mesh: per render vertex (artist vertex, UV, normal), and 3 render vertices per
+  // triangle (each face fanned from its first corner, in face order).
+  std::vector<uint32_t> render_vertices;
+  std::vector<uint32_t> render_triangles;
+  // Per artist vertex: the simulation vertices and weights its position is made of (3 of each).
+  // An index where the weld merged vertices or a seam split them: (v, v, v) with (1, 0, 0);
+  // barycentric on a simulation triangle where the simulation mesh differs from the artist's.
+  std::vector<uint32_t> map_vertices;
+  std::vector<float> map_weights;
+
+  uint32_t vertex_count() const { return uint32_t(positions.size() / 3); }
+  uint32_t face_count() const { return uint32_t(face_sizes.size()); }
+  uint32_t render_vertex_count() const { return uint32_t(render_vertices.size() / 3); }
+  uint32_t render_triangle_count() const { return uint32_t(render_triangles.size() / 3); }
+};
+
 struct MotionFile {
   int64_t id = 0;
   std::string path;          // as given in the scene file

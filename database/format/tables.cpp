@@ -6,6 +6,8 @@ const std::vector<TableInfo>& tables() {
   static const std::vector<TableInfo> list = {
       {"meta", 1, true, false},
       {"garment", 1, false, false},
+      {"garment_mesh", 5, false, false},
+      {"garment_group", 5, false, false},
       {"motion_file", 1, false, false},
       {"source_file", 5, false, false},
       {"primary_clip", 1, false, false},

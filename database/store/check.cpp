@@ -343,6 +343,15 @@ CheckReport check_database(const std::string& path) {
                 "max_penetration < 0",
           report, "metrics");
   check_garment(db, report);
+  {
+    // The artist's mesh and its map (the runtime refuses a file whose map names a vertex the
+    // garment lacks): the reader's own check, db::check_artist_mesh.
+    ArtistMesh mesh;
+    Error mesh_err;
+    if (count(db, "SELECT count(*) FROM garment") == 1 &&
+        reader.artist_mesh(&mesh, &mesh_err) != Status::Ok)
+      report.problems.push_back(std::string("garment mesh: ") + mesh_err.message);
+  }
   check_graph(reader, report);
   report.rows_checked = count(db,
                               "SELECT (SELECT count(*) FROM cloth_edge) + "

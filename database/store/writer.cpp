@@ -11,6 +11,7 @@
 #include <utility>
 
 #include "database/codec/codec.hpp"
+#include "database/format/artist_mesh.hpp"
 #include "database/sqlite/statement.hpp"
 #include "database/store/writer_lock.hpp"
 
@@ -80,6 +81,35 @@ std::string table_sql(std::string_view name) {
   rest_positions BLOB NOT NULL,
   material TEXT NOT NULL,
   solver TEXT NOT NULL
+);)sql";
+  if (name == "garment_mesh")
+    // Arrays as little-endian uint32 / float32 blobs (db::ArtistMesh in rows.hpp); UVs and
+    // normals are NULL when the mesh has none.
+    return R"sql(CREATE TABLE IF NOT EXISTS garment_mesh(
+  id INTEGER PRIMARY KEY CHECK (id = 1),
+  source TEXT NOT NULL,
+  vertex_count INTEGER NOT NULL CHECK (vertex_count > 0),
+  face_count INTEGER NOT NULL CHECK (face_count >= 0),
+  render_vertex_count INTEGER NOT NULL CHECK (render_vertex_count >= vertex_count),
+  render_triangle_count INTEGER NOT NULL CHECK (render_triangle_count >= 0),
+  positions BLOB NOT NULL,
+  face_sizes BLOB NOT NULL,
+  corners BLOB NOT NULL,
+  uvs BLOB,
+  corner_uvs BLOB,
+  normals BLOB,
+  corner_normals BLOB,
+  render_vertices BLOB NOT NULL,
+  render_triangles BLOB NOT NULL,
+  map_vertices BLOB NOT NULL,
+  map_weights BLOB NOT NULL
+);)sql";
+  if (name == "garment_group")
+    return R"sql(CREATE TABLE IF NOT EXISTS garment_group(
+  id INTEGER PRIMARY KEY,
+  name TEXT NOT NULL,
+  material TEXT NOT NULL,
+  faces BLOB NOT NULL
 );)sql";
   if (name == "motion_file")
     return R"sql(CREATE TABLE IF NOT EXISTS motion_file(
@@ -433,6 +463,44 @@ void Writer::put_garment(const Garment& g) {
   s.bind_blob(4, g.rest_positions.data(), g.rest_positions.size() * sizeof(float));
   s.bind(5, g.material).bind(6, g.solver);
   if (!s.ok() || s.step() != SQLITE_DONE) throw_sql("storing the garment");
+}
+
+void Writer::put_artist_mesh(const ArtistMesh& m) {
+  Error err;
+  if (check_artist_mesh(m, garment_vertices(), path_, &err) != Status::Ok)
+    throw ClothdbError(Status::InvalidArgument, err.message);
+  Transaction tx(*this);
+  Stmt s(db_, "INSERT INTO garment_mesh VALUES(1, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+  s.bind(1, m.source).bind(2, int64_t(m.vertex_count())).bind(3, int64_t(m.face_count()));
+  s.bind(4, int64_t(m.render_vertex_count())).bind(5, int64_t(m.render_triangle_count()));
+  int i = 6;
+  auto blob = [&](const auto& v, bool nullable) {
+    if (nullable && v.empty())
+      s.bind_null(i++);
+    else  // a non-null pointer even when empty: SQLite binds a null pointer as NULL
+      s.bind_blob(i++, v.empty() ? static_cast<const void*>(&i) : v.data(),
+                  v.size() * sizeof(v[0]));
+  };
+  blob(m.positions, false);
+  blob(m.face_sizes, false);
+  blob(m.corners, false);
+  blob(m.uvs, true);
+  blob(m.corner_uvs, true);
+  blob(m.normals, true);
+  blob(m.corner_normals, true);
+  blob(m.render_vertices, false);
+  blob(m.render_triangles, false);
+  blob(m.map_vertices, false);
+  blob(m.map_weights, false);
+  if (!s.ok() || s.step() != SQLITE_DONE) throw_sql("storing the artist's garment mesh");
+  for (const ArtistGroup& g : m.groups) {
+    Stmt gs(db_, "INSERT INTO garment_group(name, material, faces) VALUES(?, ?, ?)");
+    gs.bind(1, g.name).bind(2, g.material);
+    gs.bind_blob(3, g.faces.empty() ? static_cast<const void*>(&i) : g.faces.data(),
+                 g.faces.size() * sizeof(uint32_t));
+    if (!gs.ok() || gs.step() != SQLITE_DONE) throw_sql("storing a garment group");
+  }
+  tx.commit();
 }
 
 int64_t Writer::add_motion_file(const std::string& path, const std::string& content_hash) {

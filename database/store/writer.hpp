@@ -52,6 +52,9 @@ class Writer {
   // Sets a meta key (database/format/meta_keys.hpp; the typed set_meta_* below are the usual way).
   void set_meta(const std::string& key, const std::string& value);
   void put_garment(const Garment& garment);  // once; clips must match its vertex count
+  // Once, after put_garment, for a garment made from an artist's file (a procedural garment stores
+  // none: it reads back as db::identity_artist_mesh). Checked by db::check_artist_mesh first.
+  void put_artist_mesh(const ArtistMesh& mesh);
   int64_t add_motion_file(const std::string& path, const std::string& content_hash);
   int64_t add_source_file(const SourceFile& file);  // its id; the file's id is not used
   int64_t add_primary_clip(const PrimaryClip& clip);

@@ -202,13 +202,11 @@ ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& di
   db::ClothClip row;
   const std::vector<float> frames = read_clip_frames(reader, clip, &row);
   db::Garment garment;
+  db::ArtistMesh artist;
   db::Error err;
   check(reader.garment(&garment, &err), err);
-  const int n = static_cast<int>(garment.vertex_count());
-  std::vector<std::array<int, 3>> triangles(garment.triangles.size() / 3);
-  for (size_t k = 0; k < triangles.size(); ++k)
-    triangles[k] = {int(garment.triangles[3 * k]), int(garment.triangles[3 * k + 1]),
-                    int(garment.triangles[3 * k + 2])};
+  check(reader.artist_mesh(&artist, &err), err);
+  const int n = static_cast<int>(artist.vertex_count());
   ExportedClip out;
   // The body first: when the scene cannot be rebuilt nothing is written.
   PointCache body;
@@ -251,11 +249,15 @@ ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& di
   out.cloth_obj = dir + "/cloth.obj";
   out.cloth_pc2 = dir + "/cloth.pc2";
   out.info_json = dir + "/clip.json";
-  write_obj(out.cloth_obj, "cloth_clip_" + std::to_string(clip), frames.data(), n, triangles);
   PointCache cache;
-  cache.vertex_count = n;
+  cache.vertex_count = static_cast<int>(garment.vertex_count());
   cache.frame_count = row.frame_count;
   cache.positions = frames;
+  // In the artist's topology (docs/guide/mesh_garments.md): their vertex order, faces and UVs;
+  // `clip import` maps it back.
+  cache = artist_order(artist, cache);
+  write_artist_obj(out.cloth_obj, "cloth_clip_" + std::to_string(clip), cache.positions.data(),
+                   artist);
   write_pc2(out.cloth_pc2, cache);
   if (body.vertex_count > 0) {
     out.body_obj = dir + "/body.obj";
@@ -277,6 +279,9 @@ ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& di
       {"start_state", row.start_state},
       {"frames", row.frame_count},
       {"vertices", n},
+      {"simulation_vertices", garment.vertex_count()},
+      {"topology", artist.source.empty() ? "the simulation mesh (a procedural garment)"
+                                         : "the artist's mesh of " + artist.source},
       {"frame_rate", rate},
       {"frame_start", 0},
       {"frame_end", row.frame_count - 1},
@@ -289,8 +294,8 @@ ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& di
   return out;
 }
 
-EditedCache read_edited_cache(const std::string& path, uint32_t vertex_count, int32_t frame_count,
-                              double rate) {
+EditedCache read_edited_cache(const std::string& path, const db::ArtistMesh& artist,
+                              uint32_t vertex_count, int32_t frame_count, double rate) {
   const std::string file =
       std::filesystem::is_directory(path) ? path + "/cloth.pc2" : std::string(path);
   if (!std::filesystem::exists(file))
@@ -301,9 +306,15 @@ EditedCache read_edited_cache(const std::string& path, uint32_t vertex_count, in
                 "frames 0-%d at %g fps, as `clip export` wrote them (header start frame 0, "
                 "sample rate 1)",
                 frame_count - 1, rate);
-  if (cache.vertex_count != static_cast<int>(vertex_count))
+  // Either topology: the artist's vertex order (what `clip export` writes) or the simulation's.
+  if (cache.vertex_count != static_cast<int>(vertex_count) &&
+      cache.vertex_count != static_cast<int>(artist.vertex_count()))
     fail(file + ": points: " + std::to_string(cache.vertex_count) + " vertices, the clip has " +
-         std::to_string(vertex_count) + " (the topology changed: keep the vertex order)");
+         std::to_string(artist.vertex_count()) +
+         (artist.vertex_count() != vertex_count
+              ? " in the artist's mesh and " + std::to_string(vertex_count) + " simulated"
+              : std::string()) +
+         " (the topology changed: keep the vertex order)");
   if (cache.sample_rate != 1.0f) {
     char b[400];
     std::snprintf(b, sizeof b,
@@ -323,16 +334,21 @@ EditedCache read_edited_cache(const std::string& path, uint32_t vertex_count, in
                   cache.start_frame + cache.frame_count - 1, clip_range);
     fail(b);
   }
+  const size_t n = size_t(cache.vertex_count);
   for (size_t i = 0; i < cache.positions.size(); ++i)
     if (!std::isfinite(cache.positions[i]))
-      fail(file + ": frame " + std::to_string(i / 3 / vertex_count) + " vertex " +
-           std::to_string(i / 3 % vertex_count) + ": not a finite coordinate");
-  return {cache.positions, cache.start_frame, file};
+      fail(file + ": frame " + std::to_string(i / 3 / n) + " vertex " + std::to_string(i / 3 % n) +
+           ": not a finite coordinate");
+  try {
+    return {simulation_order(artist, vertex_count, cache, file).positions, cache.start_frame, file};
+  } catch (const ExchangeError& e) {
+    fail(e.what());
+  }
 }
 
-std::vector<float> read_edited_frames(const std::string& path, uint32_t vertex_count,
-                                      int32_t frame_count) {
-  return read_edited_cache(path, vertex_count, frame_count, 30).frames;
+std::vector<float> read_edited_frames(const std::string& path, const db::ArtistMesh& artist,
+                                      uint32_t vertex_count, int32_t frame_count) {
+  return read_edited_cache(path, artist, vertex_count, frame_count, 30).frames;
 }
 
 namespace {

@@ -58,19 +58,20 @@ ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& di
                          const std::string& scene_file, const std::string& motions_dir = "",
                          bool with_body = true);
 
-// Reads PATH (a .pc2 file, or a folder holding cloth.pc2) and checks it has the clip's vertex and
-// frame counts, a sample rate of 1 (one sample per frame) and only finite coordinates; throws
-// std::runtime_error naming the file, and for a wrong frame count the header's frame range and
-// the clip's (`rate`: the clip's fps, for the message).
+// Reads PATH (a .pc2 file, or a folder holding cloth.pc2) in the artist's vertex order (what
+// export_clip writes) or the simulation's, checks it has the clip's frame count, a sample rate of 1
+// (one sample per frame) and only finite coordinates, and returns the frames in simulation order
+// (vertex_count vertices); throws std::runtime_error naming the file, and for a wrong frame count
+// the header's frame range and the clip's (`rate`: the clip's fps, for the message).
 struct EditedCache {
   std::vector<float> frames;
   float start_frame = 0;  // the PC2 header's (`clip export` writes 0)
   std::string file;
 };
-EditedCache read_edited_cache(const std::string& path, uint32_t vertex_count, int32_t frame_count,
-                              double rate);
-std::vector<float> read_edited_frames(const std::string& path, uint32_t vertex_count,
-                                      int32_t frame_count);
+EditedCache read_edited_cache(const std::string& path, const db::ArtistMesh& artist,
+                              uint32_t vertex_count, int32_t frame_count, double rate);
+std::vector<float> read_edited_frames(const std::string& path, const db::ArtistMesh& artist,
+                                      uint32_t vertex_count, int32_t frame_count);
 
 // An import whose frames are the stored clip's within the codec's bound: nothing to write and
 // nothing logged (`clothdb clip import` exits with kNoChangeExitStatus).

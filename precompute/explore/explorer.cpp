@@ -341,6 +341,9 @@ void prepare_database(db::Writer& writer, const CharacterScene& scene, ExploreGr
   g.material = mat;
   g.solver = solver_settings_json(scene.file.solver, scene.file.settings);
   writer.put_garment(g);
+  // The artist's mesh and its map, for a garment made from a file (a procedural one reads back as
+  // its own simulation mesh).
+  if (scene.garment.artist.vertex_count() > 0) writer.put_artist_mesh(scene.garment.artist);
   db::set_meta_text(writer, db::meta::kUnits,
                     "metres, seconds; cloth in character space (docs/SECONDARY_GRAPH.md)");
   db::set_meta_text(writer, db::meta::kScene, scene.file.text);

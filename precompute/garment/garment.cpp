@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <assimp/Importer.hpp>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -13,6 +14,8 @@
 #include <set>
 
 #include "character/body.hpp"
+#include "database/format/artist_mesh.hpp"
+#include "exchange/point_cache.hpp"
 
 namespace clothdb {
 
@@ -375,45 +378,126 @@ Garment make_cape(const Skeleton& skeleton, const CapeSpec& spec) {
   return pin_rows_to(std::move(g), collar, anchor);
 }
 
+namespace {
+
+// The artist's mesh of an OBJ, as given (exchange/point_cache.hpp reads it): assimp's OBJ importer
+// makes one vertex per face corner, which loses the file's vertex order.
+db::ArtistMesh read_artist_obj(const MeshGarmentSpec& spec,
+                               std::vector<std::vector<std::string>>* vertex_groups) {
+  ObjMesh obj;
+  try {
+    obj = read_obj(spec.file);
+  } catch (const ExchangeError& e) {
+    throw GarmentError(std::string("cannot read the garment: ") + e.what());
+  }
+  db::ArtistMesh a;
+  a.positions = std::move(obj.positions);
+  a.face_sizes = std::move(obj.face_sizes);
+  a.corners = std::move(obj.corners);
+  a.uvs = std::move(obj.uvs);
+  a.corner_uvs = std::move(obj.corner_uvs);
+  a.normals = std::move(obj.normals);
+  a.corner_normals = std::move(obj.corner_normals);
+  // A face group (`g` or `o`, with or without its own material) is a vertex group of the
+  // vertices its faces use.
+  vertex_groups->assign(a.vertex_count(), {});
+  std::vector<uint32_t> face_start(a.face_sizes.size() + 1, 0);
+  for (size_t f = 0; f < a.face_sizes.size(); ++f)
+    face_start[f + 1] = face_start[f] + a.face_sizes[f];
+  for (ObjGroup& g : obj.face_groups) {
+    for (uint32_t f : g.faces)
+      for (uint32_t c = face_start[f]; c < face_start[f + 1]; ++c) {
+        auto& names = (*vertex_groups)[a.corners[c]];
+        if (std::find(names.begin(), names.end(), g.name) == names.end()) names.push_back(g.name);
+      }
+    a.groups.push_back({std::move(g.name), std::move(g.material), std::move(g.faces)});
+  }
+  return a;
+}
+
+// glTF, FBX and the rest through assimp, without triangulation (faces as given) and with identical
+// vertices joined (FBX gives one per corner); its vertices are already split where UVs or normals
+// differ, so corners name UVs and normals by vertex.
+db::ArtistMesh read_artist_assimp(const MeshGarmentSpec& spec,
+                                  std::vector<std::vector<std::string>>* vertex_groups) {
+  Assimp::Importer importer;
+  const aiScene* scene = importer.ReadFile(
+      spec.file, aiProcess_PreTransformVertices | aiProcess_JoinIdenticalVertices);
+  if (!scene || !scene->mRootNode)
+    throw GarmentError(spec.file + ": cannot read the garment: " + importer.GetErrorString());
+  bool any_uv = false, any_normal = false;
+  for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
+    any_uv |= scene->mMeshes[m]->HasTextureCoords(0);
+    any_normal |= scene->mMeshes[m]->HasNormals();
+  }
+  db::ArtistMesh a;
+  for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
+    const aiMesh* mesh = scene->mMeshes[m];
+    const uint32_t base = a.vertex_count();
+    for (unsigned v = 0; v < mesh->mNumVertices; ++v) {
+      const aiVector3D& p = mesh->mVertices[v];
+      a.positions.insert(a.positions.end(), {p.x, p.y, p.z});
+      if (any_uv) {
+        const aiVector3D t = mesh->HasTextureCoords(0) ? mesh->mTextureCoords[0][v] : aiVector3D();
+        a.uvs.insert(a.uvs.end(), {t.x, t.y});
+      }
+      if (any_normal) {
+        const aiVector3D n = mesh->HasNormals() ? mesh->mNormals[v] : aiVector3D();
+        a.normals.insert(a.normals.end(), {n.x, n.y, n.z});
+      }
+      vertex_groups->push_back({mesh->mName.C_Str()});
+    }
+    for (unsigned b = 0; b < mesh->mNumBones; ++b)
+      for (unsigned w = 0; w < mesh->mBones[b]->mNumWeights; ++w)
+        if (mesh->mBones[b]->mWeights[w].mWeight > 0.5f)
+          (*vertex_groups)[base + mesh->mBones[b]->mWeights[w].mVertexId].push_back(
+              mesh->mBones[b]->mName.C_Str());
+    aiString material;
+    if (mesh->mMaterialIndex < scene->mNumMaterials)
+      scene->mMaterials[mesh->mMaterialIndex]->Get(AI_MATKEY_NAME, material);
+    db::ArtistGroup group{mesh->mName.C_Str(), material.C_Str(), {}};
+    for (unsigned f = 0; f < mesh->mNumFaces; ++f) {
+      const aiFace& face = mesh->mFaces[f];
+      if (face.mNumIndices < 3) continue;  // points and lines
+      group.faces.push_back(a.face_count());
+      a.face_sizes.push_back(face.mNumIndices);
+      for (unsigned k = 0; k < face.mNumIndices; ++k) {
+        const uint32_t v = base + face.mIndices[k];
+        a.corners.push_back(v);
+        if (any_uv) a.corner_uvs.push_back(mesh->HasTextureCoords(0) ? v : db::kNoAttribute);
+        if (any_normal) a.corner_normals.push_back(mesh->HasNormals() ? v : db::kNoAttribute);
+      }
+    }
+    a.groups.push_back(std::move(group));
+  }
+  return a;
+}
+
+}  // namespace
+
 Garment import_garment(const Skeleton& skeleton, const MeshGarmentSpec& spec) {
   std::error_code ec;
   if (std::filesystem::is_directory(spec.file, ec))
     throw GarmentError(spec.file + ": is a directory, not a garment mesh file");
   if (!std::filesystem::exists(spec.file))
     throw GarmentError(spec.file + ": garment file not found");
-  Assimp::Importer importer;
-  const aiScene* scene =
-      importer.ReadFile(spec.file, aiProcess_Triangulate | aiProcess_PreTransformVertices);
-  if (!scene || !scene->mRootNode)
-    throw GarmentError(spec.file + ": cannot read the garment: " + importer.GetErrorString());
-  Eigen::Matrix3Xd points(3, 0);
-  std::vector<std::array<int, 3>> triangles;
-  std::vector<std::string> group;  // per input vertex: its mesh's name
-  std::vector<std::vector<std::string>> bone_groups;
-  for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
-    const aiMesh* mesh = scene->mMeshes[m];
-    const int base = static_cast<int>(points.cols());
-    points.conservativeResize(3, base + mesh->mNumVertices);
-    for (unsigned v = 0; v < mesh->mNumVertices; ++v) {
-      const aiVector3D& p = mesh->mVertices[v];
-      points.col(base + v) = spec.scale * Vec3(p.x, p.y, p.z);
-      group.push_back(mesh->mName.C_Str());
-      bone_groups.emplace_back();
-    }
-    for (unsigned b = 0; b < mesh->mNumBones; ++b)
-      for (unsigned w = 0; w < mesh->mBones[b]->mNumWeights; ++w)
-        if (mesh->mBones[b]->mWeights[w].mWeight > 0.5f)
-          bone_groups[base + mesh->mBones[b]->mWeights[w].mVertexId].push_back(
-              mesh->mBones[b]->mName.C_Str());
-    for (unsigned f = 0; f < mesh->mNumFaces; ++f) {
-      const aiFace& face = mesh->mFaces[f];
-      if (face.mNumIndices != 3) continue;  // points and lines
-      triangles.push_back({base + static_cast<int>(face.mIndices[0]),
-                           base + static_cast<int>(face.mIndices[1]),
-                           base + static_cast<int>(face.mIndices[2])});
-    }
-  }
-  if (triangles.empty()) throw GarmentError(spec.file + ": the garment has no triangles");
+  std::string ext = std::filesystem::path(spec.file).extension().string();
+  for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
+  std::vector<std::vector<std::string>> group;  // per artist vertex: its vertex groups
+  db::ArtistMesh artist =
+      ext == ".obj" ? read_artist_obj(spec, &group) : read_artist_assimp(spec, &group);
+  artist.source = spec.file;
+  for (float& x : artist.positions) x = float(spec.scale * x);
+  db::derive_render_mesh(&artist);
+  const std::vector<uint32_t> fan = db::artist_triangles(artist);
+  if (fan.empty()) throw GarmentError(spec.file + ": the garment has no triangles");
+  Eigen::Matrix3Xd points(3, artist.vertex_count());
+  for (uint32_t v = 0; v < artist.vertex_count(); ++v)
+    points.col(v) =
+        Vec3(artist.positions[3 * v], artist.positions[3 * v + 1], artist.positions[3 * v + 2]);
+  std::vector<std::array<int, 3>> triangles(fan.size() / 3);
+  for (size_t t = 0; t < triangles.size(); ++t)
+    triangles[t] = {int(fan[3 * t]), int(fan[3 * t + 1]), int(fan[3 * t + 2])};
   check_points(points, spec);
   check_weld(points, spec);
   Garment g;
@@ -425,6 +509,14 @@ Garment import_garment(const Skeleton& skeleton, const MeshGarmentSpec& spec) {
     throw GarmentError(spec.file + ": not a manifold triangle mesh: " + e.what());
   }
   check_welded(g.mesh, spec);
+  // The map: each artist vertex is the simulation vertex the weld made of it.
+  artist.map_vertices.resize(size_t(artist.vertex_count()) * 3);
+  artist.map_weights.assign(size_t(artist.vertex_count()) * 3, 0.0f);
+  for (uint32_t v = 0; v < artist.vertex_count(); ++v) {
+    for (int k = 0; k < 3; ++k) artist.map_vertices[3 * v + k] = uint32_t(old_to_new[v]);
+    artist.map_weights[3 * v] = 1.0f;
+  }
+  g.artist = std::move(artist);
   const std::vector<JointPose> bind = rest_pose(skeleton);
   const int bone = spec.bone.empty() ? -1 : skeleton.require(spec.bone);
   const int rule_bone =
@@ -436,9 +528,7 @@ Garment import_garment(const Skeleton& skeleton, const MeshGarmentSpec& spec) {
     bool hit = false;
     switch (spec.pins.kind) {
       case PinRuleKind::VertexGroup:
-        hit = group[old] == spec.pins.group ||
-              std::find(bone_groups[old].begin(), bone_groups[old].end(), spec.pins.group) !=
-                  bone_groups[old].end();
+        hit = std::find(group[old].begin(), group[old].end(), spec.pins.group) != group[old].end();
         break;
       case PinRuleKind::HeightBand:
         hit = p.y() >= spec.pins.y_min && p.y() <= spec.pins.y_max;
@@ -472,6 +562,18 @@ Garment import_garment(const Skeleton& skeleton, const MeshGarmentSpec& spec) {
   for (const auto& b : g.bindings) ++votes[b.weights.front().first];
   g.anchor_joint = static_cast<int>(std::max_element(votes.begin(), votes.end()) - votes.begin());
   return g;
+}
+
+db::ArtistMesh artist_mesh_of(const Garment& garment) {
+  if (garment.artist.vertex_count() > 0) return garment.artist;
+  db::Garment g;
+  for (const auto& t : garment.mesh.triangles)
+    for (int k = 0; k < 3; ++k) g.triangles.push_back(uint32_t(t[size_t(k)]));
+  g.rest_positions.resize(size_t(garment.mesh.vertex_count()) * 3);
+  for (int v = 0; v < garment.mesh.vertex_count(); ++v)
+    for (int k = 0; k < 3; ++k)
+      g.rest_positions[3 * size_t(v) + size_t(k)] = float(garment.mesh.rest(k, v));
+  return db::identity_artist_mesh(g);
 }
 
 Eigen::Matrix3Xd skin_pins(const Garment& garment, const std::vector<JointPose>& bind,

@@ -10,6 +10,7 @@
 
 #include "character/skeleton.hpp"
 #include "cloth/mesh.hpp"
+#include "database/format/rows.hpp"
 
 namespace clothdb {
 
@@ -29,6 +30,9 @@ struct Garment {
   std::vector<int> pins;             // pinned vertices (the model's kinematic vertices, this order)
   std::vector<PinBinding> bindings;  // one per pin, same order
   int anchor_joint = -1;             // the bone the whole garment is carried by for its first frame
+  // The artist's mesh as the file gives it and its map onto `mesh` (docs/guide/mesh_garments.md);
+  // empty positions for a procedural garment (its artist mesh is `mesh` itself).
+  db::ArtistMesh artist;
 };
 
 struct SkirtSpec {
@@ -58,7 +62,9 @@ struct PinRule {
 };
 
 struct MeshGarmentSpec {
-  std::string file;              // OBJ, glTF or FBX (through assimp)
+  // OBJ (read as given: its vertex order, faces, UVs, normals and groups), or glTF or FBX
+  // (through assimp: its vertices, split where UVs or normals differ, and polygons)
+  std::string file;
   double scale = 1.0;            // file units -> metres
   double weld_tolerance = 1e-5;  // metres
   PinRule pins;
@@ -67,9 +73,14 @@ struct MeshGarmentSpec {
 
 Garment make_skirt(const Skeleton& skeleton, const SkirtSpec& spec);
 Garment make_cape(const Skeleton& skeleton, const CapeSpec& spec);
-// Throws GarmentError naming the file when it cannot be read, holds no triangles, is not a
-// manifold triangle mesh after welding, or when the pin rule matches no vertex.
+// The file's faces are fanned into triangles and welded into the simulation mesh; Garment::artist
+// keeps the file's mesh and the map. Throws GarmentError naming the file when it cannot be read,
+// holds no faces, is not a manifold mesh after welding, or when the pin rule matches no vertex.
 Garment import_garment(const Skeleton& skeleton, const MeshGarmentSpec& spec);
+
+// The garment's artist mesh: the file's (Garment::artist), or for a procedural garment its own
+// simulation mesh with the identity map (db::identity_artist_mesh).
+db::ArtistMesh artist_mesh_of(const Garment& garment);
 
 // Positions of the pins at `pose`, by linear blend skinning from the bind pose (3 x pins).
 Eigen::Matrix3Xd skin_pins(const Garment& garment, const std::vector<JointPose>& bind,

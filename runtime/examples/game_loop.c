@@ -2,16 +2,18 @@
  * (runtime/clothrt.h), the way an engine would:
  *  - the game logic runs at a fixed 60 Hz, decoupled from a render rate that varies from frame
  *    to frame (the classic accumulator loop); the cloth players advance with the logic;
- *  - both characters share one database (one cache, one prefetch thread) and write their cloth,
- *    in world space, into ONE interleaved vertex buffer (position, normal, uv: 32-byte stride),
- *    character 0 in the first half and character 1 in the second;
- *  - normals are computed after sampling from the mesh's triangles (the runtime gives positions);
+ *  - both characters share one database (one cache, one prefetch thread) and write their cloth
+ *    on the render mesh (the artist's vertex order, seam vertices split, their UVs), in world
+ *    space, into ONE interleaved vertex buffer (position, normal, uv: 32-byte stride), character 0
+ *    in the first half and character 1 in the second: positions and normals straight from
+ *    clothrt_player_get_render_mesh, UVs copied in once;
  *  - at the end it prints the runtime's counters, `stalls` among them (transitions that had to
  *    wait for a clip to be decoded), and checks what it drew.
  *
  *   clothrt_game_loop FILE.clothdb [SECONDS]
  *
- * Exit 0 when every frame was finite, the normals unit length, and the two characters apart.
+ * Exit 0 when every frame was finite, the normals unit length, seam copies of a vertex at one place
+ * with one normal, and the two characters apart.
  */
 #include <math.h>
 #include <stdio.h>
@@ -39,35 +41,6 @@ static void root_transform(int character, double t, float out[16]) {
   memcpy(out, m, sizeof m);
 }
 
-/* Area-weighted vertex normals of one character's vertices inside the shared buffer. */
-static void compute_normals(vertex* v, uint32_t count, const uint32_t* tri, uint32_t triangles) {
-  uint32_t i, t;
-  for (i = 0; i < count; ++i) v[i].normal[0] = v[i].normal[1] = v[i].normal[2] = 0;
-  for (t = 0; t < triangles; ++t) {
-    const float* a = v[tri[3 * t]].position;
-    const float* b = v[tri[3 * t + 1]].position;
-    const float* c = v[tri[3 * t + 2]].position;
-    const float e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
-    const float e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-    const float n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
-                        e1[0] * e2[1] - e1[1] * e2[0]};
-    int k, j;
-    for (k = 0; k < 3; ++k)
-      for (j = 0; j < 3; ++j) v[tri[3 * t + k]].normal[j] += n[j];
-  }
-  for (i = 0; i < count; ++i) {
-    float* n = v[i].normal;
-    const float len = sqrtf(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-    if (len > 0) {
-      n[0] /= len;
-      n[1] /= len;
-      n[2] /= len;
-    } else {
-      n[1] = 1; /* a vertex of no triangle */
-    }
-  }
-}
-
 int main(int argc, char** argv) {
   const double step = 1.0 / 60.0; /* the game logic's fixed step */
   double seconds = 5.0, game_time = 0, accumulator = 0;
@@ -76,6 +49,7 @@ int main(int argc, char** argv) {
   clothrt_player* players[CHARACTERS] = {NULL, NULL};
   vertex* buffer = NULL;
   uint32_t* tri = NULL;
+  uint32_t* source = NULL;
   uint32_t count, triangles, i;
   unsigned long render_frames = 0, logic_steps = 0, rng = 12345;
   int c, rc, status = 1;
@@ -100,12 +74,21 @@ int main(int argc, char** argv) {
             clothrt_status_name(rc));
     return 1;
   }
-  count = clothrt_db_vertex_count(db);
-  triangles = clothrt_db_triangle_count(db);
+  /* The render mesh: fixed for the database, read once (the index buffer is the same for both
+   * characters, offset by count for the second). */
+  count = clothrt_db_render_vertex_count(db);
+  triangles = clothrt_db_render_triangle_count(db);
   buffer = (vertex*)calloc((size_t)count * CHARACTERS, sizeof(vertex));
   tri = (uint32_t*)malloc((size_t)triangles * 3 * sizeof(uint32_t));
-  if (!buffer || !tri || clothrt_db_triangles(db, tri, (size_t)triangles * 3) != CLOTHRT_OK)
+  source = (uint32_t*)malloc((size_t)count * sizeof(uint32_t));
+  if (!buffer || !tri || !source ||
+      clothrt_db_render_triangles(db, tri, (size_t)triangles * 3) != CLOTHRT_OK ||
+      clothrt_db_render_source_vertices(db, source, count) != CLOTHRT_OK)
     goto done;
+  if (clothrt_db_render_has_uvs(db))
+    for (c = 0; c < CHARACTERS; ++c)
+      if (clothrt_db_render_uvs(db, buffer[(size_t)c * count].uv, sizeof(vertex)) != CLOTHRT_OK)
+        goto done;
 
   for (c = 0; c < CHARACTERS; ++c) {
     if (clothrt_player_create(db, &players[c]) != CLOTHRT_OK) goto done;
@@ -138,13 +121,18 @@ int main(int argc, char** argv) {
     for (c = 0; c < CHARACTERS; ++c) {
       float root[16];
       vertex* half = buffer + (size_t)c * count;
+      clothrt_render_output out;
+      memset(&out, 0, sizeof out);
+      out.positions = half[0].position;
+      out.position_stride = sizeof(vertex);
+      out.normals = half[0].normal;
+      out.normal_stride = sizeof(vertex);
       root_transform(c, game_time, root);
-      rc = clothrt_player_get_positions(players[c], half[0].position, sizeof(vertex), root);
+      rc = clothrt_player_get_render_mesh(players[c], &out, root);
       if (rc != CLOTHRT_OK) {
         fprintf(stderr, "character %d: %s\n", c, clothrt_player_errmsg(players[c]));
         goto done;
       }
-      compute_normals(half, count, tri, triangles);
     }
     for (i = 0; i < count * CHARACTERS; ++i) {
       const float* p = buffer[i].position;
@@ -154,6 +142,21 @@ int main(int argc, char** argv) {
         fprintf(stderr, "render frame %lu: vertex %u is not finite or its normal not unit\n",
                 render_frames, i);
         goto done;
+      }
+    }
+    /* A vertex on a UV seam is drawn once per side: both render copies of one artist vertex at
+     * one place with one normal. */
+    for (i = 1; i < count; ++i) {
+      const uint32_t first = source[i];
+      if (first < i && source[first] == first) {
+        const float* p = buffer[i].position;
+        const float* q = buffer[first].position;
+        if (memcmp(p, q, 3 * sizeof(float)) != 0 ||
+            memcmp(buffer[i].normal, buffer[first].normal, 3 * sizeof(float)) != 0) {
+          fprintf(stderr, "render frame %lu: seam copy %u of vertex %u drawn apart\n",
+                  render_frames, i, first);
+          goto done;
+        }
       }
     }
     {
@@ -169,9 +172,10 @@ int main(int argc, char** argv) {
   clothrt_db_stats(db, &stats);
   for (c = 0; c < CHARACTERS; ++c) clothrt_player_info(players[c], &info[c]);
   printf(
-      "%.1f s of game time: %lu logic steps at 60 Hz, %lu render frames; %u vertices x %d "
-      "characters in one %u-byte-stride buffer\n",
-      game_time, logic_steps, render_frames, count, CHARACTERS, (unsigned)sizeof(vertex));
+      "%.1f s of game time: %lu logic steps at 60 Hz, %lu render frames; %u render vertices "
+      "(%u simulated, %u triangles) x %d characters in one %u-byte-stride buffer\n",
+      game_time, logic_steps, render_frames, count, clothrt_db_vertex_count(db), triangles,
+      CHARACTERS, (unsigned)sizeof(vertex));
   for (c = 0; c < CHARACTERS; ++c)
     printf("character %d: %llu transitions, %llu fallbacks, now primary clip %lld frame %.1f\n", c,
            (unsigned long long)info[c].transitions, (unsigned long long)info[c].fallbacks,
@@ -195,5 +199,6 @@ done:
   clothrt_db_close(db);
   free(buffer);
   free(tri);
+  free(source);
   return status;
 }

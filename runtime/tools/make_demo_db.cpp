@@ -20,8 +20,10 @@ int main(int argc, char** argv) {
   try {
     for (const char* suffix : {"", "-wal", "-shm"})
       std::filesystem::remove(std::string(argv[1]) + suffix);
-    const auto built =
-        clothdb::synthetic::build(argv[1], clothdb::synthetic::demo_spec(uint32_t(side)));
+    // With an artist's mesh (quads, a UV seam), so the examples draw a render mesh.
+    clothdb::synthetic::Spec spec = clothdb::synthetic::demo_spec(uint32_t(side));
+    spec.artist_mesh = true;
+    const auto built = clothdb::synthetic::build(argv[1], spec);
     std::printf("wrote %s: %u vertices, %zu primary clips, %zu cloth clips\n", argv[1],
                 built.vertices, built.primary.size(), built.clip.size());
   } catch (const std::exception& e) {

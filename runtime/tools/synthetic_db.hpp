@@ -10,6 +10,7 @@
 #include <utility>
 #include <vector>
 
+#include "database/format/artist_mesh.hpp"
 #include "database/store/writer.hpp"
 
 namespace clothdb::synthetic {
@@ -34,6 +35,8 @@ struct Spec {
   // (global state index, edge index) pairs left unexplored: no clip, so players fall back.
   std::vector<std::pair<int, int>> unexplored;
   db::CodecSettings codec;
+  // Store an artist's mesh of the sheet (sheet_artist_mesh): quads, a UV seam, split vertices.
+  bool artist_mesh = false;
 };
 
 struct Built {
@@ -48,6 +51,44 @@ inline float sheet_rest(uint32_t side, uint32_t v, int axis) {
   const double spacing = 0.8 / double(side - 1);
   const uint32_t i = v % side, j = v / side;
   return axis == 0 ? float(-0.4 + spacing * i) : axis == 1 ? float(1.4 - spacing * j) : 0.0f;
+}
+
+// An artist's mesh of the sheet as a DCC exports one with a UV seam down the middle column: two
+// blocks of quads (columns 0..side/2 and side/2..side-1), the seam column's vertices split (one
+// copy per block, with different UVs, as glTF and FBX store them), per-vertex UVs and normals. Its
+// map sends both copies of a seam vertex to the one simulation vertex.
+inline db::ArtistMesh sheet_artist_mesh(uint32_t side) {
+  db::ArtistMesh m;
+  m.source = "synthetic sheet";
+  const uint32_t seam = side / 2;
+  const uint32_t blocks[2][2] = {{0, seam}, {seam, side - 1}};  // first and last column
+  for (int b = 0; b < 2; ++b) {
+    const uint32_t c0 = blocks[b][0], c1 = blocks[b][1], width = c1 - c0 + 1;
+    const uint32_t base = m.vertex_count();
+    for (uint32_t j = 0; j < side; ++j)
+      for (uint32_t i = c0; i <= c1; ++i) {
+        const uint32_t v = j * side + i;
+        for (int k = 0; k < 3; ++k) m.positions.push_back(sheet_rest(side, v, k));
+        const float u = (b == 0 ? 0.0f : 0.55f) + 0.45f * float(i - c0) / float(c1 - c0);
+        m.uvs.insert(m.uvs.end(), {u, float(j) / float(side - 1)});
+        m.normals.insert(m.normals.end(), {0.0f, 0.0f, 1.0f});
+        m.map_vertices.insert(m.map_vertices.end(), {v, v, v});
+        m.map_weights.insert(m.map_weights.end(), {1.0f, 0.0f, 0.0f});
+      }
+    std::vector<uint32_t> group_faces;
+    for (uint32_t j = 0; j + 1 < side; ++j)
+      for (uint32_t i = 0; i + 1 < width; ++i) {
+        const uint32_t a = base + j * width + i, bb = a + 1, c = a + width, d = c + 1;
+        group_faces.push_back(m.face_count());
+        m.face_sizes.push_back(4);
+        m.corners.insert(m.corners.end(), {a, c, d, bb});  // the sheet's winding
+      }
+    m.groups.push_back({b == 0 ? "left" : "right", "cloth", group_faces});
+  }
+  m.corner_uvs = m.corners;  // UVs and normals per vertex
+  m.corner_normals = m.corners;
+  db::derive_render_mesh(&m);
+  return m;
 }
 
 // A cloth state: the sheet swung and rippled by an amount that depends on the state.
@@ -118,6 +159,7 @@ inline Built build(const std::string& path, const Spec& spec) {
     g.material = R"({"synthetic": true})";
     g.solver = R"({"synthetic": true})";
     w.put_garment(g);
+    if (spec.artist_mesh) w.put_artist_mesh(sheet_artist_mesh(side));
     for (size_t e = 0; e < spec.edges.size(); ++e) {
       db::PrimaryClip p;
       p.name = "edge" + std::to_string(e) + "_n" + std::to_string(spec.edges[e].from) + "_n" +
