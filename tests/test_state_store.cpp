@@ -174,7 +174,7 @@ namespace {
 // stored), enough for more than 5,000 states at the fixture's epsilon of 1 um.
 constexpr long kTotalFrames = 31500;
 // A cache smaller than the states (about a quarter of them): the store must read states back.
-constexpr size_t kCacheBytes = 1500000;
+constexpr size_t kCacheBytes = 1000000;
 
 struct Ran {
   int exit_code = -1;
