@@ -18,8 +18,7 @@ static_assert(std::endian::native == std::endian::little, "the wire format is li
 // (The settings inside JobInput travel as JSON: their own size does not matter here.)
 // (The codec v2 basis, body anchors and flag, 40 bytes, do not travel: encode_job refuses a job
 // with a basis.) The target source, 16 bytes, travels as `targets` (encode_job reads them).
-static_assert(sizeof(JobInput) - sizeof(SolverSettings) - sizeof(db::CodecSettings) ==
-                  96 + 40 + 16,
+static_assert(sizeof(JobInput) - sizeof(SolverSettings) - sizeof(db::CodecSettings) == 96 + 40 + 16,
               "JobInput changed: update encode_job/decode_job");
 static_assert(sizeof(ClipQuality) == 56, "ClipQuality changed: update encode_result/decode_result");
 static_assert(sizeof(JobResult) == 248, "JobResult changed: update encode_result/decode_result");
