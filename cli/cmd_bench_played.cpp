@@ -71,12 +71,14 @@ void register_bench_played(CLI::App& bench) {
         "played       %ld frames over %d paths of %g s (%s, %s)\n"
         "played RMS   p50 %.3f mm, p95 %.3f mm; largest vertex distance %.2f mm\n"
         "chaos floor  p50 %.4f mm, p95 %.4f mm (the same simulation from a start moved 1 um)\n"
+        "pops         largest jump of a vertex beyond the simulation's %.3f mm; jitter %.3f mm "
+        "(largest second difference of a vertex's error over frames)\n"
         "frames       %.1f %% blending, %.1f %% after a fallback, %.1f %% on a linked edge\n"
         "output       %s/summary.json, path_K.csv, path_K.svg\n",
         r.frames, args->options.paths, args->options.seconds, solver_name(kind), args->db.c_str(),
         r.played_rms_mm_p50, r.played_rms_mm_p95, r.played_max_mm, r.chaos_floor_rms_mm_p50,
-        r.chaos_floor_rms_mm_p95, 100 * r.blending_fraction, 100 * r.fallback_fraction,
-        100 * r.linked_fraction, out.c_str());
+        r.chaos_floor_rms_mm_p95, r.max_pop_mm, r.jitter_mm, 100 * r.blending_fraction,
+        100 * r.fallback_fraction, 100 * r.linked_fraction, out.c_str());
   });
 }
 

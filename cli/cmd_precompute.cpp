@@ -101,6 +101,13 @@ void register_precompute(CLI::App& app) {
                   "Dead ends simulated per batch; fixed so the result does not depend on --threads")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
+  cmd->add_option_function<double>(
+         "--state-cache-mb",
+         [args](double mb) { args->explore.state_cache_bytes = static_cast<size_t>(mb * 1048576); },
+         "Memory for exact cloth states read back from the database (an LRU cache; default 256). "
+         "Every other state is held as a reduced form of at most 16 x 6 doubles "
+         "(docs/notebook/explorer.md#memory-per-state); changes the speed only, never the file")
+      ->check(CLI::Range(0.0, 1e6));
   cmd->add_option("--graph", args->graph,
                   "Use this motion graph (from `clothdb graph build --out`); default: the one the "
                   "database holds "
@@ -218,6 +225,13 @@ void register_precompute(CLI::App& app) {
         1e3 * report.worst_link_error, report.steered, 1e3 * report.worst_steering,
         floor_text(out).c_str(), out.curve_prefix.c_str(), out.curve_prefix.c_str(),
         forecast_text(report.forecast).c_str());
+    std::printf(
+        "memory       %zu B a state held (reduced form), exact states read back through a "
+        "cache of %.0f MB (peak %.1f MB alive, %ld read from the file, %ld hits); %ld state "
+        "distances measured\n",
+        report.bytes_per_state, report.state_cache.capacity / 1048576.0,
+        report.state_cache.peak_alive_bytes / 1048576.0, report.state_cache.reads,
+        report.state_cache.hits, report.exact_evaluations);
     if (request.explore.subspace_modes > 0)
       std::printf(
           "codec        v2 (%u modes): %d bases built this run, %d removed (no clip chose "

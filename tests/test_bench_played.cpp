@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <nlohmann/json.hpp>
 
 #include "bench/played_bench.hpp"
 #include "database/store/writer.hpp"
@@ -141,4 +142,41 @@ TEST(BenchPlayed, ChaosFloorOfAContractiveSceneIsNearZeroButMeasured) {
   EXPECT_LT(r.chaos_floor_rms_mm_p95, 0.002);
   // ...but it is there (a floor of exactly 0 would mean the perturbation was never applied).
   EXPECT_GT(r.chaos_floor_rms_mm_p50, 0.0);
+  // Pops and jitter are in the summary (PopAndJitterOfAForcedPop pins their values).
+  const std::string json = played_json(r, PlayedOptions{}, path);
+  EXPECT_NE(json.find("\"max_pop_mm\": " + nlohmann::json(r.max_pop_mm).dump()), std::string::npos);
+  EXPECT_NE(json.find("\"jitter_mm\": " + nlohmann::json(r.jitter_mm).dump()), std::string::npos);
+  EXPECT_TRUE(std::isfinite(r.max_pop_mm) && r.max_pop_mm >= 0);
+  EXPECT_TRUE(std::isfinite(r.jitter_mm) && r.jitter_mm >= 0);
+}
+
+// A forced pop on a tiny case: two vertices over four frames, the simulation still at the origin,
+// the played vertex 0 jumping 10 mm out at frame 2 and back at frame 3. Its jump beyond the
+// simulation's is 10 mm; its error 0, 0, 10, 0 mm has second differences 10 and -20 mm.
+TEST(BenchPlayed, PopAndJitterOfAForcedPop) {
+  const size_t frames = 4, vertices = 2;
+  std::vector<Eigen::Matrix3Xd> simulated(frames, Eigen::Matrix3Xd::Zero(3, 2));
+  std::vector<float> played(frames * vertices * 3, 0.0f);
+  played[3 * (2 * vertices + 0) + 0] = 0.01f;
+  PopsAndJitter pj = pops_and_jitter(played.data(), simulated, frames, vertices);
+  EXPECT_NEAR(pj.max_pop_mm, 10.0, 1e-4);
+  EXPECT_NEAR(pj.jitter_mm, 20.0, 1e-4);
+
+  // The same jump in the simulation too: the played cloth follows it, no pop and no jitter.
+  simulated[2](0, 0) = 0.01;
+  pj = pops_and_jitter(played.data(), simulated, frames, vertices);
+  EXPECT_NEAR(pj.max_pop_mm, 0.0, 1e-4);
+  EXPECT_NEAR(pj.jitter_mm, 0.0, 1e-4);
+
+  // A steady offset of 3 mm on vertex 1 is error, but neither a pop nor jitter.
+  for (size_t f = 0; f < frames; ++f) played[3 * (f * vertices + 1) + 1] = 0.003f;
+  pj = pops_and_jitter(played.data(), simulated, frames, vertices);
+  EXPECT_NEAR(pj.max_pop_mm, 0.0, 1e-4);
+  EXPECT_NEAR(pj.jitter_mm, 0.0, 1e-4);
+
+  // A smaller jump than the simulation's is not a pop: the played vertex stays put.
+  for (size_t f = 0; f < frames; ++f) played[3 * (f * vertices + 0) + 0] = 0.0f;
+  pj = pops_and_jitter(played.data(), simulated, frames, vertices);
+  EXPECT_EQ(pj.max_pop_mm, 0.0);
+  EXPECT_NEAR(pj.jitter_mm, 20.0, 1e-4);  // its error 0, 0, 10, 0 mm flickers all the same
 }

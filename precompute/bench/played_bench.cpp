@@ -349,6 +349,12 @@ PlayedReport bench_played(const std::string& db_path, const CharacterScene& scen
       linked += fr.linked;
     }
   }
+  for (size_t p = 0; p < walks.size(); ++p) {
+    const PopsAndJitter pj =
+        pops_and_jitter(played[p].data(), sims[2 * p].frames, report.paths[p].frames.size(), n);
+    report.max_pop_mm = std::max(report.max_pop_mm, pj.max_pop_mm);
+    report.jitter_mm = std::max(report.jitter_mm, pj.jitter_mm);
+  }
   report.frames = static_cast<long>(rms_all.size());
   report.played_rms_mm_p50 = percentile(rms_all, 0.5);
   report.played_rms_mm_p95 = percentile(rms_all, 0.95);
@@ -359,6 +365,27 @@ PlayedReport bench_played(const std::string& db_path, const CharacterScene& scen
   report.blending_fraction = static_cast<double>(blending) / count;
   report.linked_fraction = static_cast<double>(linked) / count;
   return report;
+}
+
+PopsAndJitter pops_and_jitter(const float* played, const std::vector<Eigen::Matrix3Xd>& simulated,
+                              size_t frames, size_t vertices) {
+  PopsAndJitter out;
+  frames = std::min(frames, simulated.size());
+  auto p = [&](size_t f, size_t i) {
+    const float* x = played + 3 * (f * vertices + i);
+    return Vec3(double(x[0]), double(x[1]), double(x[2]));
+  };
+  auto s = [&](size_t f, size_t i) { return Vec3(simulated[f].col(Eigen::Index(i))); };
+  auto e = [&](size_t f, size_t i) { return (p(f, i) - s(f, i)).norm(); };
+  for (size_t f = 0; f + 1 < frames; ++f)
+    for (size_t i = 0; i < vertices; ++i) {
+      const double jump = (p(f + 1, i) - p(f, i)).norm() - (s(f + 1, i) - s(f, i)).norm();
+      out.max_pop_mm = std::max(out.max_pop_mm, 1e3 * jump);
+      if (f >= 1)
+        out.jitter_mm =
+            std::max(out.jitter_mm, 1e3 * std::abs(e(f + 1, i) - 2 * e(f, i) + e(f - 1, i)));
+    }
+  return out;
 }
 
 std::string played_json(const PlayedReport& r, const PlayedOptions& options,
@@ -374,6 +401,8 @@ std::string played_json(const PlayedReport& r, const PlayedOptions& options,
                       {"played_max_mm", r.played_max_mm},
                       {"chaos_floor_rms_mm_p50", r.chaos_floor_rms_mm_p50},
                       {"chaos_floor_rms_mm_p95", r.chaos_floor_rms_mm_p95},
+                      {"max_pop_mm", r.max_pop_mm},
+                      {"jitter_mm", r.jitter_mm},
                       {"fallback_fraction", r.fallback_fraction},
                       {"blending_fraction", r.blending_fraction},
                       {"linked_fraction", r.linked_fraction},

@@ -54,9 +54,23 @@ struct PlayedReport {
   long frames = 0;
   double played_rms_mm_p50 = 0, played_rms_mm_p95 = 0, played_max_mm = 0;
   double chaos_floor_rms_mm_p50 = 0, chaos_floor_rms_mm_p95 = 0;
+  double max_pop_mm = 0, jitter_mm = 0;  // pops_and_jitter over every path
   double fallback_fraction = 0, blending_fraction = 0, linked_fraction = 0;
   double simulated_seconds = 0;  // CPU time of the reference simulations
 };
+
+// What the RMS hides, per vertex over frames (played p, simulated s, both `frames` frames of
+// `vertices` vertices; the played as 3 floats a vertex, frame after frame):
+// - max_pop_mm: the largest frame-to-frame jump |p(f+1) - p(f)| of a vertex beyond the same jump
+//   |s(f+1) - s(f)| in the simulation (0 when the played cloth never jumps more than it);
+// - jitter_mm: the largest second difference over frames |e(f+1) - 2 e(f) + e(f-1)| of the
+//   played-minus-simulated distance e(f) = |p(f) - s(f)|: an error that flickers, where a steady
+//   error has none.
+struct PopsAndJitter {
+  double max_pop_mm = 0, jitter_mm = 0;
+};
+PopsAndJitter pops_and_jitter(const float* played, const std::vector<Eigen::Matrix3Xd>& simulated,
+                              size_t frames, size_t vertices);
 
 // db_path: the database to play; scene, graph: what it was made from (load_database_scene);
 // solver/settings: the settings the database records (garment row). Throws naming the database
@@ -66,8 +80,8 @@ PlayedReport bench_played(const std::string& db_path, const CharacterScene& scen
                           const SolverSettings& settings, const PlayedOptions& options);
 
 // The summary as JSON (keys played_rms_mm_p50, played_rms_mm_p95, played_max_mm,
-// chaos_floor_rms_mm_p50, chaos_floor_rms_mm_p95, fallback_fraction, blending_fraction,
-// linked_fraction, frames, paths, seconds, seed, database).
+// chaos_floor_rms_mm_p50, chaos_floor_rms_mm_p95, max_pop_mm, jitter_mm, fallback_fraction,
+// blending_fraction, linked_fraction, frames, paths, seconds, seed, database).
 std::string played_json(const PlayedReport& report, const PlayedOptions& options,
                         const std::string& db_path);
 // One path, one row per frame.

@@ -42,9 +42,10 @@ std::vector<Job> choose_batch(const SecondaryGraph& sg, const FailedDeadEnds& fa
   return batch;
 }
 
-std::vector<db::ClothLink> link_dead_ends(const SecondaryGraph& sg, const ExploreGraph& graph,
+std::vector<db::ClothLink> link_dead_ends(SecondaryGraph& sg, const ExploreGraph& graph,
                                           int64_t run_id) {
   std::vector<db::ClothLink> links;
+  const size_t n = sg.reducer.size();
   for (size_t node = 0; node < sg.states_at_node.size(); ++node) {
     const std::vector<int>& here = sg.states_at_node[node];
     for (int e : sg.out_edges[node]) {
@@ -55,18 +56,25 @@ std::vector<db::ClothLink> link_dead_ends(const SecondaryGraph& sg, const Explor
       for (int s : here) {
         const StateRec& from = sg.states[static_cast<size_t>(s)];
         if (sg.clip_of.count({from.id, e})) continue;
-        double best = std::numeric_limits<double>::infinity();
-        int best_state = with_clip.front();
-        for (int w : with_clip) {
-          const StateRec& to = sg.states[static_cast<size_t>(w)];
-          const double d = db::state_distance(from.x, from.v, to.x, to.v, sg.tau);
-          if (d < best) best = d, best_state = w;
-        }
+        const ExactStatePtr from_exact = sg.state(s);
+        const PrunedNearest found = nearest_pruned(
+            with_clip.size(),
+            [&](size_t k) {
+              return reduced_distance(from.reduced.data(),
+                                      sg.states[static_cast<size_t>(with_clip[k])].reduced.data(),
+                                      n);
+            },
+            [&](size_t k) {
+              const ExactStatePtr to = sg.state(with_clip[k]);
+              return db::state_distance(from_exact->x, from_exact->v, to->x, to->v, sg.tau);
+            });
+        sg.exact_evaluations += found.exact_evaluations;
+        const int best_state = with_clip[static_cast<size_t>(std::max(0, found.k))];
         db::ClothLink link;
         link.from_state = from.id;
         link.primary_clip = graph.edges[static_cast<size_t>(e)].db_clip;
         link.to_clip = sg.clip_of.at({sg.states[static_cast<size_t>(best_state)].id, e});
-        link.blend_error = std::isfinite(best) ? best : 1.0;
+        link.blend_error = std::isfinite(found.distance) ? found.distance : 1.0;
         link.run = run_id;
         links.push_back(link);
       }

@@ -41,8 +41,9 @@ std::vector<Job> choose_batch(const SecondaryGraph& sg, const FailedDeadEnds& fa
 // When the budget ends, every dead end continues with the clip that the nearest state at the same
 // node has along that way out; the state distance is its blend error. A way out that no state at
 // the node has explored gets no link (db check reports it). Deterministic: nodes, edges and
-// states in order, ties to the older state.
-std::vector<db::ClothLink> link_dead_ends(const SecondaryGraph& sg, const ExploreGraph& graph,
+// states in order, ties to the older state. Exact distances only where the reduced forms do not
+// rule a state out (explore/state_store.hpp), so the links are the exhaustive search's.
+std::vector<db::ClothLink> link_dead_ends(SecondaryGraph& sg, const ExploreGraph& graph,
                                           int64_t run_id);
 
 }  // namespace clothdb

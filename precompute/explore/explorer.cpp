@@ -96,20 +96,19 @@ void integrate_batch(SecondaryGraph& sg, db::Writer& writer, const ExploreGraph&
       // Kim et al.: within epsilon, the clip's end continues as that state (blend error recorded).
       ++sg.linked;
       const StateRec& to = sg.states[static_cast<size_t>(nearest.state)];
+      const ExactStatePtr to_exact = sg.state(nearest.state);
       writer.add_cloth_edge(clip_id, to.id, nearest.distance,
-                            transition_pop(r.last.data(), to.x.data(), r.vertex_count));
+                            transition_pop(r.last.data(), to_exact->x.data(), r.vertex_count));
       report.worst_blend_error = std::max(report.worst_blend_error, nearest.distance);
     } else {
       // Kim et al.: otherwise the end is a new state, with a dead end per way out of its node.
       StateRec rec;
       rec.node = edge.to_node;
-      rec.x = std::move(end_x);
-      rec.v = std::move(end_v);
       rec.id = writer.add_cloth_state_blobs(node_anchor_clip(graph, rec.node), 0, r.end_x_blob,
                                             r.end_v_blob, run_id, clip_id);
       writer.add_cloth_edge(clip_id, rec.id, 0.0,
-                            transition_pop(r.last.data(), rec.x.data(), r.vertex_count));
-      add_state(sg, std::move(rec), nearest);
+                            transition_pop(r.last.data(), end_x.data(), r.vertex_count));
+      add_state(sg, std::move(rec), ExactState{std::move(end_x), std::move(end_v)}, nearest);
     }
   }
   tx.commit();
@@ -145,7 +144,7 @@ bool budget_spent(const ExploreOptions& options, ExploreReport& report, double e
 
 // The end of a run, after its last batch: the closing links, the unchosen bases removed, the run's
 // notes, and the file compacted when bases were removed.
-void close_run(const SecondaryGraph& sg, const ExploreGraph& graph, db::Writer& writer,
+void close_run(SecondaryGraph& sg, const ExploreGraph& graph, db::Writer& writer,
                db::Reader& reader, const CodecSchedule& bases, const ExploreOptions& options,
                int64_t run_id, size_t dead_ends_left, ExploreReport& report) {
   // This project's: a basis no blob chose (version 1 was smaller every time) costs bytes and the
@@ -389,7 +388,8 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
   if (reader.open_borrowed(writer.handle(), writer.path(), &err) != db::Status::Ok)
     throw std::runtime_error(writer.path() + ": " + std::string(err.message));
   SecondaryGraph sg =
-      load_secondary_graph(reader, writer.path(), graph, &report.frames, &report.worst_blend_error);
+      load_secondary_graph(reader, writer.path(), graph, vertex_count, options.state_cache_bytes,
+                           &report.frames, &report.worst_blend_error);
   report.resumed = !sg.states.empty();
   report.cpu_seconds_before = earlier_cpu_seconds(reader, writer.path());
   CodecSchedule bases = load_codec_schedule(reader, writer.path(), options, vertex_count);
@@ -434,6 +434,9 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
   report.weighted_worst_error = report.curve.back().weighted_worst_error;
   report.linked_fraction = report.curve.back().linked_fraction;
   report.converged = queue.empty();
+  report.bytes_per_state = bytes_per_state(sg);
+  report.state_cache = sg.exact->stats();
+  report.exact_evaluations = sg.exact_evaluations;
   return report;
 }
 

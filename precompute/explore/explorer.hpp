@@ -31,6 +31,7 @@
 #include "database/format/cloth_graph.hpp"
 #include "database/store/run_settings.hpp"
 #include "database/store/writer.hpp"
+#include "explore/state_store.hpp"
 #include "quality/clip_quality.hpp"
 
 namespace clothdb {
@@ -67,12 +68,25 @@ struct SteerTarget {
   std::vector<float> x, v;  // character space, as stored (decoded)
 };
 
+// The same targets read on demand (in-process runners): the states' ids and reduced forms, and the
+// explorer's cache of exact states (thread-safe), so that a batch does not copy every state at
+// its end nodes. A job reads exactly only the targets the reduced forms leave near its end.
+struct SteerTargetSource {
+  std::vector<int64_t> ids;                  // in the order `targets` would list them
+  std::vector<std::vector<double>> reduced;  // reduce() of each
+  StateReducer reducer;
+  std::shared_ptr<StateCache> exact;
+};
+
 struct JobInput {
   int edge = 0;             // index into ExploreGraph::edges
   std::vector<float> x, v;  // start state in character space, as stored (decoded)
   // Steering (SceneFile::steering, on when frames > 0): the states at the edge's end node when the
   // batch was chosen, and the explorer's epsilon (an end already within it is not steered).
   std::vector<SteerTarget> targets;
+  // In-process: the targets read on demand instead (then `targets` is empty); job_wire sends them
+  // as `targets`, so the wire does not change.
+  std::shared_ptr<const SteerTargetSource> target_source;
   double epsilon = 0;
   SolverKind solver = SolverKind::Xpbd;
   SolverSettings settings;  // settings.threads: OpenMP threads inside this one simulation
@@ -152,6 +166,9 @@ struct ExploreOptions {
   bool subspace_always = false;            // keep version 2 even where it is larger (measuring)
   // Cloth relative to the body (compress/body_frame.hpp) for the bases and the version 2 blobs.
   bool subspace_body_frame = false;
+  // The state store (explore/state_store.hpp): capacity of the LRU cache of exact states read back
+  // from the file. Changes the speed only, never the result.
+  size_t state_cache_bytes = size_t(256) << 20;
 };
 
 // The run's typed record (database/run_settings.hpp): the scene's solver and settings, the
@@ -222,6 +239,11 @@ struct ExploreReport {
   // included), and the most one batch added to it: the budget's overshoot is at most that.
   double budget_cpu_seconds = 0, largest_batch_cpu_seconds = 0;
   Forecast forecast;              // made at the end of this run (meta forecast)
+  // The state store (explore/state_store.hpp): bytes held per state besides the cache, the
+  // cache's counts, and state distances measured (the pruning's effect).
+  size_t bytes_per_state = 0;
+  StateCache::Stats state_cache;
+  long exact_evaluations = 0;
   std::vector<CurvePoint> curve;  // one point per batch (this run)
 };
 

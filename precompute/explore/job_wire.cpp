@@ -17,8 +17,8 @@ static_assert(std::endian::native == std::endian::little, "the wire format is li
 #if defined(__x86_64__) && defined(__GLIBCXX__)
 // (The settings inside JobInput travel as JSON: their own size does not matter here.)
 // (The codec v2 basis, body anchors and flag, 40 bytes, do not travel: encode_job refuses a job
-// with a basis.)
-static_assert(sizeof(JobInput) - sizeof(SolverSettings) - sizeof(db::CodecSettings) == 96 + 40,
+// with a basis.) The target source, 16 bytes, travels as `targets` (encode_job reads them).
+static_assert(sizeof(JobInput) - sizeof(SolverSettings) - sizeof(db::CodecSettings) == 96 + 40 + 16,
               "JobInput changed: update encode_job/decode_job");
 static_assert(sizeof(ClipQuality) == 56, "ClipQuality changed: update encode_result/decode_result");
 static_assert(sizeof(JobResult) == 248, "JobResult changed: update encode_result/decode_result");
@@ -188,11 +188,24 @@ std::vector<uint8_t> encode_job(uint64_t seq, const JobInput& job) {
   run.codec = job.codec;
   o.str(db::run_settings_json(run));
   o.f64(job.epsilon);
-  o.u32(static_cast<uint32_t>(job.targets.size()));
-  for (const SteerTarget& t : job.targets) {
-    o.i64(t.state);
-    o.floats(t.x);
-    o.floats(t.v);
+  // Targets an in-process explorer reads on demand (JobInput::target_source) travel as copies: a
+  // worker rank has no database to read them from (docs/notebook/explorer.md, "MPI").
+  if (job.target_source) {
+    const SteerTargetSource& source = *job.target_source;
+    o.u32(static_cast<uint32_t>(source.ids.size()));
+    for (int64_t id : source.ids) {
+      const ExactStatePtr t = source.exact->get(id);
+      o.i64(id);
+      o.floats(t->x);
+      o.floats(t->v);
+    }
+  } else {
+    o.u32(static_cast<uint32_t>(job.targets.size()));
+    for (const SteerTarget& t : job.targets) {
+      o.i64(t.state);
+      o.floats(t.x);
+      o.floats(t.v);
+    }
   }
   return o.take();
 }

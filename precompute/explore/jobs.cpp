@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <map>
 
 #include "character_scene/character_space.hpp"
 #include "compress/body_frame.hpp"
@@ -60,7 +61,9 @@ PoseRun simulate_with_steering(const CharacterScene& scene, const ExploreGraph& 
                                const JobInput& input, ClothState& state, JobResult& result) {
   const ExploreEdge& edge = graph.edges[static_cast<size_t>(input.edge)];
   const size_t poses = edge.poses.size();
-  const size_t k = scene.file.steering.frames > 0 && !input.targets.empty() && poses > 2
+  const bool has_targets =
+      !input.targets.empty() || (input.target_source && !input.target_source->ids.empty());
+  const size_t k = scene.file.steering.frames > 0 && has_targets && poses > 2
                        ? std::min(static_cast<size_t>(scene.file.steering.frames), poses - 2)
                        : 0;
   if (k == 0) {
@@ -94,6 +97,25 @@ PoseRun simulate_with_steering(const CharacterScene& scene, const ExploreGraph& 
   const double tau = 1.0 / graph.rate;
   double nearest = std::numeric_limits<double>::infinity();
   const SteerTarget* target = nullptr;
+  SteerTarget read;  // a target read on demand
+  if (input.target_source) {
+    // The exhaustive search's answer, measuring only targets the reduced forms leave near.
+    const SteerTargetSource& source = *input.target_source;
+    const std::vector<double> q = reduce(source.reducer, end_x.data(), end_v.data());
+    const PrunedNearest found = nearest_pruned(
+        source.ids.size(),
+        [&](size_t t) { return reduced_distance(q.data(), source.reduced[t].data(), q.size()); },
+        [&](size_t t) {
+          const ExactStatePtr s = source.exact->get(source.ids[t]);
+          return db::state_distance(end_x, end_v, s->x, s->v, tau);
+        });
+    if (found.k >= 0) {
+      const ExactStatePtr s = source.exact->get(source.ids[static_cast<size_t>(found.k)]);
+      read = {source.ids[static_cast<size_t>(found.k)], s->x, s->v};
+      nearest = found.distance;
+      target = &read;
+    }
+  }
   for (const SteerTarget& t : input.targets) {
     const double d = db::state_distance(end_x, end_v, t.x, t.v, tau);
     if (d < nearest) nearest = d, target = &t;
@@ -290,11 +312,13 @@ std::vector<JobInput> job_inputs(const CharacterScene& scene, const ExploreGraph
                                  const std::shared_ptr<const codec::Basis>& basis,
                                  const std::shared_ptr<const BodyAnchors>& body) {
   std::vector<JobInput> inputs(batch.size());
+  // One target source per end node, shared by the batch's jobs that end there.
+  std::map<int, std::shared_ptr<const SteerTargetSource>> sources;
   for (size_t b = 0; b < batch.size(); ++b) {
-    const StateRec& start = sg.states[static_cast<size_t>(batch[b].state)];
+    const ExactStatePtr start = sg.state(batch[b].state);
     inputs[b].edge = batch[b].edge;
-    inputs[b].x = start.x;
-    inputs[b].v = start.v;
+    inputs[b].x = start->x;
+    inputs[b].v = start->v;
     inputs[b].solver = scene.file.solver;
     inputs[b].settings = scene.file.settings;
     inputs[b].settings.threads =
@@ -306,10 +330,18 @@ std::vector<JobInput> job_inputs(const CharacterScene& scene, const ExploreGraph
     inputs[b].epsilon = options.epsilon;
     if (scene.file.steering.frames > 0) {
       const int end_node = graph.edges[static_cast<size_t>(batch[b].edge)].to_node;
-      for (int t : sg.states_at_node[static_cast<size_t>(end_node)]) {
-        const StateRec& target = sg.states[static_cast<size_t>(t)];
-        inputs[b].targets.push_back({target.id, target.x, target.v});
+      std::shared_ptr<const SteerTargetSource>& source = sources[end_node];
+      if (!source) {
+        auto made = std::make_shared<SteerTargetSource>();
+        made->reducer = sg.reducer;
+        made->exact = sg.exact;
+        for (int t : sg.states_at_node[static_cast<size_t>(end_node)]) {
+          made->ids.push_back(sg.states[static_cast<size_t>(t)].id);
+          made->reduced.push_back(sg.states[static_cast<size_t>(t)].reduced);
+        }
+        source = std::move(made);
       }
+      inputs[b].target_source = source;
     }
   }
   return inputs;

@@ -1,11 +1,13 @@
 // The secondary graph as the explorer holds it between batches (Kim et al. 2013, section 4): the
 // cloth states at each node of the primary graph, which (state, way out) pairs have a clip, and
-// Kim et al.'s query, the nearest state at a node. What is in memory is exactly what the file
-// holds (states as decoded), so a resumed run rebuilds the same graph.
+// Kim et al.'s query, the nearest state at a node. Memory is bounded (explore/state_store.hpp): a
+// state is held as a reduced form, and its exact positions and velocities (as decoded from the
+// file, so a resumed run measures the same distances) are read back through an LRU cache.
 #pragma once
 
 #include <cstdint>
 #include <map>
+#include <memory>
 #include <set>
 #include <string>
 #include <utility>
@@ -13,6 +15,7 @@
 
 #include "database/store/writer.hpp"
 #include "explore/explorer.hpp"
+#include "explore/state_store.hpp"
 
 namespace clothdb {
 
@@ -23,7 +26,7 @@ inline constexpr double kNoNeighbour = 1e9;
 struct StateRec {
   int64_t id = 0;
   int node = 0;
-  std::vector<float> x, v;  // character space, as stored
+  std::vector<double> reduced;  // reduce(): a lower bound of the state distance to any other
   // Unresolved error of its dead ends: the distance to the nearest OTHER state at its node (older
   // or newer), kept up to date as states are added there, so a dead end that a later state came
   // close to no longer counts as far from everything. kNoNeighbour while it is alone.
@@ -38,33 +41,50 @@ struct SecondaryGraph {
   long clips = 0, linked = 0;  // clip ends so far, and those that linked back within epsilon
   std::set<std::pair<int64_t, int>> done;              // (state id, edge) with a clip
   std::map<std::pair<int64_t, int>, int64_t> clip_of;  // (state id, edge) -> its cloth clip id
+  StateReducer reducer;
+  std::shared_ptr<StateCache> exact;  // exact states by id, read from the file when not cached
+  long exact_evaluations = 0;         // state distances measured (the pruning's effect)
+  // The exact state (x, v) of states[index].
+  ExactStatePtr state(int index) const { return exact->get(states[size_t(index)].id); }
 };
 
-// The graph's nodes and ways out, with no state yet.
-SecondaryGraph empty_secondary_graph(const ExploreGraph& graph);
+// Bytes the store holds per state besides the cache: the StateRec and its reduced form (the
+// figure docs/notebook/explorer.md documents; set/map entries of its clips come on top).
+size_t bytes_per_state(const SecondaryGraph& sg);
+
+// The graph's nodes and ways out, with no state yet, for a garment of `vertices` vertices; exact
+// states are read through `reader` (which must outlive the graph) and cached up to cache_bytes.
+SecondaryGraph empty_secondary_graph(const ExploreGraph& graph, uint32_t vertices,
+                                     db::Reader& reader, size_t cache_bytes);
 
 // What the file at `reader` holds (a resumed run; nothing for a new file), with every state's
 // priority. Adds the stored clips' frames to *frames and takes the worst stored blend error into
 // *worst_blend_error. Throws std::runtime_error naming `path` and the table when a read fails: a
 // run that went on would settle again, or explore states twice.
 SecondaryGraph load_secondary_graph(db::Reader& reader, const std::string& path,
-                                    const ExploreGraph& graph, long* frames,
-                                    double* worst_blend_error);
+                                    const ExploreGraph& graph, uint32_t vertices,
+                                    size_t cache_bytes, long* frames, double* worst_blend_error);
 
 // Kim et al.'s query: the state at `node` nearest to (x, v) in the state distance
-// (db::state_distance), ties to the one added first. state: -1 when the node has none.
+// (db::state_distance), ties to the one added first. state: -1 when the node has none. Exact
+// distances are measured only for states whose reduced form does not rule them out, so the
+// answer is the exhaustive search's.
 struct Nearest {
   int state = -1;  // index into states
   double distance = 0;
-  std::vector<double> distances;  // to each of states_at_node[node], in order
+  std::vector<double> reduced;  // the query's reduced form
+  // To each of states_at_node[node], in order: the state distance where it was measured, NaN
+  // where the reduced forms ruled the state out (add_state reuses what was measured).
+  std::vector<double> distances;
 };
-Nearest nearest_state(const SecondaryGraph& sg, int node, const std::vector<float>& x,
+Nearest nearest_state(SecondaryGraph& sg, int node, const std::vector<float>& x,
                       const std::vector<float>& v);
 
-// Adds a state (id already given by the file) at rec.node; `nearest` is nearest_state's answer for
-// it. Its priority is its distance to that state, and the states already there have a new
-// neighbour: their dead ends' errors may fall. Returns its index.
-int add_state(SecondaryGraph& sg, StateRec rec, const Nearest& nearest);
+// Adds a state (id already given by the file) at rec.node, with its exact form (x, v) as stored;
+// `nearest` is nearest_state's answer for it. Its priority is its distance to that state, and the
+// states already there have a new neighbour: their dead ends' errors may fall (measured only
+// where the reduced forms allow it). Returns its index.
+int add_state(SecondaryGraph& sg, StateRec rec, ExactState exact, const Nearest& nearest);
 
 // A clip now leaves state `state_id` along `edge`.
 void record_clip(SecondaryGraph& sg, int64_t state_id, int edge, int64_t clip_id);

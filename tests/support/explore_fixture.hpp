@@ -96,4 +96,43 @@ inline ExploreGraph two_node_graph(const CharacterScene& scene) {
   return g;
 }
 
+// The state store's scale test (tests/test_state_store.cpp, support/explore_run_main.cpp): a
+// skirt of a few dozen vertices with light drag on tiny_graph, and an epsilon of 1 um,
+// so that nearly every clip end is a new state and thousands of states come within seconds.
+inline CharacterScene tiny_scene() {
+  SceneFile file = small_scene().file;
+  file.skirt.vertices = 40;
+  file.air_drag = 0.5;
+  file.settings.substeps = 3;
+  return build_character_scene(file);
+}
+
+// Four nodes, the character standing turned by 0, 0.4, 0.8 and 1.2 rad: at each node a hold of 5
+// frames (a loop) and a turn of 7 frames to the next node (the last back to the first). Cheap
+// clips, many of them, and the states spread over four nodes (the nearest-state search is
+// per node).
+inline ExploreGraph tiny_graph(const CharacterScene& scene) {
+  const auto pose = clip_pose(scene.clips.front(), 0);
+  ExploreGraph g;
+  g.node_count = 4;
+  g.rate = 30;
+  for (int k = 0; k < 4; ++k) {
+    const double a = 0.4 * k, next = 0.4 * ((k + 1) % 4);
+    g.edges.push_back({k, k, "hold" + std::to_string(k), turn(pose, a, a, 5), 0});
+    g.edges.push_back({k, (k + 1) % 4, "turn" + std::to_string(k), turn(pose, a, next, 7), 0});
+  }
+  return g;
+}
+
+inline ExploreOptions many_states_options(int threads, long total_frames, size_t cache_bytes) {
+  ExploreOptions options;
+  options.epsilon = 1e-6;
+  options.batch = 64;
+  options.threads = threads;
+  options.max_frames = total_frames;
+  options.progress = false;
+  options.state_cache_bytes = cache_bytes;
+  return options;
+}
+
 }  // namespace clothdb::test
