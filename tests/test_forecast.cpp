@@ -41,22 +41,24 @@ TEST(Forecast, RefusesAFlatTrend) {
   EXPECT_FALSE(forecast_convergence(flat, 0).converging);
 }
 
-TEST(Forecast, FallingTrendGivesTheTimeTheDecayReachesHalfAWayOut) {
-  // 400 e^(-t / 200 s): below 0.5 at t = 300 s + 200 s ln 800 = 1637 s. Rounding to whole dead ends
-  // moves it a little; a rise in the first half (new nodes reached) must not matter.
-  const double tau = 200, made_at = 900;
+TEST(Forecast, FallingTrendGivesTheTimeTheLineReachesZero) {
+  // 400 - 0.3 (t - 300 s) after a rise to 400 at 300 s: zero at 300 s + 400 / 0.3 = 1633 s.
+  // Rounding to whole dead ends moves it a little; the rise in the first half (new nodes reached)
+  // must not matter.
+  const double made_at = 900;
   const auto falling = curve(90, made_at, [&](double t) {
-    return t < made_at / 3 ? 400 * t / (made_at / 3) : 400 * std::exp(-(t - made_at / 3) / tau);
+    return t < made_at / 3 ? 400 * t / (made_at / 3) : 400 - 0.3 * (t - made_at / 3);
   });
   const Forecast f = forecast_convergence(falling, 0);
   ASSERT_TRUE(f.converging) << f.why;
   EXPECT_FALSE(f.converged);
   EXPECT_TRUE(std::isfinite(f.cpu_seconds));
-  const double expected = made_at / 3 + tau * std::log(800.0);
-  EXPECT_NEAR(f.cpu_seconds, expected, 0.1 * expected);
+  const double expected = made_at / 3 + 400 / 0.3;
+  EXPECT_NEAR(f.cpu_seconds, expected, 0.02 * expected);
   EXPECT_DOUBLE_EQ(f.made_at, made_at);
   const std::string text = forecast_text(f);
-  EXPECT_NE(text.find(" CPU-h to converge (model exponential decay"), std::string::npos) << text;
+  EXPECT_NE(text.find(" CPU-h to converge (model linear decline"), std::string::npos) << text;
+  EXPECT_NE(text.find(" fewer per CPU-h"), std::string::npos) << text;
   EXPECT_NE(text.find("made at 0.25 CPU-h)"), std::string::npos) << text;
 }
 

@@ -31,13 +31,13 @@ Forecast forecast_convergence(const std::vector<CurvePoint>& curve, double cpu_b
     f.model = "converged: no dead end left";
     return f;
   }
-  // Least squares of ln y = a + b t over the last half of this run's curve.
+  // Least squares of y = a + b t over the last half of this run's curve.
   double n = 0, st = 0, sy = 0, stt = 0, sty = 0;
   double first_y = -1, t0 = 0;
   for (const CurvePoint& p : curve) {
-    if (p.cpu_seconds < last.cpu_seconds / 2 || open_ways_out(p) <= 0) continue;
-    const double t = cpu_before + p.cpu_seconds, y = std::log(open_ways_out(p));
-    if (first_y < 0) first_y = open_ways_out(p), t0 = t;
+    if (p.cpu_seconds < last.cpu_seconds / 2) continue;
+    const double t = cpu_before + p.cpu_seconds, y = open_ways_out(p);
+    if (first_y < 0) first_y = y, t0 = t;
     n += 1;
     st += t;
     sy += y;
@@ -62,12 +62,12 @@ Forecast forecast_convergence(const std::vector<CurvePoint>& curve, double cpu_b
     return f;
   }
   f.converging = true;
-  // y = 0.5: less than one way out left.
-  f.cpu_seconds = std::max(f.made_at, (std::log(0.5) - a) / b);
+  // y = 0: no way out left.
+  f.cpu_seconds = std::max(f.made_at, -a / b);
   std::snprintf(text, sizeof text,
-                "exponential decay of dead ends + unexplored ways out fitted on the last half of "
-                "the run, halving every %.2f CPU-h",
-                std::log(2.0) / -b / 3600);
+                "linear decline of dead ends + unexplored ways out fitted on the last half of the "
+                "run, %.0f fewer per CPU-h",
+                -b * 3600);
   f.model = text;
   return f;
 }
