@@ -172,14 +172,34 @@ Row measure(const Frames& f, double bound_mm, uint32_t key_interval, int level, 
 
 struct Compared {
   std::string codec;
-  double bound_mm = 0;
-  size_t bytes = 0;
+  double bound_mm = 0;  // 0: no per-coordinate bound (v3, Kim-style PCA)
+  size_t bytes = 0;     // clip data plus any basis
   double ratio = 0, bits_per_vertex_frame = 0, max_error_mm = 0, decode_gbs = 0;
+  codec::ContractFigures contract;  // worst over clips (codec/contract.hpp)
 };
+
+// The error contract of decoded frames, clip by clip (jitter does not run across clip ends): the
+// worst figure of each kind over the clips.
+codec::ContractFigures contract_per_clip(const Frames& f, const std::vector<float>& out) {
+  std::vector<uint32_t> starts = f.clip_starts;
+  if (starts.empty()) starts.push_back(0);
+  codec::ContractFigures worst;
+  const size_t n = size_t(f.vertices) * 3;
+  for (size_t c = 0; c < starts.size(); ++c) {
+    const uint32_t end = c + 1 < starts.size() ? starts[c + 1] : f.frames;
+    const auto m = codec::measure_contract(out.data() + starts[c] * n, f.x.data() + starts[c] * n,
+                                           end - starts[c], f.vertices);
+    worst.rms = std::max(worst.rms, m.rms);
+    worst.max = std::max(worst.max, m.max);
+    worst.jitter = std::max(worst.jitter, m.jitter);
+  }
+  return worst;
+}
 
 Compared finish(const Frames& f, const std::string& name, double bound_mm, size_t bytes,
                 const std::vector<float>& out, double decode_seconds) {
   Compared c;
+  c.contract = contract_per_clip(f, out);
   c.codec = name;
   c.bound_mm = bound_mm;
   c.bytes = bytes;
@@ -190,7 +210,7 @@ Compared finish(const Frames& f, const std::string& name, double bound_mm, size_
   for (size_t i = 0; i < out.size(); ++i)
     max_error = std::max(max_error, std::fabs(double(out[i]) - double(f.x[i])));
   c.max_error_mm = max_error * 1e3;
-  if (max_error > bound_mm * 1e-3)
+  if (bound_mm > 0 && max_error > bound_mm * 1e-3)
     throw std::runtime_error(name + ": decoded error " + std::to_string(max_error) +
                              " exceeds the bound");
   c.decode_gbs = raw / decode_seconds / 1e9;
@@ -248,8 +268,89 @@ Compared compare_v2(const Frames& f, const codec::Basis& basis, double bound_mm,
   });
   return finish(f,
                 "v2, " + std::to_string(basis.mode_count) + " modes" +
-                    (transforms.empty() ? "" : ", body frame"),
-                bound_mm, blob.size(), out, t);
+                    (transforms.empty() ? "" : ", body frame") + " (+ basis)",
+                bound_mm, blob.size() + codec::serialize_basis(basis).size(), out, t);
+}
+
+// Codec version 3 within a contract, clip by clip (as `db recode --codec v3` encodes them), its
+// bytes counting the basis once.
+Compared compare_v3(const Frames& f, const codec::Basis& basis, const codec::Contract& contract,
+                    int level, int repeat) {
+  std::vector<uint32_t> starts = f.clip_starts;
+  if (starts.empty()) starts.push_back(0);
+  const size_t n = size_t(f.vertices) * 3;
+  codec::V3Settings s;
+  s.contract = contract;
+  s.zstd_level = level;
+  std::vector<std::vector<uint8_t>> blobs;
+  size_t bytes = codec::serialize_basis(basis).size();
+  uint32_t with_residual = 0;
+  for (size_t c = 0; c < starts.size(); ++c) {
+    const uint32_t end = c + 1 < starts.size() ? starts[c + 1] : f.frames;
+    codec::V3Stats stats;
+    blobs.push_back(codec::encode_v3(f.x.data() + starts[c] * n, end - starts[c], f.vertices, basis,
+                                     s, &stats));
+    bytes += blobs.back().size();
+    with_residual += stats.residual_interval > 0;
+  }
+  codec::DecodeScratch scratch;
+  std::vector<float> out(f.x.size());
+  Error err;
+  // Frame by frame, as a player decodes (the payload is unpacked once per clip).
+  const double t = best_time(repeat, [&] {
+    for (size_t c = 0; c < starts.size(); ++c) {
+      const uint32_t end = c + 1 < starts.size() ? starts[c + 1] : f.frames;
+      for (uint32_t k = starts[c]; k < end; ++k)
+        if (codec::decode_frames(blobs[c].data(), blobs[c].size(), k - starts[c], 1,
+                                 out.data() + k * n, n, scratch, &err, &basis) != Status::Ok)
+          throw std::runtime_error(err.message);
+    }
+  });
+  char name[160];
+  std::snprintf(name, sizeof name, "v3, %u modes (+ basis), residual in %u of %zu clips",
+                basis.mode_count, with_residual, starts.size());
+  return finish(f, name, 0, bytes, out, t);
+}
+
+// Kim et al. 2013's storage: the first `modes` modes of the basis (int16 as stored) and float32
+// coefficients per frame, no residual; decoded as mean + modes * c. coefficients: frames x
+// basis.mode_count, projections of each frame (kim_coefficients).
+std::vector<float> kim_coefficients(const Frames& f, const codec::Basis& basis) {
+  const size_t n = size_t(f.vertices) * 3;
+  const uint32_t M = basis.mode_count;
+  std::vector<float> c(size_t(f.frames) * M);
+  for (uint32_t m = 0; m < M; ++m) {
+    const float* u = basis.modes.data() + size_t(m) * n;
+    double uu = 0;
+    for (size_t i = 0; i < n; ++i) uu += double(u[i]) * double(u[i]);
+    for (uint32_t k = 0; k < f.frames; ++k) {
+      const float* x = f.x.data() + k * n;
+      double dot = 0;
+      for (size_t i = 0; i < n; ++i) dot += double(u[i]) * (double(x[i]) - double(basis.mean[i]));
+      c[size_t(k) * M + m] = float(uu > 0 ? dot / uu : 0.0);
+    }
+  }
+  return c;
+}
+
+Compared compare_kim(const Frames& f, const codec::Basis& basis, const std::vector<float>& c,
+                     uint32_t modes) {
+  const size_t n = size_t(f.vertices) * 3;
+  std::vector<float> out(f.x.size());
+  const double t = thread_cpu_seconds();
+  for (uint32_t k = 0; k < f.frames; ++k) {
+    float* o = out.data() + k * n;
+    std::copy(basis.mean.begin(), basis.mean.end(), o);
+    for (uint32_t m = 0; m < modes; ++m) {
+      const float* u = basis.modes.data() + size_t(m) * n;
+      const float w = c[size_t(k) * basis.mode_count + m];
+      for (size_t i = 0; i < n; ++i) o[i] += w * u[i];
+    }
+  }
+  const double seconds = thread_cpu_seconds() - t;
+  const size_t bytes = n * 4 + size_t(modes) * (4 + n * 2) + size_t(f.frames) * modes * 4;
+  return finish(f, "Kim-style PCA, " + std::to_string(modes) + " modes (+ basis), no residual", 0,
+                bytes, out, seconds);
 }
 
 #ifdef CLOTHDB_HAVE_MESHOPTIMIZER
@@ -376,14 +477,16 @@ Frames frames_from_db(const std::string& path, uint32_t limit) {
 // The comparison table: every codec asked for at every bound, on the same frames.
 void compare_codecs(const Frames& f, const std::vector<std::string>& codecs,
                     const std::vector<std::string>& bounds, const std::vector<std::string>& modes,
-                    uint32_t key_interval, int level, int repeat, uint32_t basis_frames) {
+                    uint32_t key_interval, int level, int repeat, uint32_t basis_frames,
+                    const codec::Contract& contract) {
   auto wants = [&](const char* name) {
     return std::find(codecs.begin(), codecs.end(), name) != codecs.end();
   };
   // v2 bases, each with the body frames it is used with (empty: character space).
   std::vector<std::pair<codec::Basis, std::vector<float>>> bases;
+  const bool subspace_rows = wants("v3") || wants("kim");
   for (const bool body : {false, true}) {
-    if (!wants(body ? "v2-body" : "v2")) continue;
+    if (!wants(body ? "v2-body" : "v2") && (body || !subspace_rows)) continue;
     const size_t n = size_t(f.vertices) * 3;
     const size_t stride = std::max<size_t>(1, f.frames / std::max<uint32_t>(1, basis_frames));
     std::vector<float> transforms;
@@ -414,18 +517,50 @@ void compare_codecs(const Frames& f, const std::vector<std::string>& codecs,
     }
   }
   std::printf(
-      "\n| codec | bound (mm) | ratio vs float32 | bits/vertex/frame | max error (mm) | decode "
-      "(GB/s) |\n|---|---:|---:|---:|---:|---:|\n");
+      "\n| codec | bound (mm) | ratio vs float32 | bits/vertex/frame | max coordinate error (mm) | "
+      "RMS, worst frame (mm) | max vertex distance (mm) | jitter (mm) | decode (GB/s) |\n"
+      "|---|---:|---:|---:|---:|---:|---:|---:|---:|\n");
   auto print = [](const Compared& c) {
-    std::printf("| %s | %g | %.1f:1 | %.3f | %.3f | %.2f |\n", c.codec.c_str(), c.bound_mm, c.ratio,
-                c.bits_per_vertex_frame, c.max_error_mm, c.decode_gbs);
+    std::printf("| %s | %s | %.1f:1 | %.3f | %.3f | %.3f | %.3f | %.3f | %.2f |\n", c.codec.c_str(),
+                c.bound_mm > 0 ? std::to_string(c.bound_mm).substr(0, 5).c_str() : "contract",
+                c.ratio, c.bits_per_vertex_frame, c.max_error_mm, c.contract.rms * 1e3,
+                c.contract.max * 1e3, c.contract.jitter * 1e3, c.decode_gbs);
     std::fflush(stdout);
   };
+  if (subspace_rows)
+    std::printf(
+        "(v3 and Kim-style rows: contract RMS %g mm, max %g mm, jitter %g mm; bytes include "
+        "the basis)\n",
+        contract.rms * 1e3, contract.max * 1e3, contract.jitter * 1e3);
+  for (const auto& [basis, transforms] : bases) {
+    if (!transforms.empty()) continue;
+    if (wants("v3")) print(compare_v3(f, basis, contract, level, repeat));
+    if (wants("kim")) {
+      // The fewest modes (of this basis, in steps of 8) whose worst-frame RMS is within the
+      // contract's: Kim et al.'s PCA at the same RMS, with whatever max and jitter that leaves.
+      // Bisection over the mode count (the RMS falls as modes are added).
+      const std::vector<float> coefficients = kim_coefficients(f, basis);
+      Compared best = compare_kim(f, basis, coefficients, basis.mode_count);
+      uint32_t lo = 0, hi = basis.mode_count;  // hi within the cap (or all modes)
+      while (hi - lo > 1 && best.contract.rms <= contract.rms) {
+        const uint32_t mid = (lo + hi) / 2;
+        Compared c = compare_kim(f, basis, coefficients, mid);
+        if (c.contract.rms <= contract.rms) {
+          best = c;
+          hi = mid;
+        } else {
+          lo = mid;
+        }
+      }
+      print(best);
+    }
+  }
   for (const auto& b : bounds) {
     const double bound_mm = std::stod(b);
     if (wants("v1")) print(compare_v1(f, bound_mm, key_interval, level, repeat));
     for (const auto& [basis, transforms] : bases)
-      print(compare_v2(f, basis, bound_mm, key_interval, level, repeat, transforms));
+      if (wants(transforms.empty() ? "v2" : "v2-body"))
+        print(compare_v2(f, basis, bound_mm, key_interval, level, repeat, transforms));
 #ifdef CLOTHDB_HAVE_MESHOPTIMIZER
     if (wants("meshopt"))
       for (const auto& c : compare_meshopt(f, bound_mm, level, repeat)) print(c);
@@ -475,6 +610,7 @@ void register_bench_codec(CLI::App& bench) {
                 levels = std::to_string(codec::kDefaultZstdLevel);
     std::string scene = "swung-sheet", input, save, db;
     std::string codecs = "v1,v2,meshopt", modes = "64";
+    double rms_mm = 1, max_mm = 3, jitter_mm = codec::kDefaultJitterCap * 1e3;
     uint32_t basis_frames = 3000, db_frames = 3000;
     bool skip_v1_table = false, predictability = false;
     SolverOptions solver;
@@ -522,8 +658,22 @@ void register_bench_codec(CLI::App& bench) {
          "--codecs", args->codecs,
          "Codecs for the comparison table: v1, v2 (subspace + residual), v2-body (v2 relative to "
          "a rigid frame of the garment's highest 5 %), meshopt "
-         "(meshoptimizer's vertex codec on the same quantised frames; if built with it)")
+         "(meshoptimizer's vertex codec on the same quantised frames; if built with it), v3 "
+         "(subspace + a residual smooth in time within the --rms-mm/--max-mm/--jitter-mm "
+         "contract, clip by clip), kim (Kim et al.'s PCA without a residual, the fewest modes "
+         "within --rms-mm)")
       ->capture_default_str();
+  cmd->add_option("--rms-mm", args->rms_mm,
+                  "v3 and kim: contract cap on each frame's RMS vertex distance (mm)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  cmd->add_option("--max-mm", args->max_mm, "v3: contract cap on any vertex distance (mm)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  cmd->add_option("--jitter-mm", args->jitter_mm,
+                  "v3: contract cap on the second difference in time of the coding error (mm)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   cmd->add_option("--modes", args->modes,
                   "Comma-separated basis sizes for v2 (PCA of the frames themselves, as `db "
                   "recode` builds it from a database's own frames)")
@@ -595,10 +745,11 @@ void register_bench_codec(CLI::App& bench) {
         }
       }
     }
-    compare_codecs(f, split_list(args->codecs), split_list(args->bounds), split_list(args->modes),
-                   uint32_t(std::stoul(split_list(args->key_intervals).front())),
-                   std::stoi(split_list(args->levels).front()), std::max(3, args->repeat),
-                   args->basis_frames);
+    compare_codecs(
+        f, split_list(args->codecs), split_list(args->bounds), split_list(args->modes),
+        uint32_t(std::stoul(split_list(args->key_intervals).front())),
+        std::stoi(split_list(args->levels).front()), std::max(3, args->repeat), args->basis_frames,
+        codec::Contract{args->rms_mm * 1e-3, args->max_mm * 1e-3, args->jitter_mm * 1e-3});
   });
 }
 

@@ -16,6 +16,7 @@
 #include "cloth/self_intersection.hpp"
 #include "commands.hpp"
 #include "database/codec/codec.hpp"
+#include "database/format/contracts.hpp"
 #include "database/store/writer.hpp"
 #include "explore/explorer.hpp"
 #include "quality/clip_quality.hpp"
@@ -39,6 +40,9 @@ struct ClipTable {
   // clip id -> the most edge-triangle crossings in one of its decoded frames; filled only when
   // listing by self-intersections (measured here, not stored: it decodes every clip).
   std::map<int64_t, int> crossings;
+  // clip id -> the error contract its codec version 3 blob was encoded within (table
+  // codec_contract); clips without one keep the strict per-coordinate bound.
+  std::map<int64_t, db::ClipContract> contracts;
 };
 
 // The garment's topology (rest positions zero: only the triangles and edges are used).
@@ -108,7 +112,21 @@ ClipTable read_table(db::Reader& reader) {
   for (const auto& st : steering) t.steering[st.clip] = st;
   for (const auto& p : primary) t.primary_name[p.id] = p.name;
   for (const auto& e : edges) t.edges_from[e.from_clip].push_back(e);
+  std::vector<db::ClipContract> contracts;
+  if (db::clip_contracts(reader.handle(), reader.path(), &contracts, &err) != db::Status::Ok)
+    throw std::runtime_error(err.message);
+  for (const auto& c : contracts) t.contracts[c.clip] = c;
   return t;
+}
+
+// "0.81/2.90/0.090" (RMS / max / jitter in mm, as measured) or "bound" (strict contract).
+std::string contract_cell(const ClipTable& t, int64_t clip) {
+  const auto it = t.contracts.find(clip);
+  if (it == t.contracts.end()) return "bound";
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.2f/%.2f/%.3f", it->second.measured.rms * 1e3,
+                it->second.measured.max * 1e3, it->second.measured.jitter * 1e3);
+  return buf;
 }
 
 // The worst pop over a clip's out edges (NaN if it has none, or none was measured).
@@ -214,6 +232,13 @@ nlohmann::json list_json(const ClipTable& t, const Metric& metric, int worst) {
     }
     row["worst_frame"] =
         c->worst_frame < 0 ? nlohmann::json(nullptr) : nlohmann::json(c->worst_frame);
+    if (const auto k = t.contracts.find(c->id); k != t.contracts.end())
+      row["contract_mm"] = {
+          {"rms", k->second.measured.rms * 1e3},       {"max", k->second.measured.max * 1e3},
+          {"jitter", k->second.measured.jitter * 1e3}, {"rms_cap", k->second.caps.rms * 1e3},
+          {"max_cap", k->second.caps.max * 1e3},       {"jitter_cap", k->second.caps.jitter * 1e3}};
+    else
+      row["contract_mm"] = nullptr;
     rows.push_back(std::move(row));
   }
   return {
@@ -232,15 +257,15 @@ void list_clips(const std::string& path, int worst, const std::string& by, bool 
   const std::vector<const db::ClothClip*> order = worst_first(t, metric, worst);
   std::printf("%zu of %zu clips in %s, worst %s first (? = not measured)\n", order.size(),
               t.clips.size(), path.c_str(), metric.name);
-  std::printf("%6s  %-34s %6s  %-7s %8s %8s %8s %8s %6s %8s %8s %6s %6s\n", "id", "primary clip",
-              "frames", "status", "strain%", "pen mm", "mpen mm", "jit mm", "halved", "pop mm",
-              "steer mm", "worst", "cross");
+  std::printf("%6s  %-34s %6s  %-7s %8s %8s %8s %8s %6s %8s %8s %6s %6s  %s\n", "id",
+              "primary clip", "frames", "status", "strain%", "pen mm", "mpen mm", "jit mm",
+              "halved", "pop mm", "steer mm", "worst", "cross", "codec rms/max/jitter mm");
   for (const db::ClothClip* c : order) {
     std::string name =
         t.primary_name.count(c->primary_clip) ? t.primary_name.at(c->primary_clip) : "?";
     if (name.size() > 34) name = name.substr(0, 31) + "...";
     std::printf(
-        "%6lld  %-34s %6d  %-7s %8s %8s %8s %8s %6s %8s %8s %6s %6s\n", (long long)c->id,
+        "%6lld  %-34s %6d  %-7s %8s %8s %8s %8s %6s %8s %8s %6s %6s  %s\n", (long long)c->id,
         name.c_str(), c->frame_count, db::clip_status_name(c->status),
         cell(100 * c->max_strain, "%.2f").c_str(), cell(1e3 * c->max_penetration, "%.2f").c_str(),
         cell(1e3 * c->mean_penetration, "%.2f").c_str(), cell(1e3 * c->jitter, "%.3f").c_str(),
@@ -249,7 +274,8 @@ void list_clips(const std::string& path, int worst, const std::string& by, bool 
         t.steering.count(c->id) ? cell(1e3 * t.steering.at(c->id).displacement, "%.2f").c_str()
                                 : "-",
         c->worst_frame < 0 ? "?" : std::to_string(c->worst_frame).c_str(),
-        t.crossings.count(c->id) ? std::to_string(t.crossings.at(c->id)).c_str() : "?");
+        t.crossings.count(c->id) ? std::to_string(t.crossings.at(c->id)).c_str() : "?",
+        contract_cell(t, c->id).c_str());
   }
 }
 

@@ -107,13 +107,21 @@ void print_info(const db::DatabaseInfo& i) {
   if (i.clip_blob_bytes) std::printf(" (%.1f:1)", double(i.clip_raw_bytes) / i.clip_blob_bytes);
   std::printf(", largest codec error %.3g m\n", i.max_clip_error);
   std::printf(
-      "frame codec     %s: %llu clip blobs of version 1, %llu of version 2; states %llu of "
-      "version 1, %llu of version 2\n",
-      i.clips_v2 == 0 && i.states_v2 == 0   ? "v1"
+      "frame codec     %s: %llu clip blobs of version 1, %llu of version 2, %llu of version 3; "
+      "states %llu of version 1, %llu of version 2\n",
+      i.clips_v3 > 0                        ? "v3 (contract)"
+      : i.clips_v2 == 0 && i.states_v2 == 0 ? "v1"
       : i.clips_v1 == 0 && i.states_v1 == 0 ? "v2"
                                             : "v1 and v2",
       (unsigned long long)i.clips_v1, (unsigned long long)i.clips_v2,
-      (unsigned long long)i.states_v1, (unsigned long long)i.states_v2);
+      (unsigned long long)i.clips_v3, (unsigned long long)i.states_v1,
+      (unsigned long long)i.states_v2);
+  if (i.contracts)
+    std::printf(
+        "error contract  %llu clips: worst %s within caps of RMS %g / max %g / jitter %g "
+        "mm (against the frames they were encoded from)\n",
+        (unsigned long long)i.contracts, codec::describe(i.worst_contract).c_str(),
+        i.loosest_caps.rms * 1e3, i.loosest_caps.max * 1e3, i.loosest_caps.jitter * 1e3);
   for (const auto& b : i.bases)
     std::printf("codec basis %-4lld %u modes x %u vertices, %.2f MB, %s: %s\n", (long long)b.id,
                 b.mode_count, b.vertex_count, b.bytes / 1e6, b.created.c_str(), b.source.c_str());
@@ -159,6 +167,7 @@ void register_db_commands(CLI::App& app) {
   struct RecodeArgs {
     std::string file, codec = "v2";
     double bound_mm = 0, velocity_bound_mm_s = 0;
+    double rms_mm = 0, max_mm = 0, jitter_mm = codec::kDefaultJitterCap * 1e3;
     RecodeOptions options;
   };
   auto rargs = std::make_shared<RecodeArgs>();
@@ -171,11 +180,24 @@ void register_db_commands(CLI::App& app) {
       "version 1 codec. Rows are rewritten in batches, one transaction each, so a killed recode "
       "leaves a valid file; a blob is replaced only if the new one is smaller. The bound applies "
       "to the stored frames, so each clip's bound against the simulation becomes its old bound "
-      "plus this one (recorded per clip).");
+      "plus this one (recorded per clip). v3 keeps an error contract in what a player sees "
+      "instead of a bound (docs/DATABASE.md, \"The error contract\"): each clip's worst-frame "
+      "RMS vertex distance, largest vertex distance and jitter (second difference in time of the "
+      "error) within --rms-mm, --max-mm and --jitter-mm, measured against the stored frames and "
+      "recorded per clip (table codec_contract); states keep their blobs.");
   recode->add_option("FILE", rargs->file, "clothdb database")->required();
-  recode->add_option("--codec", rargs->codec, "Frame format to write: v2 or v1")
+  recode->add_option("--codec", rargs->codec, "Frame format to write: v3, v2 or v1")
       ->capture_default_str()
-      ->check(CLI::IsMember({"v1", "v2"}));
+      ->check(CLI::IsMember({"v1", "v2", "v3"}));
+  recode->add_option("--rms-mm", rargs->rms_mm, "v3: cap on each frame's RMS vertex distance (mm)")
+      ->check(CLI::PositiveNumber);
+  recode->add_option("--max-mm", rargs->max_mm, "v3: cap on any vertex's distance (mm)")
+      ->check(CLI::PositiveNumber);
+  recode
+      ->add_option("--jitter-mm", rargs->jitter_mm,
+                   "v3: cap on the second difference in time of any vertex's error (mm)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   recode
       ->add_option("--bound-mm", rargs->bound_mm,
                    "Position bound in mm per coordinate, against the stored frames (default: "
@@ -185,7 +207,7 @@ void register_db_commands(CLI::App& app) {
       ->add_option("--velocity-bound-mm-s", rargs->velocity_bound_mm_s,
                    "State velocity bound in mm/s (default: the file's codec.velocity_bound)")
       ->check(CLI::PositiveNumber);
-  recode->add_option("--modes", rargs->options.modes, "Basis modes (v2)")
+  recode->add_option("--modes", rargs->options.modes, "Basis modes (v2, v3)")
       ->capture_default_str()
       ->check(CLI::Range(1u, codec::kMaxBasisModes));
   recode
@@ -210,7 +232,18 @@ void register_db_commands(CLI::App& app) {
                    "Keep the freed pages in the file (skip VACUUM at the end)");
   recode->callback([rargs] {
     RecodeOptions o = rargs->options;
-    o.codec = rargs->codec == "v1" ? 1 : 2;
+    o.codec = rargs->codec == "v1" ? 1 : rargs->codec == "v2" ? 2 : 3;
+    if (o.codec == 3) {
+      if (rargs->bound_mm > 0)
+        throw CLI::ValidationError("--bound-mm",
+                                   "v3 keeps an error contract, not a per-coordinate bound: "
+                                   "give --rms-mm, --max-mm and --jitter-mm");
+      if (rargs->rms_mm <= 0 || rargs->max_mm <= 0)
+        throw CLI::ValidationError("--codec v3", "needs --rms-mm and --max-mm");
+      o.contract = {rargs->rms_mm * 1e-3, rargs->max_mm * 1e-3, rargs->jitter_mm * 1e-3};
+    } else if (rargs->rms_mm > 0 || rargs->max_mm > 0) {
+      throw CLI::ValidationError("--rms-mm/--max-mm", "only with --codec v3");
+    }
     o.bound = rargs->bound_mm * 1e-3;
     o.velocity_bound = rargs->velocity_bound_mm_s * 1e-3;
     o.progress = [](const std::string& line) { std::fprintf(stderr, "%s\n", line.c_str()); };
@@ -230,6 +263,13 @@ void register_db_commands(CLI::App& app) {
         double(r.raw_bytes) / double(std::max<uint64_t>(1, r.blob_bytes_before)),
         double(r.raw_bytes) / double(std::max<uint64_t>(1, r.blob_bytes_after)), r.max_error * 1e3,
         r.file_bytes_before / 1e6, r.file_bytes_after / 1e6);
+    if (o.codec == 3)
+      std::printf(
+          "contract: worst over the recoded clips %s (caps %s); %llu clips needed a "
+          "residual, %llu were already v3\n",
+          codec::describe(r.worst).c_str(),
+          codec::describe({o.contract.rms, o.contract.max, o.contract.jitter}).c_str(),
+          (unsigned long long)r.clips_with_residual, (unsigned long long)r.clips_already_v3);
   });
 
   CLI::App* check = db->add_subcommand(

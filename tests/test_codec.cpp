@@ -339,7 +339,7 @@ TEST_F(DamagedBlob, ResealedDamageIsAnErrorOrStaysInRange) {
 
 TEST_F(DamagedBlob, NewerVersionAndForeignDataAreRefused) {
   std::vector<uint8_t> b = blob_;
-  b[4] = uint8_t(kFormatVersionV2 + 1);  // newer than any format this build reads
+  b[4] = uint8_t(kNewestFormatVersion + 1);  // newer than any format this build reads
   codec::detail::reseal(b.data(), b.size());
   Error err;
   EXPECT_EQ(decode(b, &err), Status::NewerVersion);

@@ -22,6 +22,7 @@
 #include "database/format/graph_index.hpp"
 #include "database/store/basis_store.hpp"
 #include "database/store/check.hpp"
+#include "database/store/contract_store.hpp"
 #include "database/store/dump.hpp"
 #include "database/store/writer.hpp"
 #include "database/store/writer_lock.hpp"
@@ -725,8 +726,11 @@ TEST(DatabaseCheck, UnknownMetaVersions) {
        {std::to_string(kSchemaVersion + 1), std::string("abc"), std::string("-1"), std::string("")})
     expect_refused("UPDATE meta SET value = '" + v + "' WHERE key = 'format_version';",
                    "meta format_version is", "meta format_version is");
-  expect_refused("UPDATE meta SET value = '3' WHERE key = 'codec.format_version';",
-                 "meta codec.format_version is 3, newer than this build reads",
+  // What a build that reads up to version N does with a file holding a version N + 1 blob (a
+  // version 2 build with a version 3 file): refused at open, naming the key.
+  const std::string newer = std::to_string(codec::kNewestFormatVersion + 1);
+  expect_refused("UPDATE meta SET value = '" + newer + "' WHERE key = 'codec.format_version';",
+                 "meta codec.format_version is " + newer + ", newer than this build reads",
                  "codec.format_version");
 }
 
@@ -914,6 +918,12 @@ TEST(Database, StoringAVersion2BlobRaisesTheFilesCodecVersion) {
   w.add_cloth_clip({f.state1, f.run_clip, 0, 0.03, 0.0, ClipStatus::Ok, 0}, f.frames1.data(), 30,
                    kVertices);
   EXPECT_EQ(codec_version(), "2");
+  // A version 3 blob raises it to 3 (what an older build refuses, UnknownMetaVersions).
+  codec::V3Settings v3;
+  v3.contract = {0.002, 0.006, 0.0001};
+  const std::vector<uint8_t> blob3 = codec::encode_v3(f.frames0.data(), 40, kVertices, basis, v3);
+  w.add_cloth_clip_blob({f.state0, f.walk, 0, 0.02, 0.001, ClipStatus::Ok, 0}, blob3, 0.0);
+  EXPECT_EQ(codec_version(), "3");
 }
 
 std::string dump_text(const std::string& path, const DumpOptions& options) {
@@ -934,9 +944,10 @@ TEST(Dump, CoversEveryTableOfTheRegistryAndMasksByName) {
   const std::string path = dir.file("dump.clothdb");
   {
     Writer w = Writer::create(path);
-    populate(w);
+    const Fixture f = populate(w);
     std::vector<float> mean(kVertices * 3, 0.0f), modes(kVertices * 3, 1.0f);
     store_basis(w, codec::make_basis(0, kVertices, mean.data(), modes.data(), 1), "test");
+    store_clip_contract(w, f.clip0, {0.0005, 0.001, 0.00005}, {0.001, 0.003, 0.0001});
   }
   const std::string all = dump_text(path, {});
   for (const TableInfo& t : tables()) {

@@ -3,6 +3,7 @@
 // recode killed after any batch (the process ends without unwinding, as with SIGKILL) leaves a file
 // that checks and plays, and a second recode finishes the job.
 #include <gtest/gtest.h>
+#include <sqlite3.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -19,6 +20,7 @@
 
 #include "clothrt.h"
 #include "compress/recode.hpp"
+#include "database/format/meta_keys.hpp"
 #include "database/store/basis_store.hpp"
 #include "database/store/check.hpp"
 #include "database/store/writer.hpp"
@@ -323,6 +325,140 @@ TEST(Recode, V1AtALargerBoundAlsoWorks) {
   EXPECT_EQ(db::read_database_info(path).clips_v2, 0u);
   expect_checks(path);
   expect_plays(path, 60);
+}
+
+}  // namespace
+}  // namespace clothdb
+
+// ---- codec version 3: the error contract (docs/DATABASE.md, "The error contract") ------------
+
+namespace clothdb {
+namespace {
+
+RecodeOptions v3_options() {
+  RecodeOptions o;
+  o.codec = 3;
+  o.contract = {0.001, 0.003, 0.0001};
+  o.modes = 12;
+  o.batch = 4;
+  o.always = true;  // the synthetic clips are small: measure the contract on every one
+  return o;
+}
+
+// Each clip of `after` against the same clip of `before`, within the contract's caps.
+void expect_within_contract(const Contents& before, const Contents& after,
+                            const codec::Contract& caps, uint32_t vertices) {
+  ASSERT_EQ(before.clips.size(), after.clips.size());
+  for (const auto& [id, x] : before.clips) {
+    const auto& y = after.clips.at(id);
+    ASSERT_EQ(x.size(), y.size());
+    const auto m = codec::measure_contract(y.data(), x.data(),
+                                           uint32_t(x.size() / (size_t(vertices) * 3)), vertices);
+    EXPECT_TRUE(codec::within(m, caps)) << "clip " << id << ": " << codec::describe(m);
+  }
+}
+
+TEST(RecodeV3, EveryClipWithinItsCapsChecksAndPlays) {
+  TempDir dir;
+  const std::string path = dir.file("v3.db");
+  synthetic::build(path, spec());
+  const Contents before = read_all(path);
+  const RecodeReport r = recode_database(path, v3_options());
+  EXPECT_EQ(r.clips_replaced, r.clips);
+  EXPECT_EQ(r.states_replaced, 0u) << "states keep the strict bound";
+  const uint32_t V = uint32_t(spec().side * spec().side);
+  expect_within_contract(before, read_all(path), v3_options().contract, V);
+  expect_checks(path);
+  expect_plays(path, 90);
+  const db::DatabaseInfo info = db::read_database_info(path);
+  EXPECT_EQ(info.clips_v3, info.cloth_clips);
+  EXPECT_EQ(info.contracts, info.cloth_clips);
+  EXPECT_TRUE(codec::within(info.worst_contract, v3_options().contract));
+  db::Reader reader;
+  db::Error err;
+  ASSERT_EQ(reader.open(path, &err), db::Status::Ok);
+  std::string version;
+  ASSERT_EQ(reader.meta(db::meta::kCodecFormatVersion, &version, &err), db::Status::Ok);
+  EXPECT_EQ(version, "3");
+}
+
+TEST(RecodeV3, CheckRefusesFiguresBeyondTheCapsAndMissingContracts) {
+  TempDir dir;
+  const std::string path = dir.file("v3.db");
+  synthetic::build(path, spec());
+  recode_database(path, v3_options());
+  auto problems_after = [&](const std::string& sql) {
+    const std::string copy = dir.file("damaged.db");
+    fs::remove(copy);
+    fs::copy_file(path, copy);
+    {
+      db::Writer w = db::Writer::open(copy);
+      EXPECT_EQ(sqlite3_exec(w.handle(), sql.c_str(), nullptr, nullptr, nullptr), SQLITE_OK);
+    }
+    return db::check_database(copy).problems;
+  };
+  auto mentions = [](const std::vector<std::string>& problems, const std::string& words) {
+    for (const auto& p : problems)
+      if (p.find(words) != std::string::npos) return true;
+    return false;
+  };
+  EXPECT_TRUE(mentions(problems_after("UPDATE codec_contract SET jitter = 0.0002 WHERE clip = "
+                                      "(SELECT min(clip) FROM codec_contract);"),
+                       "exceeds its caps"));
+  EXPECT_TRUE(mentions(problems_after("DELETE FROM codec_contract WHERE clip = "
+                                      "(SELECT min(clip) FROM codec_contract);"),
+                       "without a codec_contract row"));
+  // A damaged blob: refused by its checksum.
+  EXPECT_TRUE(mentions(problems_after("UPDATE cloth_clip SET frames = substr(frames, 1, 90) || "
+                                      "x'00' || substr(frames, 92) WHERE id = (SELECT min(id) "
+                                      "FROM cloth_clip);"),
+                       "checksum"));
+}
+
+TEST(RecodeV3, KilledAfterAnyBatchLeavesAFileThatChecksPlaysAndFinishes) {
+  TempDir dir;
+  const std::string original = dir.file("original.db");
+  synthetic::build(original, spec());
+  const Contents before = read_all(original);
+  const uint32_t V = uint32_t(spec().side * spec().side);
+  const uint64_t batches = (before.clips.size() + 3) / 4;  // states are not rewritten
+  ASSERT_GE(batches, 3u);
+  for (uint64_t kill_after : {uint64_t(1), batches - 1}) {
+    SCOPED_TRACE("killed after batch " + std::to_string(kill_after));
+    const std::string path = dir.file("killed" + std::to_string(kill_after) + ".db");
+    fs::copy_file(original, path);
+    const pid_t child = fork();
+    ASSERT_GE(child, 0);
+    if (child == 0) {
+      Eigen::setNbThreads(1);  // OpenMP's thread pool does not survive fork()
+      RecodeOptions o = v3_options();
+      o.after_batch = [kill_after](uint64_t done) {
+        if (done == kill_after) _exit(0);  // no destructors, no rollback: as a kill
+      };
+      try {
+        recode_database(path, o);
+      } catch (...) {
+        _exit(2);
+      }
+      _exit(3);
+    }
+    int status = 0;
+    ASSERT_EQ(waitpid(child, &status, 0), child);
+    ASSERT_TRUE(WIFEXITED(status));
+    ASSERT_EQ(WEXITSTATUS(status), 0);
+    expect_checks(path);
+    expect_plays(path, 60);
+    const db::DatabaseInfo partial = db::read_database_info(path);
+    EXPECT_GT(partial.clips_v3, 0u);
+    EXPECT_LT(partial.clips_v3, partial.cloth_clips);
+    // Running it again finishes: the clips already of version 3 are kept, the rest recoded.
+    const RecodeReport r = recode_database(path, v3_options());
+    EXPECT_EQ(r.clips_already_v3, partial.clips_v3);
+    expect_checks(path);
+    expect_plays(path, 60);
+    expect_within_contract(before, read_all(path), v3_options().contract, V);
+    EXPECT_EQ(db::read_database_info(path).clips_v3, partial.cloth_clips);
+  }
 }
 
 }  // namespace

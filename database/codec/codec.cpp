@@ -68,12 +68,13 @@ Status parse(const uint8_t* blob, size_t size, BlobInfo* info, Error* err) {
                 size);
   if (size < 6) return fail(err, Status::Truncated, "frame blob truncated at %zu bytes", size);
   const uint32_t version = get_u16(blob + 4);
-  if (version > kFormatVersionV2)
+  if (version > kNewestFormatVersion)
     return fail(err, Status::NewerVersion,
                 "frame blob format version %u is newer than this build reads (up to %u)", version,
-                kFormatVersionV2);
+                kNewestFormatVersion);
   if (version == 0) return fail(err, Status::Corrupt, "frame blob format version 0 is invalid");
   if (version == kFormatVersionV2) return v2::parse(blob, size, info, err);
+  if (version == kFormatVersionV3) return v3::parse(blob, size, info, err);
   BlobInfo in;
   if (Status st = parse_common_header(blob, size, kHeaderSize, kChecksumOffset, &in, err);
       st != Status::Ok)
@@ -297,6 +298,8 @@ struct DecoderAccess {
     if (Status st = parse(blob, size, &info, err); st != Status::Ok) return st;
     if (info.version == kFormatVersionV2)
       return v2::decode(blob, size, first, count, out, out_floats, s, err, basis);
+    if (info.version == kFormatVersionV3)
+      return v3::decode(blob, size, first, count, out, out_floats, s, err, basis);
     if (count == 0) return Status::Ok;
     if (first >= info.frame_count || count > info.frame_count - first)
       return fail(err, Status::InvalidArgument, "frames %u..%u requested from a %u-frame blob",
@@ -376,7 +379,11 @@ DecodeScratch::DecodeScratch(DecodeScratch&& other) noexcept
       subspace_(std::move(other.subspace_)),
       coefficients_(std::move(other.coefficients_)),
       body_(std::move(other.body_)),
+      v3_ints_(std::move(other.v3_ints_)),
+      v3_key_(other.v3_key_),
+      v3_valid_(other.v3_valid_),
       frames_reconstructed_(other.frames_reconstructed_) {
+  other.v3_valid_ = false;
   for (int i = 0; i < 4; ++i) q_[i] = std::move(other.q_[i]);
   other.dctx_ = ZSTD_createDCtx();
 }
@@ -388,6 +395,9 @@ DecodeScratch& DecodeScratch::operator=(DecodeScratch&& other) noexcept {
     std::swap(subspace_, other.subspace_);
     std::swap(coefficients_, other.coefficients_);
     std::swap(body_, other.body_);
+    std::swap(v3_ints_, other.v3_ints_);
+    std::swap(v3_key_, other.v3_key_);
+    std::swap(v3_valid_, other.v3_valid_);
     frames_reconstructed_ = other.frames_reconstructed_;
   }
   return *this;
@@ -416,7 +426,11 @@ Status chunk_spans(const uint8_t* blob, size_t size, std::vector<ChunkSpan>* out
   out->clear();
   BlobInfo info;
   if (Status st = parse(blob, size, &info, err); st != Status::Ok) return st;
-  // Both versions: u16 header size at byte 6, then the chunk table (u32 compressed size first in
+  if (info.version == kFormatVersionV3) {
+    out->push_back(v3::payload(blob));
+    return Status::Ok;
+  }
+  // Versions 1 and 2: u16 header size at byte 6, then the chunk table (u32 compressed size first in
   // each entry), then the chunks back to back; parse() has checked all of it fits.
   const size_t header = get_u16(blob + 6);
   size_t offset = header + kEntrySize * size_t(info.chunk_count);
@@ -778,7 +792,9 @@ std::vector<uint8_t> encode(const float* frames, uint32_t frame_count, uint32_t 
 
 namespace detail {
 void reseal(uint8_t* blob, size_t size) {
-  if (size < kHeaderSize || std::memcmp(blob, kMagic, 4) != 0) return;
+  if (size < 6 || std::memcmp(blob, kMagic, 4) != 0) return;
+  if (get_u16(blob + 4) == kFormatVersionV3) return v3::reseal(blob, size);
+  if (size < kHeaderSize) return;
   if (get_u16(blob + 4) == kFormatVersionV2) return v2::reseal(blob, size);
   const uint32_t chunk_count = get_u32(blob + 20);
   const uint64_t table_end = kHeaderSize + uint64_t(chunk_count) * kEntrySize;

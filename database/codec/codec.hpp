@@ -22,6 +22,11 @@
 // Basis: mean + modes, stored once per database) and codes only coefficients and a residual layer
 // on the same grid, so the bound is kept exactly as in version 1 (docs/DATABASE.md, "version 2").
 // Version 1 blobs decode exactly as before; decoding a version 2 blob needs its basis.
+//
+// Format version 3 (encode_v3) keeps an error contract in what a player sees (contract.hpp: RMS,
+// max and jitter caps) instead of a per-coordinate bound: subspace coefficients plus a residual
+// smooth in time, only where the contract needs it (docs/DATABASE.md, "version 3"). It needs its
+// basis like version 2.
 #pragma once
 
 #include <cstddef>
@@ -29,12 +34,17 @@
 #include <string>
 #include <vector>
 
+#include "database/codec/contract.hpp"
 #include "database/format/status.hpp"
 
 namespace clothdb::codec {
 
 constexpr uint32_t kFormatVersion = 1;    // what encode() writes
-constexpr uint32_t kFormatVersionV2 = 2;  // what encode_v2() writes; the newest this build reads
+constexpr uint32_t kFormatVersionV2 = 2;  // what encode_v2() writes
+constexpr uint32_t kFormatVersionV3 = 3;  // what encode_v3() writes
+// The newest frame format this build reads: blobs and files (meta codec.format_version) of a newer
+// one are refused with Status::NewerVersion.
+constexpr uint32_t kNewestFormatVersion = kFormatVersionV3;
 constexpr double kDefaultPositionBound = 0.0005;  // m: 0.5 mm per coordinate
 // A key frame every 4 frames: random access costs at most 4 frame reconstructions, and on
 // simulated garments the ratio is within 1 % of K = 16 or 64 (docs/notebook/BENCHMARKS.md, Codec).
@@ -117,6 +127,9 @@ struct BlobInfo {
   double coefficient_step = 0;
   bool uses_mean = false;
   bool body_frame = false;  // per-frame rigid transforms stored (SubspaceSettings::body_frames)
+  // Version 3 only: frames between the residual's B-spline knots (0: no residual); `step` is then
+  // the residual's quantisation step and `bound` 0 (the blob keeps a contract, not a bound).
+  uint32_t residual_interval = 0;
 };
 
 // A garment subspace (docs/DATABASE.md, "version 2"): x ~ mean + sum_k c_k modes[k], over 3V
@@ -175,6 +188,29 @@ std::vector<uint8_t> encode_v2(const float* frames, uint32_t frame_count, uint32
                                const Basis& basis, const EncodeSettings& settings,
                                const SubspaceSettings& subspace = {}, EncodeStats* stats = nullptr);
 
+struct V3Settings {
+  Contract contract;            // every cap positive (m)
+  uint32_t modes = 0;           // modes of the basis to use (0: all)
+  double coefficient_step = 0;  // m per coefficient unit; 0: half the jitter cap
+  int zstd_level = kDefaultZstdLevel;
+};
+
+struct V3Stats {
+  ContractFigures figures;         // measured on the decoded blob against the input
+  uint32_t modes = 0;              // used
+  uint32_t residual_interval = 0;  // 0: no residual was needed
+  double residual_step = 0;
+  int attempts = 0;  // encodings tried (each decoded and measured)
+};
+
+// Encodes frame_count frames as a version 3 blob predicted from `basis` (positions; the mean is
+// added) within settings.contract, measured on the decoded blob against `frames`. Throws
+// ClothdbError (InvalidArgument) on bad input, a basis that does not fit, or a contract that even
+// a residual on every frame cannot meet.
+std::vector<uint8_t> encode_v3(const float* frames, uint32_t frame_count, uint32_t vertex_count,
+                               const Basis& basis, const V3Settings& settings,
+                               V3Stats* stats = nullptr);
+
 // Validates the header, the chunk table and their checksum (not the chunks' contents). Cheap.
 Status read_info(const uint8_t* blob, size_t size, BlobInfo* info, Error* err);
 
@@ -211,6 +247,7 @@ class DecodeScratch {
  private:
   friend struct DecoderAccess;
   friend struct DecoderV2Access;
+  friend struct DecoderV3Access;
   void* dctx_ = nullptr;  // ZSTD_DCtx*, kept opaque so zstd.h stays out of this header
   std::vector<uint8_t> bytes_;
   // Quantised frames (current, previous, the one before) and one frame of residuals.
@@ -219,6 +256,11 @@ class DecodeScratch {
   std::vector<float> subspace_;
   std::vector<int32_t> coefficients_;
   std::vector<float> body_;  // version 2: one chunk's body transforms
+  // Version 3: the last blob's payload as integers (coefficients, then residual control points),
+  // kept while the same blob (by header checksum) is decoded again frame by frame.
+  std::vector<int32_t> v3_ints_;
+  uint64_t v3_key_ = 0;
+  bool v3_valid_ = false;
   uint64_t frames_reconstructed_ = 0;
 };
 

@@ -67,7 +67,7 @@ Status recognise(sqlite3* db, const std::string& path, int* version, CodecSettin
     // Version keys must be versions this build knows: a newer one is refused like a newer
     // schema, anything else (text, negative) as damage.
     const int known = key == meta::kFormatVersion        ? kSchemaVersion
-                      : key == meta::kCodecFormatVersion ? int(codec::kFormatVersionV2)
+                      : key == meta::kCodecFormatVersion ? int(codec::kNewestFormatVersion)
                                                          : 0;
     if (known > 0) {
       const std::string value = m.text(1);

@@ -20,6 +20,8 @@ const std::vector<TableInfo>& tables() {
       {"cloth_clip_steering", 4, true, false},
       {"edit_log", 1, false, false},
       {"codec_basis", 4, false, true},
+      // The error contract each codec version 3 clip was encoded within, and what it measured.
+      {"codec_contract", 4, false, true},
   };
   return list;
 }

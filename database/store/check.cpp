@@ -11,6 +11,7 @@
 
 #include "database/codec/codec.hpp"
 #include "database/format/cloth_graph.hpp"
+#include "database/format/contracts.hpp"
 #include "database/format/graph_index.hpp"
 #include "database/format/message.hpp"
 #include "database/format/meta_keys.hpp"
@@ -259,6 +260,47 @@ void check_graph(Reader& reader, CheckReport& report) {
 
 }  // namespace
 
+// The error contracts of codec version 3 clips (docs/DATABASE.md, "codec_contract"): every
+// version 3 clip has one, every row names a version 3 clip, and the figures measured when it was
+// encoded lie within its caps. (The original frames are gone after a recode, so the figures are
+// checked as recorded; the blob itself is checked by decoding it above.)
+static void check_contracts(sqlite3* db, const std::string& path,
+                            const std::map<int64_t, uint32_t>& clip_versions, CheckReport& report) {
+  std::vector<ClipContract> rows;
+  Error err;
+  if (clip_contracts(db, path, &rows, &err) != Status::Ok) {
+    report.problems.push_back(err.message);
+    return;
+  }
+  std::set<int64_t> with_row;
+  for (const ClipContract& c : rows) {
+    with_row.insert(c.clip);
+    const auto v = clip_versions.find(c.clip);
+    if (v == clip_versions.end()) {
+      report.problems.push_back(
+          format_message("codec_contract: clip %lld does not exist", (long long)c.clip));
+      continue;
+    }
+    if (v->second != codec::kFormatVersionV3 && v->second != 0)
+      report.problems.push_back(format_message(
+          "cloth clip %lld: a codec_contract row, but its blob is codec version %u (the contract "
+          "is version 3's)",
+          (long long)c.clip, v->second));
+    if (!(c.caps.rms > 0 && c.caps.max > 0 && c.caps.jitter > 0))
+      report.problems.push_back(format_message(
+          "cloth clip %lld: codec_contract caps must be positive", (long long)c.clip));
+    else if (!codec::within(c.measured, c.caps, 1e-9))
+      report.problems.push_back(format_message(
+          "cloth clip %lld: contract %s exceeds its caps (RMS %g / max %g / jitter %g mm)",
+          (long long)c.clip, codec::describe(c.measured).c_str(), c.caps.rms * 1e3,
+          c.caps.max * 1e3, c.caps.jitter * 1e3));
+  }
+  for (const auto& [id, version] : clip_versions)
+    if (version == codec::kFormatVersionV3 && !with_row.count(id))
+      report.problems.push_back(format_message(
+          "cloth clip %lld: codec version 3 blob without a codec_contract row", (long long)id));
+}
+
 CheckReport check_database(const std::string& path) {
   CheckReport report;
   Reader reader;
@@ -361,6 +403,7 @@ CheckReport check_database(const std::string& path) {
 
   const int64_t garment_vertices = int64_t(count(db, "SELECT vertex_count FROM garment"));
   codec::DecodeScratch scratch;
+  std::map<int64_t, uint32_t> clip_versions;  // for the contracts below
   {
     Stmt s(db,
            "SELECT id, frame_count, vertex_count, frames, error_bound, max_error FROM cloth_clip");
@@ -374,6 +417,7 @@ CheckReport check_database(const std::string& path) {
                                                  (long long)garment_vertices));
       const codec::BlobInfo info =
           check_blob(s.blob(3), s.bytes(3), what, s.i64(1), vertices, reader, scratch, report);
+      clip_versions[id] = info.version;
       // The bound: the blob's codec bound and the error measured when it was encoded must lie
       // within the clip's recorded bound (after `db recode`, the old bound plus the new one).
       // Without the simulation's own frames this is what can be checked; the decoder itself
@@ -390,6 +434,7 @@ CheckReport check_database(const std::string& path) {
                            max_error, bound));
     }
   }
+  check_contracts(db, path, clip_versions, report);
   {
     Stmt s(db, "SELECT id, vertex_count, positions, velocities FROM cloth_state");
     while (s.ok() && s.step() == SQLITE_ROW) {
@@ -457,7 +502,22 @@ DatabaseInfo read_database_info(const std::string& path) {
       count(db, "SELECT total(length(positions) + length(velocities)) FROM cloth_state");
   info.clips_v2 = count(db, "SELECT count(*) FROM cloth_clip WHERE " +
                                 codec::version_is_sql("frames", codec::kFormatVersionV2));
-  info.clips_v1 = info.cloth_clips - info.clips_v2;
+  info.clips_v3 = count(db, "SELECT count(*) FROM cloth_clip WHERE " +
+                                codec::version_is_sql("frames", codec::kFormatVersionV3));
+  info.clips_v1 = info.cloth_clips - info.clips_v2 - info.clips_v3;
+  {
+    std::vector<ClipContract> rows;
+    throw_if_error(clip_contracts(db, path, &rows, &err), err);
+    info.contracts = rows.size();
+    for (const auto& c : rows) {
+      info.worst_contract.rms = std::max(info.worst_contract.rms, c.measured.rms);
+      info.worst_contract.max = std::max(info.worst_contract.max, c.measured.max);
+      info.worst_contract.jitter = std::max(info.worst_contract.jitter, c.measured.jitter);
+      info.loosest_caps.rms = std::max(info.loosest_caps.rms, c.caps.rms);
+      info.loosest_caps.max = std::max(info.loosest_caps.max, c.caps.max);
+      info.loosest_caps.jitter = std::max(info.loosest_caps.jitter, c.caps.jitter);
+    }
+  }
   info.states_v2 = count(db, "SELECT count(*) FROM cloth_state WHERE " +
                                  codec::version_is_sql("positions", codec::kFormatVersionV2));
   info.states_v1 = info.cloth_states - info.states_v2;

@@ -55,6 +55,11 @@ struct DatabaseInfo {
   // Frame codec in use (docs/DATABASE.md, "version 2"): blobs per format version, and the stored
   // bases.
   uint64_t clips_v1 = 0, clips_v2 = 0, states_v1 = 0, states_v2 = 0;
+  // Codec version 3 clips and their error contracts (docs/DATABASE.md, "codec_contract"): the
+  // worst recorded figure of each kind and the loosest caps.
+  uint64_t clips_v3 = 0, contracts = 0;
+  codec::ContractFigures worst_contract;
+  codec::Contract loosest_caps;
   std::vector<BasisRow> bases;
   double run_cpu_seconds = 0;
   uint64_t linked_edges = 0;  // clip ends that linked back to a state their clip did not make

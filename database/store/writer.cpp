@@ -227,6 +227,16 @@ CREATE INDEX IF NOT EXISTS cloth_link_to ON cloth_link(to_clip);)sql";
   created TEXT NOT NULL,
   source TEXT NOT NULL
 );)sql";
+  if (name == "codec_contract")
+    return R"sql(CREATE TABLE IF NOT EXISTS codec_contract(
+  clip INTEGER PRIMARY KEY REFERENCES cloth_clip(id) ON DELETE CASCADE,
+  rms REAL NOT NULL CHECK (rms >= 0),
+  max REAL NOT NULL CHECK (max >= 0),
+  jitter REAL NOT NULL CHECK (jitter >= 0),
+  rms_cap REAL NOT NULL CHECK (rms_cap > 0),
+  max_cap REAL NOT NULL CHECK (max_cap > 0),
+  jitter_cap REAL NOT NULL CHECK (jitter_cap > 0)
+);)sql";
   throw ClothdbError(Status::InvalidArgument,
                      "no columns defined for table " + std::string(name) + " (writer.cpp)");
 }

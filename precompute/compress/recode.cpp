@@ -9,6 +9,7 @@
 #include "compress/subspace.hpp"
 #include "database/codec/codec.hpp"
 #include "database/store/basis_store.hpp"
+#include "database/store/contract_store.hpp"
 #include "database/store/writer.hpp"
 
 namespace clothdb {
@@ -92,7 +93,11 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
   auto say = [&](const std::string& line) {
     if (o.progress) o.progress(line);
   };
-  if (o.codec != 1 && o.codec != 2) throw std::invalid_argument("recode: --codec must be v1 or v2");
+  if (o.codec < 1 || o.codec > 3)
+    throw std::invalid_argument("recode: --codec must be v1, v2 or v3");
+  const bool v3 = o.codec == 3;
+  if (v3 && !(o.contract.rms > 0 && o.contract.max > 0 && o.contract.jitter > 0))
+    throw std::invalid_argument("recode: codec v3 needs positive RMS, max and jitter caps");
   if (o.batch == 0) throw std::invalid_argument("recode: batch must be at least 1");
   RecodeReport report;
   report.file_bytes_before = file_bytes(path);
@@ -121,7 +126,7 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
   codec::Basis basis;
   const bool body = o.codec == 2 && o.body_frame;
   const BodyAnchors anchors = body ? body_anchors(garment.rest_positions) : BodyAnchors{};
-  if (o.codec == 2) {
+  if (o.codec >= 2) {
     const auto t0 = Clock::now();
     say("basis: sampling up to " + std::to_string(o.basis_frames) + " frames, " +
         std::to_string(o.modes) + " modes ...");
@@ -144,7 +149,8 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
   auto encode = [&](const std::vector<float>& data, uint32_t count, bool velocities,
                     codec::EncodeStats* stats) {
     const auto& settings = velocities ? velocity_settings : position_settings;
-    if (o.codec == 1) return codec::encode(data.data(), count, V, settings, stats);
+    if (o.codec == 1 || (v3 && velocities))
+      return codec::encode(data.data(), count, V, settings, stats);
     codec::SubspaceSettings s = sub;
     s.use_mean = !velocities;
     std::vector<float> transforms;
@@ -164,7 +170,43 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
       if (r < clips.size()) {
         const db::ClothClip& c = clips[r];
         check(reader.clip_blob(c.id, &blob, &err), err);
+        if (v3) {
+          codec::BlobInfo old;
+          check(codec::read_info(blob.data(), blob.size(), &old, &err), err);
+          if (old.version == codec::kFormatVersionV3) {  // recoded before a kill: kept
+            report.blob_bytes_before += blob.size();
+            report.blob_bytes_after += blob.size();
+            report.raw_bytes += size_t(c.frame_count) * V * 3 * sizeof(float);
+            ++report.clips_already_v3;
+            continue;
+          }
+        }
         check(reader.decode_all(blob, &frames, scratch, &err), err);
+        if (v3) {
+          codec::V3Settings vs;
+          vs.contract = o.contract;
+          vs.zstd_level = file_codec.zstd_level;
+          codec::V3Stats stats;
+          const auto fresh =
+              codec::encode_v3(frames.data(), uint32_t(c.frame_count), V, basis, vs, &stats);
+          report.blob_bytes_before += blob.size();
+          report.raw_bytes += frames.size() * sizeof(float);
+          if (o.always || fresh.size() < blob.size()) {
+            db::recode_clip_blob(writer, c.id, fresh, c.error_bound + o.contract.max,
+                                 c.max_error + stats.figures.max);
+            db::store_clip_contract(writer, c.id, stats.figures, o.contract);
+            report.worst.rms = std::max(report.worst.rms, stats.figures.rms);
+            report.worst.max = std::max(report.worst.max, stats.figures.max);
+            report.worst.jitter = std::max(report.worst.jitter, stats.figures.jitter);
+            report.max_error = std::max(report.max_error, stats.figures.max);
+            report.clips_with_residual += stats.residual_interval > 0;
+            report.blob_bytes_after += fresh.size();
+            ++report.clips_replaced;
+          } else {
+            report.blob_bytes_after += blob.size();
+          }
+          continue;
+        }
         codec::EncodeStats stats;
         const auto fresh = encode(frames, uint32_t(c.frame_count), false, &stats);
         report.blob_bytes_before += blob.size();
@@ -180,6 +222,7 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
         }
       } else {
         const db::StoredState& s = states[r - clips.size()];
+        if (v3) continue;  // states keep the strict bound (see RecodeOptions::contract)
         check(reader.state_blobs(s.id, &pos_blob, &vel_blob, &err), err);
         check(reader.decode_all(pos_blob, &x, scratch, &err), err);
         check(reader.decode_all(vel_blob, &v, scratch, &err), err);
@@ -202,13 +245,16 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
       // The last batch also records what the file now uses (meta keys are read by `db info`). A
       // basis no blob took is removed again: it would only cost its bytes.
       const bool basis_used = report.clips_replaced + report.states_replaced > 0;
-      if (o.codec == 1 || basis_used) {
+      if (v3 && basis_used) {
+        // codec.format_version was raised by the first version 3 blob (note_blob_version).
+        writer.set_meta(db::meta::kCodecBasis, std::to_string(basis.id));
+      } else if (o.codec == 1 || basis_used) {
         writer.set_meta(db::meta::kCodecFormatVersion, std::to_string(o.codec));
         writer.set_meta(db::meta::kCodecRecodedBound, text(bound));
       }
       if (o.codec == 2 && basis_used)
         writer.set_meta(db::meta::kCodecBasis, std::to_string(basis.id));
-      if (o.codec == 2 && !basis_used) {
+      if (o.codec >= 2 && !basis_used) {
         db::remove_basis(writer, basis.id);
         say("no blob got smaller with the subspace: basis " + std::to_string(basis.id) +
             " removed, the file keeps its blobs");

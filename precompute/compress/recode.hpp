@@ -33,7 +33,7 @@ BuiltBasis build_basis_from_clips(db::Reader& reader, const std::vector<db::Clot
                                   const BodyAnchors* anchors = nullptr);
 
 struct RecodeOptions {
-  int codec = 2;                 // frame format to write: 1 or 2
+  int codec = 2;                 // frame format to write: 1, 2 or 3
   double bound = 0;              // m per coordinate against the stored frames; 0: the file's bound
   double velocity_bound = 0;     // m/s for state velocities; 0: the file's velocity bound
   uint32_t modes = 64;           // basis modes (codec 2)
@@ -42,6 +42,10 @@ struct RecodeOptions {
   // Codec 2: cloth relative to the body (a rigid frame fitted to the garment's highest 5 %, its
   // pinned band; compress/body_frame.hpp), for the basis and every position blob.
   bool body_frame = false;
+  // Codec 3: the error contract every clip is encoded within (codec/contract.hpp), measured
+  // against the clip's stored frames; all three caps positive. States keep their blobs (a
+  // resumed simulation starts from them, so they keep the strict bound).
+  codec::Contract contract;
   uint32_t batch = 32;  // rows per transaction
   bool always = false;  // replace every blob, even where the new encoding is larger
   bool vacuum = true;   // give the freed pages back to the file system at the end
@@ -59,6 +63,9 @@ struct RecodeReport {
   uint64_t blob_bytes_before = 0, blob_bytes_after = 0;  // clip and state blobs
   uint64_t raw_bytes = 0;                                // the same as float32
   double max_error = 0;  // m, largest measured |new - stored| over every replaced clip coordinate
+  codec::ContractFigures worst;  // codec 3: the worst figure of each kind over the clips recoded
+  uint64_t clips_with_residual = 0;  // codec 3
+  uint64_t clips_already_v3 = 0;     // codec 3: kept as they were (a rerun after a kill)
   uint64_t file_bytes_before = 0, file_bytes_after = 0;
   double seconds = 0;
 };
@@ -66,6 +73,9 @@ struct RecodeReport {
 // Throws ClothdbError (file problems) or std::exception. Blobs are replaced only when the new
 // encoding is smaller; each replaced clip's error_bound and max_error become the old ones plus the
 // new encoding's (the bound against the original simulation adds up, by the triangle inequality).
+// Codec 3 records each replaced clip's contract (table codec_contract) in the same transaction as
+// its blob; its max_error and error_bound then add the measured and the capped vertex distance
+// (a coordinate's error is at most its vertex's distance). Clips already of version 3 are kept.
 RecodeReport recode_database(const std::string& path, const RecodeOptions& options);
 
 }  // namespace clothdb

@@ -96,7 +96,7 @@ std::set<int64_t> unchosen_bases(db::Reader& reader, const std::string& path,
   auto name = [&](const std::vector<uint8_t>& blob, const std::string& what) {
     codec::BlobInfo info;
     check(codec::read_info(blob.data(), blob.size(), &info, &err), what);
-    if (info.version == codec::kFormatVersionV2) named.insert(info.basis_id);
+    if (info.version >= codec::kFormatVersionV2) named.insert(info.basis_id);
   };
   std::vector<db::ClothClip> clips;
   std::vector<db::StoredState> states;

@@ -50,11 +50,11 @@ void decode_blob(const uint8_t* blob, size_t size) {
     return;
   }
   codec::Basis basis;
-  if (info.version == codec::kFormatVersionV2) {
+  if (info.version >= codec::kFormatVersionV2) {
     if (info.vertex_count > 256 || info.modes > 16) return;  // keep each run small
     basis = made_up_basis(info.basis_id, info.vertex_count, info.modes);
   }
-  const codec::Basis* b = info.version == codec::kFormatVersionV2 ? &basis : nullptr;
+  const codec::Basis* b = info.version >= codec::kFormatVersionV2 ? &basis : nullptr;
   codec::DecodeScratch scratch;
   const size_t n = size_t(info.vertex_count) * 3;
   // Bounded output so a large (valid) header cannot exhaust memory: one frame at a time.

@@ -5,7 +5,7 @@
 set -euo pipefail
 CXX=$1 SRC=$2 WORK=$3 SECONDS_TO_RUN=$4
 mkdir -p "$WORK/corpus" "$WORK/artifacts"
-SOURCES=("$SRC/database/codec/codec.cpp" "$SRC/database/codec/codec_v2.cpp"
+SOURCES=("$SRC/database/codec/codec.cpp" "$SRC/database/codec/codec_v2.cpp" "$SRC/database/codec/codec_v3.cpp" "$SRC/database/codec/contract.cpp"
   "$SRC/database/format/checksum.cpp" "$SRC/database/format/status.cpp")
 FLAGS=(-std=c++20 -g -O1 -ffp-contract=off -I"$SRC")
 "$CXX" "${FLAGS[@]}" -DCLOTHDB_FUZZ_SEEDS "$SRC/tests/fuzz/fuzz_decoder.cpp" "${SOURCES[@]}" \

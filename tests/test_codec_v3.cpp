@@ -1,0 +1,162 @@
+// Codec version 3 and the error contract (docs/DATABASE.md, "version 3" and "The error
+// contract"): every encoded clip is within its RMS, max and jitter caps when decoded, from any
+// frame, one frame at a time as a player decodes; the measurement itself is right on known errors;
+// damaged and newer blobs are refused.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include "compress/subspace.hpp"
+#include "database/codec/codec.hpp"
+#include "database/codec/contract.hpp"
+
+namespace clothdb::codec {
+namespace {
+
+// A waving sheet with some high-frequency detail no few modes hold (so the residual is needed).
+std::vector<float> waves(uint32_t frames, uint32_t side, double phase, double detail) {
+  std::vector<float> x(size_t(frames) * side * side * 3);
+  for (uint32_t f = 0; f < frames; ++f)
+    for (uint32_t i = 0; i < side; ++i)
+      for (uint32_t j = 0; j < side; ++j) {
+        const double t = f / 30.0 + phase, u = double(i) / side, w = double(j) / side;
+        float* p = x.data() + (size_t(f) * side * side + size_t(i) * side + j) * 3;
+        p[0] = float(u + 0.05 * std::sin(3 * t + 4 * w) +
+                     detail * std::sin(1.3 * t + 23.0 * u * w + 11 * w));
+        p[1] = float(1.5 - w + 0.2 * std::sin(2.1 * t + 6 * u) * w);
+        p[2] = float(0.2 * std::cos(1.7 * t + 5 * u + 3 * w) * w +
+                     detail * std::cos(2.3 * t + 17.0 * u - 9 * w * w));
+      }
+  return x;
+}
+
+Basis basis_of(const std::vector<float>& frames, uint32_t vertices, uint32_t modes) {
+  const Subspace s = build_subspace(frames, vertices * 3, modes);
+  return make_basis(5, vertices, s.mean.data(), s.basis.data(), s.modes);
+}
+
+TEST(Contract, MeasuresKnownErrors) {
+  const uint32_t V = 4, F = 5;
+  std::vector<float> a(size_t(F) * V * 3, 1.0f), b = a;
+  // A constant offset of 3 mm along x on vertex 2: RMS sqrt(9/4) mm, max 3 mm, no jitter.
+  for (uint32_t f = 0; f < F; ++f) b[(size_t(f) * V + 2) * 3] += 0.003f;
+  ContractFigures m = measure_contract(b.data(), a.data(), F, V);
+  EXPECT_NEAR(m.rms, 0.0015, 1e-7);
+  EXPECT_NEAR(m.max, 0.003, 1e-7);
+  EXPECT_NEAR(m.jitter, 0.0, 1e-7);
+  // One frame's error flipping sign: second difference 2 x 1 mm + ... at frames 1..3.
+  b = a;
+  b[(size_t(2) * V + 1) * 3 + 1] += 0.001f;
+  m = measure_contract(b.data(), a.data(), F, V);
+  EXPECT_NEAR(m.jitter, 0.002, 1e-7);  // e[3] - 2 e[2] + e[1] = -2 mm
+  EXPECT_NEAR(m.max, 0.001, 1e-7);
+  EXPECT_TRUE(within(m, {0.001, 0.001, 0.002}, 1e-4));
+  EXPECT_FALSE(within(m, {0.001, 0.001, 0.0019}));
+}
+
+struct Case {
+  uint32_t frames, modes;
+  double detail, rms, max, jitter;
+};
+
+TEST(CodecV3, EveryClipWithinItsCapsFromAnyFrame) {
+  const uint32_t side = 12, V = side * side;
+  std::vector<float> sample;
+  for (double phase : {0.0, 0.7, 1.9}) {
+    const auto w = waves(40, side, phase, 0.004);
+    sample.insert(sample.end(), w.begin(), w.end());
+  }
+  for (const Case& c :
+       {Case{30, 4, 0.004, 0.001, 0.003, 0.0001}, Case{11, 2, 0.004, 0.0005, 0.0015, 0.0001},
+        Case{60, 8, 0.004, 0.002, 0.006, 0.00005}, Case{2, 4, 0.004, 0.001, 0.003, 0.0001},
+        Case{25, 16, 0.0, 0.001, 0.003, 0.0001}}) {
+    SCOPED_TRACE(std::to_string(c.frames) + " frames, " + std::to_string(c.modes) + " modes");
+    const Basis basis = basis_of(sample, V, c.modes);
+    const auto x = waves(c.frames, side, 0.35, c.detail);
+    V3Settings s;
+    s.contract = {c.rms, c.max, c.jitter};
+    V3Stats stats;
+    const auto blob = encode_v3(x.data(), c.frames, V, basis, s, &stats);
+    BlobInfo info;
+    Error err;
+    ASSERT_EQ(read_info(blob.data(), blob.size(), &info, &err), Status::Ok) << err.message;
+    EXPECT_EQ(info.version, kFormatVersionV3);
+    EXPECT_EQ(info.basis_id, basis.id);
+    EXPECT_EQ(info.frame_count, c.frames);
+    EXPECT_EQ(info.residual_interval, stats.residual_interval);
+    // Decoded frame by frame from the last one back (a player jumping in), against the input.
+    DecodeScratch scratch;
+    const size_t n = size_t(V) * 3;
+    std::vector<float> y(x.size());
+    for (uint32_t f = c.frames; f-- > 0;)
+      ASSERT_EQ(
+          decode_frames(blob.data(), blob.size(), f, 1, y.data() + f * n, n, scratch, &err, &basis),
+          Status::Ok)
+          << err.message;
+    const ContractFigures m = measure_contract(y.data(), x.data(), c.frames, V);
+    EXPECT_TRUE(within(m, s.contract)) << describe(m);
+    EXPECT_EQ(m.rms, stats.figures.rms);
+    EXPECT_EQ(m.jitter, stats.figures.jitter);
+    EXPECT_EQ(verify(blob.data(), blob.size(), scratch, &err, &basis), Status::Ok) << err.message;
+  }
+}
+
+TEST(CodecV3, ResidualOnlyWhereTheContractNeedsIt) {
+  const uint32_t side = 10, V = side * side;
+  const auto smooth = waves(30, side, 0.0, 0.0);
+  const Basis basis = basis_of(smooth, V, 12);
+  V3Settings s;
+  s.contract = {0.001, 0.003, 0.0001};
+  V3Stats stats;
+  encode_v3(smooth.data(), 30, V, basis, s, &stats);
+  EXPECT_EQ(stats.residual_interval, 0u) << "the modes hold these frames";
+  const auto detailed = waves(30, side, 0.0, 0.01);
+  const Basis few = basis_of(smooth, V, 2);
+  encode_v3(detailed.data(), 30, V, few, s, &stats);
+  EXPECT_GT(stats.residual_interval, 0u) << "two modes cannot hold 1 cm of detail";
+}
+
+TEST(CodecV3, RefusesBadInputAndDamagedOrNewerBlobs) {
+  const uint32_t side = 8, V = side * side;
+  const auto x = waves(20, side, 0.0, 0.003);
+  const Basis basis = basis_of(x, V, 3);
+  V3Settings s;
+  s.contract = {0.001, 0.003, 0.0001};
+  EXPECT_THROW(encode_v3(x.data(), 20, V + 1, basis, s), ClothdbError);
+  V3Settings no_jitter = s;
+  no_jitter.contract.jitter = 0;
+  EXPECT_THROW(encode_v3(x.data(), 20, V, basis, no_jitter), ClothdbError);
+  const auto blob = encode_v3(x.data(), 20, V, basis, s);
+  DecodeScratch scratch;
+  Error err;
+  std::vector<float> y;
+  EXPECT_EQ(decode_all(blob.data(), blob.size(), y, scratch, &err), Status::NotFound);
+  Basis other = basis;
+  other.id = 9;
+  EXPECT_EQ(decode_all(blob.data(), blob.size(), y, scratch, &err, &other), Status::NotFound);
+  // Every byte flipped: refused (checksums), never a crash.
+  for (size_t i = 0; i < blob.size(); i += std::max<size_t>(1, blob.size() / 97)) {
+    auto bad = blob;
+    bad[i] ^= 0x5a;
+    DecodeScratch fresh;
+    EXPECT_NE(verify(bad.data(), bad.size(), fresh, &err, &basis), Status::Ok) << "byte " << i;
+  }
+  // Truncated.
+  EXPECT_NE(verify(blob.data(), blob.size() - 1, scratch, &err, &basis), Status::Ok);
+  // Resealed payload damage reaches the decoder's own checks: refused or decoded, never a crash.
+  auto resealed = blob;
+  resealed[resealed.size() / 2] ^= 0xff;
+  detail::reseal(resealed.data(), resealed.size());
+  DecodeScratch fresh;
+  (void)verify(resealed.data(), resealed.size(), fresh, &err, &basis);
+  // A newer version than this build reads.
+  auto newer = blob;
+  newer[4] = uint8_t(kNewestFormatVersion + 1);
+  BlobInfo info;
+  EXPECT_EQ(read_info(newer.data(), newer.size(), &info, &err), Status::NewerVersion);
+}
+
+}  // namespace
+}  // namespace clothdb::codec
