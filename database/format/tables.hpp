@@ -13,9 +13,9 @@ namespace clothdb::db {
 // Version 2 added the quality metrics (cloth_clip: mean_penetration, jitter, halved_steps,
 // worst_frame; cloth_edge: pop). Version 3: the edit log keeps each edit's changeset (exact undo
 // of edits that touch many rows) and the actions flag, unflag, import, resim, delete. Version 4:
-// the cloth_link and cloth_clip_steering tables. Writer::open migrates older files in one
-// transaction; the Reader reads them as they are.
-constexpr int kSchemaVersion = 4;
+// the cloth_link and cloth_clip_steering tables. Version 5: cloth_clip's self_intersections.
+// Writer::open migrates older files in one transaction; the Reader reads them as they are.
+constexpr int kSchemaVersion = 5;
 constexpr int32_t kApplicationId = 0x434C4442;  // "CLDB"
 
 struct TableInfo {
