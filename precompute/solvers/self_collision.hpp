@@ -10,19 +10,18 @@
 // garment's common motion (a pair's distance changes by at most the sum of two vertex
 // displacements relative to any common vector), which is checked every sub-step in O(vertices). So
 // a slowly moving garment is hashed once every few frames, a fast one a few times per frame, and
-// every sub-step tests only the listed pairs. Pairs nearer than thickness + skin in the rest shape
-// (neighbours on the flat sheet, 99 % of the near pairs of a build) are found once and never
-// listed: the list then holds only the parts of the cloth that came near each other by folding
-// or layering, a few hundred pairs instead of a hundred thousand
-// (docs/notebook/self_collision.md, "Cost").
+// every sub-step tests only the listed pairs. Pairs nearer than the thickness in the rest shape
+// (neighbours on the mesh) are found once, in make_self_collision, and skipped by a scan of a short
+// row instead of a closest-point test at every build (docs/notebook/self_collision.md, "Cost,
+// second round", also for why pairs up to thickness + skin apart at rest must stay listed).
 //
 // Side: each contact is pushed to the side its pair was on at the start of the sub-step, so a
 // pair that went through within one sub-step is put back, not pushed further through.
 //
 // Determinism: the build and the projection are serial, in index order (Gauss-Seidel over the
 // contact list), so the result does not depend on the thread count. The rest neighbours left out
-// are held apart by the stretch and bending constraints instead: to meet, they would have to fold
-// tighter than the skin.
+// cannot be pushed apart (they are nearer than the thickness by construction) and are held by the
+// stretch and bending constraints instead.
 #pragma once
 
 #include <Eigen/Core>
@@ -37,7 +36,8 @@ struct SelfCollision {
   double thickness = 0.0;  // m
   double skin = 0.0;       // m: how much farther than thickness a listed pair may be at build
   double mean_edge = 0.0;  // m, mean rest edge length (sets the hash's cell size)
-  // m: pairs nearer than this in the rest shape are neighbours on the mesh and never listed.
+  // m: pairs nearer than this in the rest shape (the thickness) are neighbours on the mesh and
+  // never listed.
   double rest_gap = 0.0;
   // Those rest neighbours, found once: for triangle t the vertices rest_vt[rest_vt_begin[t] ..
   // rest_vt_begin[t + 1]), for edge e the edges after it likewise in rest_ee.

@@ -458,6 +458,7 @@ TEST(Edit, AVersion2FileIsMigratedWithItsEditLogAndItsOldEditsAreKeptNotUndone) 
     sqlite3* h = nullptr;
     ASSERT_EQ(sqlite3_open(path.c_str(), &h), SQLITE_OK);
     const std::string sql =
+        "ALTER TABLE cloth_clip DROP COLUMN self_intersections; "
         "DROP TABLE edit_log; CREATE TABLE edit_log(id INTEGER PRIMARY KEY, time TEXT NOT NULL, "
         "author TEXT NOT NULL, clip INTEGER NOT NULL REFERENCES cloth_clip(id), action TEXT NOT "
         "NULL CHECK (action IN ('set-status', 'replace-frames', 'undo')), description TEXT NOT "
