@@ -37,13 +37,22 @@ struct ClipTable {
   std::vector<db::StoredState> states;
   // clip id -> how its end was steered (docs/GUIDE.md#the-precompute-kim-et-al-2013, steering)
   std::map<int64_t, db::ClipSteering> steering;
-  // clip id -> the most edge-triangle crossings in one of its decoded frames; filled only when
-  // listing by self-intersections (measured here, not stored: it decodes every clip).
+  // clip id -> the most edge-triangle crossings in one of its decoded frames, for the clips that
+  // have no stored value (files before schema version 5); filled only when listing by
+  // self-intersections (it decodes those clips).
   std::map<int64_t, int> crossings;
   // clip id -> the error contract its codec version 3 blob was encoded within (table
   // codec_contract); clips without one keep the strict per-coordinate bound.
   std::map<int64_t, db::ClipContract> contracts;
 };
+
+// A clip's most crossings in one frame: the stored value, else the one measured on its decoded
+// frames when listing; -1 if neither.
+int clip_crossing_count(const ClipTable& t, const db::ClothClip& c) {
+  if (c.self_intersections >= 0) return c.self_intersections;
+  auto it = t.crossings.find(c.id);
+  return it == t.crossings.end() ? -1 : it->second;
+}
 
 // The garment's topology (rest positions zero: only the triangles and edges are used).
 ClothMesh garment_topology(db::Reader& reader) {
@@ -84,11 +93,16 @@ std::vector<int> clip_crossings(db::Reader& reader, const ClothMesh& mesh, int64
   return out;
 }
 
-// Fills t.crossings when `metric` is self-intersections (it decodes every clip).
+// Fills t.crossings when `metric` is self-intersections, for the clips without a stored value (it
+// decodes them).
 void measure_crossings_if_listed(db::Reader& reader, ClipTable& t, const char* metric) {
   if (std::string(metric) != "self-intersections") return;
+  bool any_unknown = false;
+  for (const auto& c : t.clips) any_unknown = any_unknown || c.self_intersections < 0;
+  if (!any_unknown) return;
   const ClothMesh mesh = garment_topology(reader);
   for (const auto& c : t.clips) {
+    if (c.self_intersections >= 0) continue;
     const std::vector<int> per_frame = clip_crossings(reader, mesh, c.id);
     t.crossings[c.id] =
         per_frame.empty() ? 0 : *std::max_element(per_frame.begin(), per_frame.end());
@@ -167,12 +181,12 @@ const Metric kMetrics[] = {
        auto it = t.steering.find(c.id);
        return it == t.steering.end() ? 0.0 : it->second.displacement;
      }},
-    // The most edge-triangle crossings in one decoded frame (docs/guide/self_collision.md);
-    // measured when listing.
+    // The most edge-triangle crossings in one frame (docs/guide/self_collision.md): stored by
+    // the precompute, measured on the decoded frames when listing a file from before it was.
     {"self-intersections", "self_intersections", 1,
      [](const ClipTable& t, const db::ClothClip& c) {
-       auto it = t.crossings.find(c.id);
-       return it == t.crossings.end() ? db::kUnknownMetric : double(it->second);
+       const int k = clip_crossing_count(t, c);
+       return k < 0 ? db::kUnknownMetric : double(k);
      }},
 };
 
@@ -274,7 +288,7 @@ void list_clips(const std::string& path, int worst, const std::string& by, bool 
         t.steering.count(c->id) ? cell(1e3 * t.steering.at(c->id).displacement, "%.2f").c_str()
                                 : "-",
         c->worst_frame < 0 ? "?" : std::to_string(c->worst_frame).c_str(),
-        t.crossings.count(c->id) ? std::to_string(t.crossings.at(c->id)).c_str() : "?",
+        clip_crossing_count(t, *c) < 0 ? "?" : std::to_string(clip_crossing_count(t, *c)).c_str(),
         contract_cell(t, c->id).c_str());
   }
 }
@@ -392,6 +406,8 @@ void show_clip(const ShowArgs& a) {
               c.halved_steps < 0 ? "?" : std::to_string(c.halved_steps).c_str());
   std::printf("  worst frame       %s\n",
               c.worst_frame < 0 ? "?" : std::to_string(c.worst_frame).c_str());
+  std::printf("  self-intersections %s (most edge-triangle crossings in one frame, as simulated)\n",
+              c.self_intersections < 0 ? "?" : std::to_string(c.self_intersections).c_str());
   std::printf("  codec             bound %.3g mm, max error %.3g mm, %zu bytes\n",
               1e3 * c.error_bound, 1e3 * c.max_error, c.blob_bytes);
   for (const auto& s : t.states)
@@ -446,8 +462,9 @@ void show_clip(const ShowArgs& a) {
   const std::vector<int> crossings = clip_crossings(reader, garment_topology(reader), c.id);
   int crossing_frames = 0, most = 0;
   for (int k : crossings) crossing_frames += k > 0 ? 1 : 0, most = std::max(most, k);
-  std::printf("  self-intersections %d frames with edge-triangle crossings, at most %d in one\n",
-              crossing_frames, most);
+  std::printf(
+      "  decoded frames    %d with edge-triangle crossings, at most %d in one (as stored)\n",
+      crossing_frames, most);
   const std::vector<int> shown = sheet_frames(c.frame_count, a.tiles, c.worst_frame);
   auto frame_matrix = [&](int f) {
     Eigen::Matrix3Xd m(3, n);
@@ -532,8 +549,8 @@ void register_clip_quality_commands(CLI::App& app) {
       "(docs/DATABASE.md): strain (max edge strain, %), penetration (max depth into the body, mm), "
       "mean-penetration (mean depth of penetrating vertex-frames, mm), jitter (RMS normalised 4th "
       "difference, mm), halved (solver step halvings), pop (largest jump at its out edges, mm), "
-      "self-intersections (most edge-triangle crossings in one frame, measured on the decoded "
-      "frames when listing by it)");
+      "self-intersections (most edge-triangle crossings in one frame, as simulated; files from "
+      "before it was stored: measured on the decoded frames when listing by it)");
   list->add_option("FILE", la->file, "clothdb database")->required();
   list->add_option("--worst", la->worst, "Show the N worst clips (0: all)")
       ->capture_default_str()

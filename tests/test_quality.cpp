@@ -14,6 +14,7 @@
 #include <random>
 #include <sstream>
 
+#include "cloth/self_intersection.hpp"
 #include "clothrt.h"
 #include "database/codec/codec.hpp"
 #include "database/store/check.hpp"
@@ -289,6 +290,10 @@ TEST(Quality, PrecomputeStoresWhatTheDecodedFramesMeasure) {
     EXPECT_EQ(c.halved_steps, 0);  // XPBD never halves
     EXPECT_GE(c.worst_frame, 0);
     EXPECT_LT(c.worst_frame, c.frame_count);
+    // Crossings are stored as simulated; the codec's rounding (at most the bound, 0.1 mm by
+    // default) must not put the cloth through itself where it was not.
+    ASSERT_GE(c.self_intersections, 0);
+    EXPECT_LE(q.self_intersections, c.self_intersections);
     any_strain |= c.max_strain > 0;
     any_jitter |= c.jitter > 0;
     // Pop: the clip's decoded last frame against the decoded positions of its edge's state.
@@ -310,6 +315,94 @@ TEST(Quality, PrecomputeStoresWhatTheDecodedFramesMeasure) {
   EXPECT_TRUE(any_jitter);
 }
 
+// The demo's bound (0.1 mm per coordinate) on a garment simulated with self-collision: the decoded
+// frames have no crossing that the simulated ones did not have (docs/guide/self_collision.md).
+TEST(Quality, DecodedFramesAtTheDemoBoundAddNoCrossings) {
+  SceneFile file = load_scene_file(kMotions + "skirt_walk.json");
+  file.clips = {"01_03_level_walk"};
+  file.skirt.vertices = 300;
+  file.settle_frames = 10;
+  file.settings.substeps = 8;
+  file.settings.self_collision_thickness_mm = 4;
+  const CharacterScene scene = build_character_scene(file);
+  ExploreGraph graph = small_graph(scene);
+  const std::string path = fresh_db("demo_bound");
+  {
+    db::CodecSettings codec;
+    codec.position_bound = 1e-4;
+    db::Writer writer = db::Writer::create(path, codec);
+    prepare_database(writer, scene, graph, "{}");
+    ExploreOptions options;
+    options.epsilon = 0.02;
+    options.max_frames = 60;
+    options.progress = false;
+    explore(scene, graph, writer, options);
+  }
+  db::Reader r;
+  db::Error err;
+  ASSERT_EQ(r.open(path, &err), db::Status::Ok) << err.message;
+  EXPECT_DOUBLE_EQ(r.codec().position_bound, 1e-4);
+  std::vector<db::ClothClip> clips;
+  ASSERT_EQ(r.cloth_clips(&clips, &err), db::Status::Ok);
+  ASSERT_FALSE(clips.empty());
+  codec::DecodeScratch scratch;
+  const int n = scene.model.vertex_count();
+  for (const auto& c : clips) {
+    SCOPED_TRACE("clip " + std::to_string(c.id));
+    ASSERT_GE(c.self_intersections, 0);  // stored by the precompute
+    std::vector<uint8_t> blob;
+    std::vector<float> frames;
+    ASSERT_EQ(r.clip_blob(c.id, &blob, &err), db::Status::Ok);
+    ASSERT_EQ(codec::decode_all(blob.data(), blob.size(), frames, scratch, &err), db::Status::Ok);
+    ASSERT_EQ(frames.size(), size_t(c.frame_count) * size_t(n) * 3);
+    for (int f = 0; f < c.frame_count; ++f) {
+      const Eigen::Matrix3Xf x =
+          Eigen::Map<const Eigen::Matrix3Xf>(frames.data() + size_t(f) * size_t(n) * 3, 3, n);
+      EXPECT_LE(count_self_intersections(scene.model.mesh, x.cast<double>()), c.self_intersections)
+          << "frame " << f;
+    }
+  }
+}
+
+TEST(Quality, Version4FilesHaveNoStoredCrossingsUntilMigrated) {
+  const CharacterScene scene = small_scene();
+  const std::string v4 = fresh_db("v4");
+  std::filesystem::copy_file(small_db(scene), v4);
+  {
+    sqlite3* h = nullptr;
+    ASSERT_EQ(sqlite3_open(v4.c_str(), &h), SQLITE_OK);
+    char* msg = nullptr;
+    const int rc = sqlite3_exec(
+        h, "ALTER TABLE cloth_clip DROP COLUMN self_intersections; PRAGMA user_version = 4;",
+        nullptr, nullptr, &msg);
+    ASSERT_EQ(rc, SQLITE_OK) << (msg ? msg : "");
+    sqlite3_close(h);
+  }
+  db::Reader r;
+  db::Error err;
+  ASSERT_EQ(r.open(v4, &err), db::Status::Ok) << err.message;
+  EXPECT_EQ(r.schema_version(), 4);
+  std::vector<db::ClothClip> clips;
+  ASSERT_EQ(r.cloth_clips(&clips, &err), db::Status::Ok) << err.message;
+  ASSERT_FALSE(clips.empty());
+  for (const auto& c : clips) EXPECT_EQ(c.self_intersections, -1);
+  r.close();
+  EXPECT_TRUE(db::check_database(v4).ok());
+  {
+    db::Writer w = db::Writer::open(v4);
+    db::ClipMetrics m = clips[0].metrics();
+    m.self_intersections = 3;
+    w.set_clip_metrics(clips[0].id, m);
+  }
+  ASSERT_EQ(r.open(v4, &err), db::Status::Ok) << err.message;
+  EXPECT_EQ(r.schema_version(), db::kSchemaVersion);
+  std::vector<db::ClothClip> after;
+  ASSERT_EQ(r.cloth_clips(&after, &err), db::Status::Ok);
+  EXPECT_EQ(after[0].self_intersections, 3);
+  EXPECT_EQ(after[1].self_intersections, -1);
+  EXPECT_TRUE(db::check_database(v4).ok());
+}
+
 TEST(Quality, Version1FilesAreReadAsUnknownAndMigratedByTheWriter) {
   const CharacterScene scene = small_scene();
   const std::string v1 = fresh_db("v1");
@@ -324,6 +417,7 @@ TEST(Quality, Version1FilesAreReadAsUnknownAndMigratedByTheWriter) {
                                 "ALTER TABLE cloth_clip DROP COLUMN jitter; "
                                 "ALTER TABLE cloth_clip DROP COLUMN halved_steps; "
                                 "ALTER TABLE cloth_clip DROP COLUMN worst_frame; "
+                                "ALTER TABLE cloth_clip DROP COLUMN self_intersections; "
                                 "ALTER TABLE cloth_edge DROP COLUMN pop; PRAGMA user_version = 1;",
                                 nullptr, nullptr, &msg);
     ASSERT_EQ(rc, SQLITE_OK) << (msg ? msg : "");
@@ -341,6 +435,7 @@ TEST(Quality, Version1FilesAreReadAsUnknownAndMigratedByTheWriter) {
   EXPECT_GT(clips[0].max_strain, 0.0);  // the version 1 metrics are still there
   EXPECT_TRUE(std::isnan(clips[0].jitter));
   EXPECT_EQ(clips[0].worst_frame, -1);
+  EXPECT_EQ(clips[0].self_intersections, -1);
   EXPECT_TRUE(std::isnan(edges[0].pop));
   r.close();
   EXPECT_TRUE(db::check_database(v1).ok());
@@ -428,6 +523,17 @@ TEST(Quality, ClipsListSortsByTheMetricAndExplainsBadInput) {
       nlohmann::json::parse(run_cli("clips list " + path + " --by jitter --worst 1 --json").out);
   EXPECT_EQ(j["clips"][0]["id"].get<int64_t>(), worst->id);
   EXPECT_NE(table.out.find("jitter"), std::string::npos) << table.out;
+  // --by self-intersections lists the stored counts (no decoding needed).
+  const nlohmann::json cross = nlohmann::json::parse(
+      run_cli("clips list " + path + " --by self-intersections --worst 0 --json").out);
+  ASSERT_EQ(cross["clips"].size(), clips.size());
+  for (const auto& row : cross["clips"]) {
+    for (const auto& c : clips) {
+      if (c.id == row["id"].get<int64_t>()) {
+        EXPECT_EQ(row["self_intersections"].get<int>(), c.self_intersections);
+      }
+    }
+  }
 
   const Output bad_metric = run_cli("clips list " + path + " --by wobble");
   EXPECT_EQ(bad_metric.status, 1);

@@ -356,14 +356,15 @@ Status Reader::cloth_states(std::vector<StoredState>* out, Error* err) {
                            });
 }
 
-// Version 1 files have no metric columns: they read as NULL (unknown).
+// Version 1 files have no metric columns, files before version 5 no self_intersections: they read
+// as NULL (unknown).
 static std::string clip_columns(int schema_version) {
   return std::string(
              "SELECT id, start_state, primary_clip, first_frame, frame_count, error_bound, "
              "max_error, max_strain, max_penetration, status, run, length(frames), ") +
          (schema_version >= 2 ? "mean_penetration, jitter, halved_steps, worst_frame"
                               : "NULL, NULL, NULL, NULL") +
-         " FROM cloth_clip";
+         (schema_version >= 5 ? ", self_intersections" : ", NULL") + " FROM cloth_clip";
 }
 
 static ClothClip clip_from_row(Stmt& s) {
@@ -384,6 +385,7 @@ static ClothClip clip_from_row(Stmt& s) {
   c.jitter = s.metric(13);
   c.halved_steps = s.count(14);
   c.worst_frame = s.count(15);
+  c.self_intersections = s.count(16);
   return c;
 }
 

@@ -126,6 +126,7 @@ struct ClipMetrics {
   double jitter = kUnknownMetric;            // m, RMS high-pass (4th difference) motion
   int32_t halved_steps = -1;                 // times the solver halved its step
   int32_t worst_frame = -1;                  // frame of the clip where it looks worst
+  int32_t self_intersections = -1;           // most edge-triangle crossings in one frame
 };
 
 // A cloth clip: frames simulated from a cloth state along one primary clip.
@@ -146,9 +147,11 @@ struct ClothClip {
   double jitter = kUnknownMetric;            // m
   int32_t halved_steps = -1;
   int32_t worst_frame = -1;
+  int32_t self_intersections = -1;
 
   ClipMetrics metrics() const {
-    return {max_strain, max_penetration, mean_penetration, jitter, halved_steps, worst_frame};
+    return {max_strain,   max_penetration, mean_penetration,  jitter,
+            halved_steps, worst_frame,     self_intersections};
   }
 };
 
@@ -225,6 +228,7 @@ struct NewClothClip {
   double jitter = kUnknownMetric;            // m
   int32_t halved_steps = -1;
   int32_t worst_frame = -1;
+  int32_t self_intersections = -1;
 
   void set_metrics(const ClipMetrics& m) {
     max_strain = m.max_strain;
@@ -233,6 +237,7 @@ struct NewClothClip {
     jitter = m.jitter;
     halved_steps = m.halved_steps;
     worst_frame = m.worst_frame;
+    self_intersections = m.self_intersections;
   }
 };
 

@@ -14,9 +14,10 @@ namespace clothdb::db {
 // worst_frame; cloth_edge: pop). Version 3: the edit log keeps each edit's changeset (exact undo
 // of edits that touch many rows) and the actions flag, unflag, import, resim, delete. Version 4:
 // the cloth_link and cloth_clip_steering tables. Version 5: the source_file table (the scene's
-// manifest and garment mesh, so a file rebuilds its scene from any directory) and the artist's
-// mesh (garment_mesh, garment_group; a file without one reads as a procedural garment, identity
-// map). Writer::open migrates older files in one transaction; the Reader reads them as they are.
+// manifest and garment mesh, so a file rebuilds its scene from any directory), the artist's mesh
+// (garment_mesh, garment_group; a file without one reads as a procedural garment, identity map)
+// and cloth_clip's self_intersections. Writer::open migrates older files in one transaction; the
+// Reader reads them as they are.
 constexpr int kSchemaVersion = 5;
 constexpr int32_t kApplicationId = 0x434C4442;  // "CLDB"
 

@@ -48,6 +48,12 @@ ALTER TABLE cloth_clip ADD COLUMN worst_frame INTEGER
 ALTER TABLE cloth_edge ADD COLUMN pop REAL;
 )sql";
 
+// Version 4 -> 5: the most edge-triangle crossings in one frame of a clip (NULL: not measured, as
+// for every clip written before).
+constexpr const char* kMigrateTo5Sql = R"sql(
+ALTER TABLE cloth_clip ADD COLUMN self_intersections INTEGER CHECK (self_intersections >= 0);
+)sql";
+
 // Version 2 -> 3: the edit log records every edit as a changeset (SQLite's session extension) and
 // takes the new actions; its clip is no longer a foreign key, since a deleted clip's edits stay
 // in the log. A CHECK cannot be altered in place, so the table is rebuilt (ids kept); foreign
@@ -184,7 +190,8 @@ CREATE INDEX IF NOT EXISTS cloth_state_at ON cloth_state(primary_clip, frame);)s
   mean_penetration REAL,
   jitter REAL,
   halved_steps INTEGER CHECK (halved_steps >= 0),
-  worst_frame INTEGER CHECK (worst_frame >= 0 AND worst_frame < frame_count)
+  worst_frame INTEGER CHECK (worst_frame >= 0 AND worst_frame < frame_count),
+  self_intersections INTEGER CHECK (self_intersections >= 0)
 );
 CREATE INDEX IF NOT EXISTS cloth_clip_from ON cloth_clip(start_state);)sql";
   if (name == "cloth_edge")
@@ -394,6 +401,7 @@ void Writer::migrate(int from_version) {
     exec(("PRAGMA defer_foreign_keys = ON; CREATE TABLE edit_log_v3(" +
           std::string(kEditLogColumns) + ";" + kMigrateTo3Sql)
              .c_str());
+  if (from_version < 5) exec(kMigrateTo5Sql);
   // Tables added since (cloth_link and cloth_clip_steering in version 4), from the registry.
   for (const TableInfo& t : tables())
     if (t.since_version > from_version && !t.on_demand) exec(table_sql(t.name).c_str());
@@ -650,8 +658,8 @@ int64_t Writer::add_cloth_clip_blob(const NewClothClip& clip, const std::vector<
   Stmt s(db_,
          "INSERT INTO cloth_clip(start_state, primary_clip, first_frame, frame_count, "
          "vertex_count, frames, error_bound, max_error, max_strain, max_penetration, status, "
-         "run, mean_penetration, jitter, halved_steps, worst_frame) "
-         "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+         "run, mean_penetration, jitter, halved_steps, worst_frame, self_intersections) "
+         "VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
   s.bind(1, clip.start_state).bind(2, clip.primary_clip).bind(3, int64_t(clip.first_frame));
   s.bind(4, int64_t(info.frame_count)).bind(5, int64_t(info.vertex_count));
   s.bind_blob(6, blob.data(), blob.size()).bind(7, info.bound).bind(8, max_error);
@@ -659,6 +667,7 @@ int64_t Writer::add_cloth_clip_blob(const NewClothClip& clip, const std::vector<
   s.bind(11, clip_status_name(clip.status)).bind_id_or_null(12, clip.run);
   s.bind_metric(13, clip.mean_penetration).bind_metric(14, clip.jitter);
   s.bind_count(15, clip.halved_steps).bind_count(16, clip.worst_frame);
+  s.bind_count(17, clip.self_intersections);
   if (!s.ok() || s.step() != SQLITE_DONE) throw_sql("adding a cloth clip");
   const int64_t id = sqlite3_last_insert_rowid(db_);
   t.commit();
@@ -706,10 +715,11 @@ void Writer::replace_cloth_links(const std::vector<ClothLink>& links) {
 void Writer::set_clip_metrics(int64_t clip, const ClipMetrics& m) {
   Stmt s(db_,
          "UPDATE cloth_clip SET max_strain = ?, max_penetration = ?, mean_penetration = ?, "
-         "jitter = ?, halved_steps = ?, worst_frame = ? WHERE id = ?");
+         "jitter = ?, halved_steps = ?, worst_frame = ?, self_intersections = ? WHERE id = ?");
   s.bind(1, m.max_strain).bind(2, m.max_penetration).bind_metric(3, m.mean_penetration);
   s.bind_metric(4, m.jitter).bind_count(5, m.halved_steps).bind_count(6, m.worst_frame);
-  if (!s.ok() || s.bind(7, clip).step() != SQLITE_DONE) throw_sql("setting clip metrics");
+  s.bind_count(7, m.self_intersections);
+  if (!s.ok() || s.bind(8, clip).step() != SQLITE_DONE) throw_sql("setting clip metrics");
   if (sqlite3_changes(db_) != 1)
     throw ClothdbError(Status::NotFound, path_ + ": no cloth clip " + std::to_string(clip));
 }

@@ -165,6 +165,7 @@ db::ClipMetrics to_clip_metrics(const ClipQuality& q) {
   m.jitter = q.jitter;
   m.halved_steps = q.halved_steps;
   m.worst_frame = q.worst_frame;
+  m.self_intersections = q.self_intersections;
   return m;
 }
 

@@ -2,10 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <stdexcept>
 #include <string>
-
-#include "cloth/self_intersection.hpp"
 
 namespace clothdb {
 
@@ -91,59 +90,144 @@ Vec3 unit_normal(const Eigen::Matrix3Xd& x, const std::array<int, 3>& t) {
   return len > 0.0 ? Vec3(n / len) : Vec3::Zero();
 }
 
-void build_candidates(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x) {
-  const ClothMesh& mesh = model.mesh;
-  const Eigen::Matrix3Xd& rest = mesh.rest;
-  const double* w = model.inv_mass.data();
-  const double reach = sc.thickness + sc.skin, reach_sq = reach * reach;
-  const double rest_sq = sc.thickness * sc.thickness;
-  sc.vertex_triangle.clear();
-  sc.edge_edge.clear();
-  double longest = 0.0;
-  const size_t edge_count = mesh.edges.size();
-  Eigen::Matrix3Xd mid(3, static_cast<Eigen::Index>(edge_count));
-  for (size_t e = 0; e < edge_count; ++e) {
-    const Vec3 p = x.col(mesh.edges[e][0]), q = x.col(mesh.edges[e][1]);
-    mid.col(static_cast<Eigen::Index>(e)) = 0.5 * (p + q);
-    longest = std::max(longest, (p - q).norm());
-  }
-  if (!std::isfinite(longest) || !(longest > 0.0)) return;  // the solver's sanity check reports it
-  // Cells about the size of a triangle's box grown by the reach: each query visits a few cells.
-  const double cell = longest + 2.0 * reach;
+// Boxes of mesh parts (vertices or edges) in a uniform grid of cubic cells hashed into a table of
+// 2^k buckets (Teschner et al. 2003, with a multiplicative hash so the table index is a shift, not
+// a division). Each entry keeps its cell's key and its box next to each other, so a query reads a
+// bucket's entries in a row and skips those of other cells sharing the bucket by key: no stamps,
+// and no part is visited twice. An entry is filed under the cell of its box's lower corner; a query
+// reaches down by the largest box extent to find the boxes that start below it. Entries of a
+// bucket are in index order (a stable counting sort): the same pairs in the same order for any
+// thread count.
+struct BoxGrid {
+  struct Entry {
+    std::uint64_t key;
+    int index;
+    double lo[3], hi[3];
+  };
+  double inv_cell = 1.0;
+  int shift = 63;
+  Vec3 extent = Vec3::Zero();  // largest box extent along each axis
+  std::vector<int> bucket_begin;
+  std::vector<Entry> entries;
 
-  // Vertex-triangle pairs.
-  PointGrid grid;
-  grid.build(x, cell);
-  std::vector<int> stamp(static_cast<size_t>(x.cols()), -1);
-  for (size_t ti = 0; ti < mesh.triangles.size(); ++ti) {
+  static long cell_of(double coordinate, double inv_cell) {
+    // Clamped to the key's 21 bits per axis (far-apart parts may share a cell: the box test
+    // decides).
+    return static_cast<long>(std::clamp(std::floor(coordinate * inv_cell), -1048575.0, 1048575.0));
+  }
+  static std::uint64_t key_of(long ix, long iy, long iz) {
+    constexpr long bias = 1L << 20;
+    return (static_cast<std::uint64_t>(ix + bias) << 42) |
+           (static_cast<std::uint64_t>(iy + bias) << 21) | static_cast<std::uint64_t>(iz + bias);
+  }
+  std::size_t bucket_of(std::uint64_t key) const {
+    return static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ULL) >> shift);  // Fibonacci hashing
+  }
+
+  // box(i, lo, hi) gives part i's box; count parts; cell > 0.
+  template <class Box>
+  void build(int count, double cell, Box&& box) {
+    inv_cell = 1.0 / cell;
+    int bits = 1;
+    while ((1L << bits) < 2L * count + 1) ++bits;  // at least twice as many buckets as parts
+    shift = 64 - bits;
+    const std::size_t table = std::size_t(1) << bits;
+    bucket_begin.assign(table + 1, 0);
+    std::vector<Entry> unsorted(static_cast<std::size_t>(count));
+    extent.setZero();
+    for (int i = 0; i < count; ++i) {
+      Entry& e = unsorted[static_cast<std::size_t>(i)];
+      Vec3 lo, hi;
+      box(i, lo, hi);
+      extent = extent.cwiseMax(hi - lo);
+      for (int k = 0; k < 3; ++k) {
+        e.lo[k] = lo[k];
+        e.hi[k] = hi[k];
+      }
+      e.index = i;
+      e.key = key_of(cell_of(lo[0], inv_cell), cell_of(lo[1], inv_cell), cell_of(lo[2], inv_cell));
+      ++bucket_begin[bucket_of(e.key) + 1];
+    }
+    for (std::size_t b = 0; b < table; ++b) bucket_begin[b + 1] += bucket_begin[b];
+    entries.resize(static_cast<std::size_t>(count));
+    std::vector<int> fill(bucket_begin.begin(), bucket_begin.end() - 1);
+    for (const Entry& e : unsorted) entries[static_cast<std::size_t>(fill[bucket_of(e.key)]++)] = e;
+  }
+
+  // Calls visit(index) for every part whose box overlaps [lo, hi].
+  template <class F>
+  void query(const Vec3& lo, const Vec3& hi, F&& visit) const {
+    const Vec3 from = lo - extent;
+    const long x0 = cell_of(from[0], inv_cell), x1 = cell_of(hi[0], inv_cell);
+    const long y0 = cell_of(from[1], inv_cell), y1 = cell_of(hi[1], inv_cell);
+    const long z0 = cell_of(from[2], inv_cell), z1 = cell_of(hi[2], inv_cell);
+    for (long ix = x0; ix <= x1; ++ix)
+      for (long iy = y0; iy <= y1; ++iy)
+        for (long iz = z0; iz <= z1; ++iz) {
+          const std::uint64_t key = key_of(ix, iy, iz);
+          const std::size_t b = bucket_of(key);
+          for (int k = bucket_begin[b]; k < bucket_begin[b + 1]; ++k) {
+            const Entry& e = entries[static_cast<std::size_t>(k)];
+            if (e.key != key || e.lo[0] > hi[0] || e.hi[0] < lo[0] || e.lo[1] > hi[1] ||
+                e.hi[1] < lo[1] || e.lo[2] > hi[2] || e.hi[2] < lo[2])
+              continue;
+            visit(e.index);
+          }
+        }
+  }
+};
+
+bool listed(const std::vector<int>& begin, const std::vector<int>& items, int owner, int other) {
+  for (int k = begin[static_cast<std::size_t>(owner)];
+       k < begin[static_cast<std::size_t>(owner) + 1]; ++k)
+    if (items[static_cast<std::size_t>(k)] == other) return true;
+  return false;
+}
+
+// Every vertex-triangle and edge-edge pair nearer than `reach` at positions x, except pairs that
+// share a vertex, pairs of only fixed vertices and the rest neighbours listed in sc (when
+// skip_rest_neighbours). Pairs in (triangle, vertex) and (first edge, second edge) order.
+void find_pairs(const SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
+                double reach, bool skip_rest_neighbours, std::vector<std::array<int, 2>>& vt,
+                std::vector<std::array<int, 2>>& ee) {
+  const ClothMesh& mesh = model.mesh;
+  const double* w = model.inv_mass.data();
+  const double reach_sq = reach * reach;
+  vt.clear();
+  ee.clear();
+  if (!x.allFinite() || mesh.edges.empty()) return;  // the solver's sanity check reports it
+  // Cells about as large as a query's box (a mean edge grown by the reach on both sides): each
+  // query reads a few cells of a few parts.
+  const double cell = sc.mean_edge + 2.0 * reach;
+  const Vec3 grow = Vec3::Constant(reach);
+
+  // Vertex-triangle pairs: each triangle's box grown by the reach, against the vertices.
+  BoxGrid grid;
+  grid.build(static_cast<int>(x.cols()), cell,
+             [&](int i, Vec3& lo, Vec3& hi) { lo = hi = x.col(i); });
+  for (std::size_t ti = 0; ti < mesh.triangles.size(); ++ti) {
     const std::array<int, 3>& t = mesh.triangles[ti];
     const int tri = static_cast<int>(ti);
     const Vec3 a = x.col(t[0]), b = x.col(t[1]), c = x.col(t[2]);
-    const Vec3 lo = a.cwiseMin(b).cwiseMin(c) - Vec3::Constant(reach);
-    const Vec3 hi = a.cwiseMax(b).cwiseMax(c) + Vec3::Constant(reach);
     const bool triangle_free = w[t[0]] + w[t[1]] + w[t[2]] > 0.0;
-    grid.query(lo, hi, [&](int v) {
-      int& seen = stamp[static_cast<size_t>(v)];
-      if (seen == tri) return;
-      seen = tri;
+    grid.query(a.cwiseMin(b).cwiseMin(c) - grow, a.cwiseMax(b).cwiseMax(c) + grow, [&](int v) {
       if (v == t[0] || v == t[1] || v == t[2]) return;
       if (!triangle_free && w[v] <= 0.0) return;
+      if (skip_rest_neighbours && listed(sc.rest_vt_begin, sc.rest_vt, tri, v)) return;
       const Vec3 p = x.col(v);
-      if ((p.array() < lo.array()).any() || (p.array() > hi.array()).any()) return;
       if ((closest_on_triangle(p, a, b, c) - p).squaredNorm() >= reach_sq) return;
-      const Vec3 pr = rest.col(v);
-      if ((closest_on_triangle(pr, rest.col(t[0]), rest.col(t[1]), rest.col(t[2])) - pr)
-              .squaredNorm() < rest_sq)
-        return;
-      sc.vertex_triangle.push_back({v, tri});
+      vt.push_back({tri, v});
     });
   }
 
-  // Edge-edge pairs: edges by midpoint; another edge's midpoint is within half the longest edge
-  // of any of its points.
-  grid.build(mid, cell);
-  stamp.assign(edge_count, -1);
-  const Vec3 grow = Vec3::Constant(reach + 0.5 * longest);
+  // Edge-edge pairs: each edge's box grown by the reach, against the edges' boxes.
+  const size_t edge_count = mesh.edges.size();
+  grid.build(static_cast<int>(edge_count), cell, [&](int e, Vec3& lo, Vec3& hi) {
+    const Vec3 p = x.col(mesh.edges[static_cast<std::size_t>(e)][0]);
+    const Vec3 q = x.col(mesh.edges[static_cast<std::size_t>(e)][1]);
+    lo = p.cwiseMin(q);
+    hi = p.cwiseMax(q);
+  });
   for (size_t ei = 0; ei < edge_count; ++ei) {
     const std::array<int, 2>& e1 = mesh.edges[ei];
     const int first = static_cast<int>(ei);
@@ -151,20 +235,31 @@ void build_candidates(SelfCollision& sc, const ClothModel& model, const Eigen::M
     const bool first_free = w[e1[0]] + w[e1[1]] > 0.0;
     grid.query(p1.cwiseMin(q1) - grow, p1.cwiseMax(q1) + grow, [&](int e) {
       if (e <= first) return;
-      int& seen = stamp[static_cast<size_t>(e)];
-      if (seen == first) return;
-      seen = first;
       const std::array<int, 2>& e2 = mesh.edges[static_cast<size_t>(e)];
       if (e2[0] == e1[0] || e2[0] == e1[1] || e2[1] == e1[0] || e2[1] == e1[1]) return;
       if (!first_free && w[e2[0]] + w[e2[1]] <= 0.0) return;
-      if (boxes_apart(p1, q1, x.col(e2[0]), x.col(e2[1]), reach)) return;
+      if (skip_rest_neighbours && listed(sc.rest_ee_begin, sc.rest_ee, first, e)) return;
       if (segment_distance_sq(p1, q1, x.col(e2[0]), x.col(e2[1])) >= reach_sq) return;
-      if (segment_distance_sq(rest.col(e1[0]), rest.col(e1[1]), rest.col(e2[0]), rest.col(e2[1])) <
-          rest_sq)
-        return;
-      sc.edge_edge.push_back({first, e});
+      ee.push_back({first, e});
     });
   }
+}
+
+// Pairs (owner, other) sorted by owner as compressed rows: begin[owner] .. begin[owner + 1].
+void to_rows(const std::vector<std::array<int, 2>>& pairs, int owners, std::vector<int>& begin,
+             std::vector<int>& items) {
+  begin.assign(static_cast<std::size_t>(owners) + 1, 0);
+  for (const auto& p : pairs) ++begin[static_cast<std::size_t>(p[0]) + 1];
+  for (int o = 0; o < owners; ++o)
+    begin[static_cast<std::size_t>(o) + 1] += begin[static_cast<std::size_t>(o)];
+  items.assign(pairs.size(), 0);
+  std::vector<int> fill(begin.begin(), begin.end() - 1);
+  for (const auto& p : pairs)
+    items[static_cast<std::size_t>(fill[static_cast<std::size_t>(p[0])]++)] = p[1];
+}
+
+void build_candidates(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x) {
+  find_pairs(sc, model, x, sc.thickness + sc.skin, true, sc.vertex_triangle, sc.edge_edge);
   sc.built_at = x;
   ++sc.builds;
 }
@@ -181,6 +276,17 @@ SelfCollision make_self_collision(const ClothModel& model, double thickness) {
   for (double l : model.edge_rest_length) mean_edge += l;
   if (!model.edge_rest_length.empty()) mean_edge /= double(model.edge_rest_length.size());
   sc.skin = std::max(thickness, 0.5 * mean_edge);
+  sc.mean_edge = mean_edge;
+  // Only pairs nearer than the thickness at rest: leaving out all pairs within thickness + skin at
+  // rest (a list of a few hundred pairs instead of 160,000 on the 12k skirt) let pairs two rings
+  // apart cross in tight folds: 20 crossings at worst and 615 of 687 frames with any on the 3k
+  // skirt over 01_01, against 4 and 71 (docs/notebook/self_collision.md, "Cost, second round").
+  sc.rest_gap = thickness;
+  // The rest neighbours: every pair nearer than rest_gap in the rest shape, found once.
+  std::vector<std::array<int, 2>> vt, ee;
+  find_pairs(sc, model, model.mesh.rest, sc.rest_gap, false, vt, ee);
+  to_rows(vt, static_cast<int>(model.mesh.triangles.size()), sc.rest_vt_begin, sc.rest_vt);
+  to_rows(ee, static_cast<int>(model.mesh.edges.size()), sc.rest_ee_begin, sc.rest_ee);
   return sc;
 }
 
@@ -191,9 +297,19 @@ bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Ei
     // displacements d since the build and any common m: measured from the centre of the
     // displacements' box, a garment carried along by the body (a walk, a jump) keeps its lists
     // for as long as its shape changes by less than skin / 2.
-    const Eigen::Matrix3Xd d = x - sc.built_at;
-    const Vec3 m = 0.5 * (d.rowwise().minCoeff() + d.rowwise().maxCoeff());
-    stale = !((d.colwise() - m).colwise().squaredNorm().maxCoeff() <= 0.25 * sc.skin * sc.skin);
+    // Two passes over the positions, no scratch matrix: this runs every sub-step.
+    Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
+    for (Eigen::Index i = 0; i < x.cols(); ++i) {
+      const Vec3 d = x.col(i) - sc.built_at.col(i);
+      lo = lo.cwiseMin(d);
+      hi = hi.cwiseMax(d);
+    }
+    const Vec3 m = 0.5 * (lo + hi);
+    const double limit = 0.25 * sc.skin * sc.skin;
+    double worst = 0.0;
+    for (Eigen::Index i = 0; i < x.cols(); ++i)
+      worst = std::max(worst, (x.col(i) - sc.built_at.col(i) - m).squaredNorm());
+    stale = !(worst <= limit);  // NaN positions rebuild (and the solver's check reports them)
   }
   if (stale) build_candidates(sc, model, x);
   return stale;
@@ -204,24 +320,17 @@ int project_self_collision(SelfCollision& sc, const ClothModel& model, Eigen::Ma
   const ClothMesh& mesh = model.mesh;
   const double* w = model.inv_mass.data();
   const double h = sc.thickness;
-  const size_t tri_count = mesh.triangles.size();
-  sc.normal.resize(tri_count);
-  sc.normal_start.resize(tri_count);
-  // Normals once per pass (the pass moves each vertex by at most about the thickness).
-  for (size_t t = 0; t < tri_count; ++t) {
-    sc.normal[t] = unit_normal(x, mesh.triangles[t]);
-    sc.normal_start[t] = unit_normal(x_start, mesh.triangles[t]);
-  }
   int contacts = 0;
   // Vertex-triangle: C = sigma (p - q) . n - h >= 0 with q = sum b_k x_k the projection of p onto
   // the triangle's plane, sigma the side p was on at the sub-step's start. Gradients sigma n for p
   // and -sigma b_k n for the corners (the normal's own derivative is left out, as usual for
   // contacts); the PBD step moves each by -C w grad / sum w |grad|^2 (Mueller 2007 eq. 4-5).
   for (const std::array<int, 2>& pair : sc.vertex_triangle) {
-    const int v = pair[0];
-    const std::array<int, 3>& t = mesh.triangles[static_cast<size_t>(pair[1])];
-    const Vec3& n = sc.normal[static_cast<size_t>(pair[1])];
-    const Vec3& n0 = sc.normal_start[static_cast<size_t>(pair[1])];
+    const int v = pair[1];
+    const std::array<int, 3>& t = mesh.triangles[static_cast<size_t>(pair[0])];
+    // Normals per pair, not cached per triangle: on the 12k skirt about twice as many normals
+    // (51k listed pairs, 24k triangles); not measured apart.
+    const Vec3 n = unit_normal(x, t), n0 = unit_normal(x_start, t);
     const Vec3 a = x.col(t[0]);
     const double dist = (x.col(v) - a).dot(n);
     const double dist_start = (x_start.col(v) - x_start.col(t[0])).dot(n0);

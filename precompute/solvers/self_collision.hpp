@@ -4,21 +4,24 @@
 // closest points; Mueller et al. 2007 sec. 4.2 / Macklin 2016 for projecting C >= 0 with
 // inverse-mass weights).
 //
-// Cost: candidates are found with a spatial hash (cloth/self_intersection.hpp, PointGrid) only
-// when needed. A build lists every pair closer than thickness + skin (a Verlet list); it stays
+// Cost: candidates are found with a spatial hash (a grid of boxes, self_collision.cpp) only when
+// needed. A build lists every pair closer than thickness + skin (a Verlet list); it stays
 // complete until some vertex has moved more than skin / 2 since the build, relative to the
 // garment's common motion (a pair's distance changes by at most the sum of two vertex
 // displacements relative to any common vector), which is checked every sub-step in O(vertices). So
 // a slowly moving garment is hashed once every few frames, a fast one a few times per frame, and
-// every sub-step tests only the listed pairs.
+// every sub-step tests only the listed pairs. Pairs nearer than the thickness in the rest shape
+// (neighbours on the mesh) are found once, in make_self_collision, and skipped by a scan of a short
+// row instead of a closest-point test at every build (docs/notebook/self_collision.md, "Cost,
+// second round", also for why pairs up to thickness + skin apart at rest must stay listed).
 //
 // Side: each contact is pushed to the side its pair was on at the start of the sub-step, so a
 // pair that went through within one sub-step is put back, not pushed further through.
 //
 // Determinism: the build and the projection are serial, in index order (Gauss-Seidel over the
-// contact list), so the result does not depend on the thread count. Pairs of parts that are
-// nearer than `thickness` at rest (neighbours on the mesh) are never listed: they cannot be moved
-// apart and are held by the stretch and bending constraints instead.
+// contact list), so the result does not depend on the thread count. The rest neighbours left out
+// cannot be pushed apart (they are nearer than the thickness by construction) and are held by the
+// stretch and bending constraints instead.
 #pragma once
 
 #include <Eigen/Core>
@@ -32,14 +35,19 @@ namespace clothdb {
 struct SelfCollision {
   double thickness = 0.0;  // m
   double skin = 0.0;       // m: how much farther than thickness a listed pair may be at build
-  // Candidate pairs of the last build: (vertex, triangle) and (edge, edge) with edge indices into
+  double mean_edge = 0.0;  // m, mean rest edge length (sets the hash's cell size)
+  // m: pairs nearer than this in the rest shape (the thickness) are neighbours on the mesh and
+  // never listed.
+  double rest_gap = 0.0;
+  // Those rest neighbours, found once: for triangle t the vertices rest_vt[rest_vt_begin[t] ..
+  // rest_vt_begin[t + 1]), for edge e the edges after it likewise in rest_ee.
+  std::vector<int> rest_vt_begin, rest_vt, rest_ee_begin, rest_ee;
+  // Candidate pairs of the last build: (triangle, vertex) and (edge, edge) with edge indices into
   // mesh.edges, the first less than the second.
   std::vector<std::array<int, 2>> vertex_triangle;
   std::vector<std::array<int, 2>> edge_edge;
   Eigen::Matrix3Xd built_at;  // positions at the last build (empty: never built)
   long builds = 0;            // how many builds so far (reported by describe / benchmarks)
-  // Per-sub-step scratch: unit triangle normals now and at the sub-step's start.
-  std::vector<Vec3> normal, normal_start;
 };
 
 // A SelfCollision for `model` with thickness (m) > 0. The skin is half the mean rest edge length,

@@ -463,6 +463,7 @@ TEST(Edit, AVersion2FileIsMigratedWithItsEditLogAndItsOldEditsAreKeptNotUndone) 
     sqlite3* h = nullptr;
     ASSERT_EQ(sqlite3_open(path.c_str(), &h), SQLITE_OK);
     const std::string sql =
+        "ALTER TABLE cloth_clip DROP COLUMN self_intersections; "
         "DROP TABLE edit_log; CREATE TABLE edit_log(id INTEGER PRIMARY KEY, time TEXT NOT NULL, "
         "author TEXT NOT NULL, clip INTEGER NOT NULL REFERENCES cloth_clip(id), action TEXT NOT "
         "NULL CHECK (action IN ('set-status', 'replace-frames', 'undo')), description TEXT NOT "
@@ -772,13 +773,17 @@ TEST(SelfContained, AnOlderFileAsksForTheSceneAndADifferentSceneIsRefusedByField
   test::remove_database(db);
   fs::copy_file(self_contained_db(), db);
   {
-    // What a file made before the sources were stored looks like (schema 4).
+    // What a file made before the sources were stored looks like (schema 4: none of version 5's
+    // tables and columns).
     sqlite3* h = nullptr;
     ASSERT_EQ(sqlite3_open(db.c_str(), &h), SQLITE_OK);
     char* msg = nullptr;
-    ASSERT_EQ(
-        sqlite3_exec(h, "DROP TABLE source_file; PRAGMA user_version = 4;", nullptr, nullptr, &msg),
-        SQLITE_OK)
+    ASSERT_EQ(sqlite3_exec(h,
+                           "DROP TABLE source_file; DROP TABLE garment_mesh; DROP TABLE "
+                           "garment_group; ALTER TABLE cloth_clip DROP COLUMN self_intersections; "
+                           "PRAGMA user_version = 4;",
+                           nullptr, nullptr, &msg),
+              SQLITE_OK)
         << msg;
     sqlite3_close(h);
   }
