@@ -237,6 +237,9 @@ PrecomputeOutcome run_precompute(const PrecomputeRequest& request, std::FILE* lo
   PrecomputeOutcome out;
   const SceneFile file = load_scene_file(request.scene);
   CharacterScene scene = build_character_scene(file);
+  if (log)
+    for (const std::string& line : placement_lines(scene.placement))
+      std::fprintf(log, "%s: %s\n", request.scene.c_str(), line.c_str());
   ExploreOptions options = request.explore;
   options.auto_solver = request.automatic;
   options.threads = options.threads > 0
