@@ -87,6 +87,8 @@ TEST(HostileInputs, PlayRefusesNumbersOutsideItsLimits) {
   const std::string db = demo_db();
   const std::string out = (work_dir() / "play_out").string();
   expect_refused({"play", db, "--out", out, "--seconds", "inf"}, {"--seconds inf", "[0, 3600]"});
+  expect_refused({"play", db, "--out", out, "--view", "top"},
+                 {"--view", "unknown view 'top'", "front, back or side"});
   expect_refused({"play", db, "--out", out, "--seconds", "nan"}, {"--seconds nan"});
   expect_refused({"play", db, "--out", out, "--seconds", "1e7"}, {"--seconds 1e+07", "[0, 3600]"});
   expect_refused({"play", db, "--out", out, "--seconds", "-1"}, {"--seconds -1"});
