@@ -279,7 +279,7 @@ void run_play(const PlayArgs& a) {
   // The body under the cloth: the colliders at each frame's primary clip and frame (the nearest
   // stored pose), in character space like the cloth, from the scene the database was made from
   // (as `clothdb view` draws it). Without that scene, the cloth is written alone, with the reason.
-  std::vector<std::vector<CapsuleCollider>> body;
+  std::vector<std::vector<CapsuleCollider>> body, skeleton;  // skeleton: for the previews
   std::string body_note;
   PreviewView view = PreviewView::Front;
   try {
@@ -295,9 +295,11 @@ void run_play(const PlayArgs& a) {
       const auto& poses = it->second->poses;
       const size_t k = std::min(poses.size() - 1, size_t(std::max(0.0, std::round(frame))));
       body.push_back(character_space_capsules(ds.scene, {poses[k]}).front());
+      skeleton.push_back(character_space_skeleton(ds.scene, {poses[k]}).front());
     }
   } catch (const std::exception& e) {
     body.clear();
+    skeleton.clear();
     body_note = e.what();
     std::fprintf(stderr, "play: writing the cloth without the body: %s\n", e.what());
   }
@@ -350,7 +352,10 @@ void run_play(const PlayArgs& a) {
       PreviewScene scene;
       scene.cloth = &m;
       scene.triangles = &triangles;
-      if (!body.empty()) scene.capsules = body[size_t(f)];
+      if (!body.empty()) {
+        scene.capsules = body[size_t(f)];
+        scene.skeleton = skeleton[size_t(f)];
+      }
       scene.floor_height = floor;
       char name[64];
       std::snprintf(name, sizeof name, "/previews/frame_%04d.png", f);
