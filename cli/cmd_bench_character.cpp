@@ -126,6 +126,8 @@ void register_bench_character(CLI::App& bench) {
       std::printf("scene %s, clip %s (%d frames at %g Hz), %s\n", file.path.c_str(),
                   clip.name.c_str(), std::min(options.frames, clip.frame_count), clip.rate,
                   cpu_model().c_str());
+      for (const std::string& line : placement_lines(scene.placement))
+        std::printf("  %s\n", line.c_str());
       std::printf(
           "fastest capsule: %s at %.2f m/s (%.1f mm per frame, radius %.1f mm) arriving at frame "
           "%d\n",

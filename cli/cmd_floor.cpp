@@ -81,6 +81,8 @@ void register_floor(CLI::App& app) {
                 args->scene.c_str(), scene.garment.name.c_str(), scene.model.vertex_count(),
                 solver_name(scene.file.solver), chosen.graph.node_count(),
                 chosen.graph.edge_count());
+    for (const std::string& line : placement_lines(scene.placement))
+      std::printf("             %s\n", line.c_str());
     std::fflush(stdout);
     const ErrorFloor f = measure_error_floor(scene, graph, options);
     if (f.fallback) std::printf("note         %s\n", f.note.c_str());

@@ -12,6 +12,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <memory>
 #include <random>
 #include <sstream>
@@ -26,7 +27,10 @@
 #include "compress/recode.hpp"
 #include "database/codec/codec.hpp"
 #include "database/store/writer.hpp"
+#include "exchange/body_mesh.hpp"
 #include "exchange/point_cache.hpp"
+#include "explore/explorer.hpp"
+#include "quality/clip_quality.hpp"
 #include "render/preview.hpp"
 #include "report/output.hpp"
 #include "report/stats.hpp"
@@ -113,6 +117,8 @@ std::vector<int64_t> cloth_clip_ids(const std::string& path) {
 
 struct PlayArgs {
   std::string file, path = "random", out;
+  std::string scene;          // scene file to rebuild the body from; empty: the database's
+  std::string view = "auto";  // preview camera: front, back, side; auto: the garment's
   double seconds = 10, fps = 0, blend_frames = 8;
   uint64_t seed = 1;
   int preview_every = 30, width = 480, height = 360;
@@ -138,6 +144,11 @@ void validate_play(const PlayArgs& a) {
   if (!std::isfinite(a.blend_frames) || a.blend_frames < 0 || a.blend_frames > 1e6)
     bad("--blend-frames " + fmt_g(a.blend_frames) + ": expected a number of frames in [0, 1e6]");
   if (a.preview_every < 0) bad("--preview-every must be >= 0 (0: no previews)");
+  if (a.view != "auto") try {
+      parse_preview_view(a.view);
+    } catch (const std::invalid_argument& e) {
+      bad(std::string("--view: ") + e.what() + " or auto");
+    }
   if (a.width < 16 || a.width > kMaxPreviewSide || a.height < 16 || a.height > kMaxPreviewSide)
     bad("--width " + std::to_string(a.width) + " --height " + std::to_string(a.height) +
         ": preview sides must be in [16, " + std::to_string(kMaxPreviewSide) + "] pixels");
@@ -223,6 +234,7 @@ void run_play(const PlayArgs& a) {
   csv << "frame,time_s,primary_clip,primary_frame,cloth_clip,cloth_state,blending,blend_weight,"
          "fallback,holding,status\n";
   std::vector<float> x(n);
+  std::vector<std::pair<int64_t, double>> primary;  // per frame: primary clip and frame
   clothrt_frame_info info{};
   int errors = 0;
   const long max_frames = a.seconds > 0 ? long(std::lround(a.seconds * fps)) + 1 : 0;
@@ -253,6 +265,7 @@ void run_play(const PlayArgs& a) {
     rt.check(clothrt_player_get_positions(p, x.data(), 12, nullptr), "positions", p);
     pc.positions.insert(pc.positions.end(), x.begin(), x.end());
     ++pc.frame_count;
+    primary.push_back({info.primary_clip, info.primary_frame});
     csv << f << ',' << double(f) / fps << ',' << info.primary_clip << ',' << info.primary_frame
         << ',' << info.cloth_clip << ',' << info.cloth_state << ',' << info.blending << ','
         << info.blend_weight << ',' << info.fallback << ',' << info.holding << ','
@@ -262,6 +275,36 @@ void run_play(const PlayArgs& a) {
   std::vector<std::array<int, 3>> triangles(tri.size() / 3);
   for (size_t t = 0; t < triangles.size(); ++t)
     triangles[t] = {int(tri[3 * t]), int(tri[3 * t + 1]), int(tri[3 * t + 2])};
+
+  // The body under the cloth: the colliders at each frame's primary clip and frame (the nearest
+  // stored pose), in character space like the cloth, from the scene the database was made from
+  // (as `clothdb view` draws it). Without that scene, the cloth is written alone, with the reason.
+  std::vector<std::vector<CapsuleCollider>> body, skeleton;  // skeleton: for the previews
+  std::string body_note;
+  PreviewView view = PreviewView::Front;
+  try {
+    db::Reader reader = open_reader(a.file);
+    const DatabaseScene ds = load_database_scene(reader, a.scene);
+    if (ds.scene.file.garment_kind == GarmentKind::Cape) view = PreviewView::Back;
+    std::map<int64_t, const ExploreEdge*> edge_of;
+    for (const ExploreEdge& e : ds.graph.edges) edge_of[e.db_clip] = &e;
+    for (const auto& [clip, frame] : primary) {
+      const auto it = edge_of.find(clip);
+      if (it == edge_of.end() || it->second->poses.empty())
+        throw std::runtime_error("primary clip " + std::to_string(clip) + " has no poses");
+      const auto& poses = it->second->poses;
+      const size_t k = std::min(poses.size() - 1, size_t(std::max(0.0, std::round(frame))));
+      body.push_back(character_space_capsules(ds.scene, {poses[k]}).front());
+      skeleton.push_back(character_space_skeleton(ds.scene, {poses[k]}).front());
+    }
+  } catch (const std::exception& e) {
+    body.clear();
+    skeleton.clear();
+    body_note = e.what();
+    std::fprintf(stderr, "play: writing the cloth without the body: %s\n", e.what());
+  }
+  if (a.view != "auto") view = parse_preview_view(a.view);
+
   Staging stage(a.out);
   std::vector<std::string> written = {"garment.obj", "cloth.pc2", "path.csv"};
   {
@@ -276,6 +319,20 @@ void run_play(const PlayArgs& a) {
     write_pc2(stage.path("cloth.pc2"), artist_pc);
   }
   write_file_atomic(stage.path("path.csv"), csv.str());
+  if (!body.empty()) {
+    // Blender: import body.obj and add a Mesh Cache modifier with body.pc2, as for the cloth.
+    PointCache bc;
+    for (const auto& capsules : body) {
+      append_capsule_mesh_positions(capsules, bc.positions);
+      ++bc.frame_count;
+    }
+    bc.vertex_count = int(bc.positions.size() / (3 * size_t(bc.frame_count)));
+    write_obj(stage.path("body.obj"), "body", bc.positions.data(), bc.vertex_count,
+              capsule_mesh_triangles(int(body.front().size())));
+    write_pc2(stage.path("body.pc2"), bc);
+    written.push_back("body.obj");
+    written.push_back("body.pc2");
+  }
   int previews = 0;
   if (a.preview_every > 0) {
     written.push_back("previews");
@@ -293,13 +350,22 @@ void run_play(const PlayArgs& a) {
       all.conservativeResize(3, all.cols() + m.cols());
       all.rightCols(m.cols()) = m;
     }
-    const PreviewCamera cam = frame_points(all, 1.5);
+    // The camera frames the garment (over every previewed frame), from the chosen side.
+    const PreviewCamera cam = frame_points(all, 1.5, view);
+    double floor = all.row(1).minCoeff() - 0.05;
+    for (const auto& capsules : body)
+      for (const CapsuleCollider& c : capsules)
+        floor = std::min(floor, std::min(c.a.y(), c.b.y()) - c.radius);
     for (int f = 0; f < pc.frame_count; f += a.preview_every) {
       const Eigen::Matrix3Xd m = frame_matrix(f);
       PreviewScene scene;
       scene.cloth = &m;
       scene.triangles = &triangles;
-      scene.floor_height = all.row(1).minCoeff() - 0.05;
+      if (!body.empty()) {
+        scene.capsules = body[size_t(f)];
+        scene.skeleton = skeleton[size_t(f)];
+      }
+      scene.floor_height = floor;
       char name[64];
       std::snprintf(name, sizeof name, "/previews/frame_%04d.png", f);
       write_png(stage.dir.string() + name, render_preview(scene, cam, a.width, a.height), a.width,
@@ -313,10 +379,13 @@ void run_play(const PlayArgs& a) {
   std::printf(
       "played %d frames at %g fps (%.2f s): %llu transitions, %llu fallbacks, %llu "
       "interrupted blends, %d errors; %llu clips decoded, cache %.1f MB\n"
-      "wrote %s/{garment.obj,cloth.pc2,path.csv} and %d previews (character space)\n",
+      "wrote %s/{garment.obj,cloth.pc2,path.csv%s} and %d previews from the %s (character "
+      "space)%s%s\n",
       pc.frame_count, fps, (pc.frame_count - 1) / fps, (unsigned long long)info.transitions,
       (unsigned long long)info.fallbacks, (unsigned long long)info.interrupted_blends, errors,
-      (unsigned long long)stats.clip_loads, stats.cache_bytes / 1048576.0, a.out.c_str(), previews);
+      (unsigned long long)stats.clip_loads, stats.cache_bytes / 1048576.0, a.out.c_str(),
+      body.empty() ? "" : ",body.obj,body.pc2", previews, preview_view_name(view),
+      body.empty() ? "; no body: " : "", body_note.c_str());
 }
 
 // ---- clothdb bench runtime --------------------------------------------------------------------
@@ -602,8 +671,9 @@ void register_play_commands(CLI::App& app) {
       "play",
       "Plays a path through a database's motion graph with the runtime library and writes "
       "DIR/garment.obj + DIR/cloth.pc2 on the artist's mesh (Blender: import the OBJ, add a Mesh "
-      "Cache modifier with "
-      "the PC2), DIR/path.csv (clip, state, blend and fallback per frame) and PNG previews in "
+      "Cache modifier with the PC2), the body's colliders beside it as DIR/body.obj + "
+      "DIR/body.pc2 (when the scene the database was made from can be rebuilt), DIR/path.csv "
+      "(clip, state, blend and fallback per frame) and PNG previews of cloth and body in "
       "DIR/previews/. Positions are in character space.");
   cmd->add_option("FILE", a->file, "Database")->required();
   cmd->add_option("--path", a->path,
@@ -621,6 +691,13 @@ void register_play_commands(CLI::App& app) {
   cmd->add_option("--preview-every", a->preview_every, "A PNG preview every N frames (0: none)")
       ->capture_default_str();
   cmd->add_option("--width", a->width, "Preview width")->capture_default_str();
+  cmd->add_option("--view", a->view,
+                  "Previews seen from the front, back or side; auto: from the back for a cape, "
+                  "else the front")
+      ->capture_default_str();
+  cmd->add_option("--scene", a->scene,
+                  "Scene file to rebuild the body from (default: the path the database records; "
+                  "its content must match)");
   cmd->add_option("--height", a->height, "Preview height")->capture_default_str();
   cmd->callback([a] { run_play(*a); });
 }

@@ -82,6 +82,8 @@ void register_simulate(CLI::App& app) {
         file.path.c_str(), scene.garment.name.c_str(), scene.model.vertex_count(),
         scene.body.capsules.size(), clip.name.c_str(), clip.frame_count, clip.rate,
         solver->describe().c_str());
+    for (const std::string& line : placement_lines(scene.placement))
+      std::fprintf(stderr, "  %s\n", line.c_str());
 
     ClothState state = settle_garment(scene, *solver, clip_pose(clip, 0));
     const int frames =

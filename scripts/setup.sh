@@ -13,6 +13,9 @@ PACKAGES=(cmake g++ make pkg-config libeigen3-dev libomp-dev libassimp-dev assim
   libsqlite3-dev libzstd-dev libcli11-dev nlohmann-json3-dev libsuitesparse-dev libpng-dev
   libgtest-dev libosmesa6-dev libglu1-mesa-dev clang-14 libclang-rt-14-dev libopenmpi-dev openmpi-bin
   libmeshoptimizer-dev libopenblas0-serial python3 libcpp-httplib-dev)
+# Not installed here, as no test needs them: `blender` and `python3-numpy` (its glTF exporter
+# imports numpy, which Debian's blender package does not pull in) only remake the Blender-written
+# motion fixtures of tests/data/blender/ (scripts/make_blender_fixtures.py).
 # The browser test of `clothdb view` (tests/browser/) needs Debian's Chromium (about 100 MB more):
 # only when asked, as .ci/run does. Without it that test is skipped.
 if [ "${CLOTHDB_BROWSER:-0}" = 1 ]; then PACKAGES+=(chromium); fi

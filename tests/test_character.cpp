@@ -766,3 +766,64 @@ TEST(Character, ImplausibleSkeletonIsWarnedNamingTheManifestField) {
   const std::string fine = write_manifest(R"(, "scale": 0.0564444, "up_axis": "y")");
   EXPECT_EQ(fine.find("warning"), std::string::npos) << fine;
 }
+
+// FBX and glTF written by Blender 3.4 from the first 2 s of 01_01.bvh with the exporters' defaults
+// (scripts/make_blender_fixtures.py, docs/guide/garment_placement.md#motion-from-blender): the
+// same joints, rate, frames and motion as the BVH's frames 0..240. Blender's quirks are in them:
+// the FBX's armature object is a static node above Hips, keyed with the bones; the glTF's keys
+// start at 1/120 s (Blender frame 1).
+TEST(Motion, BlenderFbxAndGltfMatchTheBvh) {
+  const fs::path dir = fs::path(CLOTHDB_SOURCE_DIR) / "tests/data/blender";
+  MotionLoadOptions bvh_options;
+  bvh_options.scale = kCmuScale;
+  bvh_options.last_frame = 240;  // 2 s at 120 Hz: Blender frames 1..241
+  const LoadedMotion bvh = load_motion(testmodel("BVH/01_01.bvh"), bvh_options);
+  ASSERT_EQ(bvh.clip.frame_count, 241);
+  std::map<std::pair<std::string, int>, double> bvh_radius;
+  for (const BoneCapsule& c : all_bone_capsules(bvh.skeleton))
+    bvh_radius[{bvh.skeleton.names[c.joint], c.child}] = c.radius;
+  // Tolerances: the glTF holds every frame in single precision (measured 1.3e-6 m); Blender's FBX
+  // exporter drops keys its default "Simplify" (1.0) finds redundant (LeftForeArm keeps 186 of 241)
+  // and the curves between them miss by up to 4.4 mm (measured, a finger).
+  const std::pair<const char*, double> files[] = {{"01_01_blender.fbx", 1e-2},
+                                                  {"01_01_blender.glb", 1e-5}};
+  for (const auto& [name, tolerance] : files) {
+    SCOPED_TRACE(name);
+    const LoadedMotion m = load_motion(dir / name);  // the file's own units, axis and rate
+    EXPECT_EQ(m.skeleton.names.front(), "Hips") << "the armature object is not a joint";
+    ASSERT_EQ(m.skeleton.names, bvh.skeleton.names);
+    EXPECT_EQ(m.skeleton.parents, bvh.skeleton.parents);
+    EXPECT_NEAR(m.clip.rate, 120.0, 0.01);
+    EXPECT_EQ(m.clip.frame_count, bvh.clip.frame_count);
+    ASSERT_EQ(m.clip.joint_count, bvh.clip.joint_count);
+    // Every joint of every frame where the BVH puts it; a one-frame shift is 0.68 m off (frame 0
+    // is CMU's calibration T-pose).
+    double worst = 0, worst_shifted = 0;
+    for (int f = 0; f < m.clip.frame_count; ++f)
+      for (int j = 0; j < m.clip.joint_count; ++j) {
+        worst = std::max(worst, (m.clip.position(f, j) - bvh.clip.position(f, j)).norm());
+        if (f + 1 < m.clip.frame_count)
+          worst_shifted =
+              std::max(worst_shifted, (m.clip.position(f, j) - bvh.clip.position(f + 1, j)).norm());
+      }
+    std::printf("%s against the BVH: worst joint %.3g m (one frame off: %.3g m)\n", name, worst,
+                worst_shifted);
+    EXPECT_LT(worst, tolerance);
+    EXPECT_GT(worst_shifted, 5e-2) << "the comparison can tell a one-frame shift";
+    // Capsules: the same radius for every bone in every format (the skeleton's size is its
+    // joints' extent; end sites, which only some formats have, do not count), and a head.
+    const double size_ratio = skeleton_size(m.skeleton) / skeleton_size(bvh.skeleton);
+    EXPECT_NEAR(size_ratio, 1.0, 0.005);
+    bool head = false;
+    int compared = 0;
+    for (const BoneCapsule& c : all_bone_capsules(m.skeleton)) {
+      head = head || m.skeleton.names[c.joint] == "Head";
+      const auto it = bvh_radius.find({m.skeleton.names[c.joint], c.child});
+      if (it == bvh_radius.end()) continue;
+      EXPECT_NEAR(c.radius, it->second, 0.005 * it->second) << m.skeleton.names[c.joint];
+      ++compared;
+    }
+    EXPECT_TRUE(head) << "the head has a capsule";
+    EXPECT_GE(compared, 20);
+  }
+}

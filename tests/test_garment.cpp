@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <utility>
 #include <vector>
 
@@ -457,6 +458,58 @@ std::vector<std::array<uint32_t, 3>> obj_corners(const ObjMesh& m) {
 
 }  // namespace
 
+namespace {
+
+// A skirt-like tube of 16 x 6 vertices around the rest pose's Hips (at the origin in CMU's rest
+// pose): radius 0.14 m at the top, growing by `flare` per row (so the thighs stay inside), rows
+// 0.1 m apart from y = 0 down, moved by `offset` and multiplied by `scale` (file units). The top
+// row is pinned to Hips by a height band.
+std::string tube_scene(const std::string& name, const Eigen::Vector3d& offset, double scale = 1.0,
+                       double flare = 0.032) {
+  std::string obj;
+  const int columns = 16, rows = 6;
+  for (int r = 0; r < rows; ++r)
+    for (int c = 0; c < columns; ++c) {
+      const double a = 2 * 3.14159265358979 * c / columns;
+      const Eigen::Vector3d p = scale * (Eigen::Vector3d((0.14 + flare * r) * std::cos(a), -0.1 * r,
+                                                         (0.14 + flare * r) * std::sin(a)) +
+                                         offset);
+      obj += "v " + std::to_string(p.x()) + " " + std::to_string(p.y()) + " " +
+             std::to_string(p.z()) + "\n";
+    }
+  for (int r = 0; r + 1 < rows; ++r)
+    for (int c = 0; c < columns; ++c) {
+      const int a = r * columns + c + 1, b = r * columns + (c + 1) % columns + 1;
+      obj += "f " + std::to_string(a) + " " + std::to_string(a + columns) + " " +
+             std::to_string(b + columns) + " " + std::to_string(b) + "\n";
+    }
+  const std::string path = write_temp(name + ".obj", obj);
+  const Eigen::Vector3d pin_centre = scale * offset;
+  // Pins: the vertices within 0.16 m of the Hips joint's bone as placed (the top row only).
+  return temp_scene(name + ".json",
+                    "\"clips\": [\"01_01\"], \"garment\": {\"type\": \"mesh\", \"file\": \"" +
+                        path + "\", \"scale\": " + std::to_string(1.0 / scale) +
+                        ", \"bone\": \"Hips\", \"pins\": {\"height_band\": [" +
+                        std::to_string(pin_centre.y() - 0.01) + ", " +
+                        std::to_string(pin_centre.y() + 0.01) + "]}}");
+}
+
+// build_character_scene's error ("" when it loads) and what it printed on stderr.
+std::pair<std::string, std::string> build_scene(const std::string& scene_file,
+                                                PlacementReport* report = nullptr) {
+  testing::internal::CaptureStderr();
+  std::string error;
+  try {
+    const CharacterScene scene = build_character_scene(load_scene_file(scene_file));
+    if (report) *report = scene.placement;
+  } catch (const std::exception& e) {
+    error = e.what();
+  }
+  return {error, testing::internal::GetCapturedStderr()};
+}
+
+}  // namespace
+
 TEST(Garment, MeshGarmentKeepsTheArtistsTopologyAndGroups) {
   const SceneFile file = load_scene_file(kMotions + "quad_skirt_walk.json");
   const LoadedMotion motion = load_clip(file.manifest, 0);
@@ -602,5 +655,86 @@ TEST(Garment, ArtistsMeshRoundTripsThroughTheDatabaseAndClipExport) {
     FAIL();
   } catch (const std::runtime_error& e) {
     EXPECT_NE(std::string(e.what()).find("7 vertices"), std::string::npos) << e.what();
+  }
+}
+
+// A garment lives in the skeleton's rest pose (docs/guide/garment_placement.md): one placed there
+// loads quietly and reports its pins; one a little off is warned about; one modelled on a posed
+// frame or standing on the floor, or in centimetres, is refused naming the distance and the cause.
+TEST(Garment, PlacementIsReportedWarnedAndRefused) {
+  PlacementReport r;
+  const std::string good = tube_scene("placed", {0, 0, 0});
+  const auto [good_error, good_log] = build_scene(good, &r);
+  ASSERT_EQ(good_error, "");
+  EXPECT_EQ(good_log.find("warning"), std::string::npos) << good_log;
+  EXPECT_EQ(r.pin_count, 16);
+  ASSERT_EQ(r.bands.size(), 1u);
+  EXPECT_EQ(r.bands[0].bone, "Hips");
+  EXPECT_LT(r.worst_pin, 0.05);
+  EXPECT_NEAR(r.lo.y(), -0.5, 1e-6);
+  EXPECT_NEAR(r.hi.y(), 0.0, 1e-6);
+  const std::vector<std::string> lines = placement_lines(r);
+  ASSERT_FALSE(lines.empty());
+  EXPECT_NE(lines[0].find("16 pins: 16 on 'Hips'"), std::string::npos) << lines[0];
+  EXPECT_NE(lines[1].find("the body (nearest: '"), std::string::npos) << lines[1];
+  EXPECT_NE(lines[2].find("colliders: "), std::string::npos) << lines[2];
+
+  // Without the flare the thighs leave the tube at rest: their colliders cross it, and are named.
+  const auto [straight_error, straight_log] =
+      build_scene(tube_scene("straight", {0, 0, 0}, 1.0, 0.0));
+  EXPECT_EQ(straight_error, "");
+  EXPECT_NE(straight_log.find("the collider of bone 'LeftUpLeg' crosses the garment at rest"),
+            std::string::npos)
+      << straight_log;
+
+  // 10 cm forward: loads, with a warning naming the scene file, the field and the distance.
+  const std::string near = tube_scene("forward", {0, 0, 0.10});
+  const auto [near_error, near_log] = build_scene(near, &r);
+  EXPECT_EQ(near_error, "");
+  EXPECT_GT(r.worst_pin, 0.05);
+  EXPECT_LT(r.worst_pin, 0.20);
+  EXPECT_NE(near_log.find(near + ": warning: garment.file"), std::string::npos) << near_log;
+  EXPECT_NE(near_log.find("from their bone's capsule"), std::string::npos) << near_log;
+
+  // Modelled on the character standing on the floor (the hips 0.95 m up): refused, naming the
+  // distance, the limit, the scene file and field, and the likely cause.
+  const std::string posed = tube_scene("posed", {0, 0.95, 0});
+  const auto [posed_error, posed_log] = build_scene(posed);
+  ASSERT_NE(posed_error, "");
+  EXPECT_NE(posed_error.find(posed + ": garment.file"), std::string::npos) << posed_error;
+  EXPECT_NE(posed_error.find("16 pins on 'Hips' up to 0."), std::string::npos) << posed_error;
+  EXPECT_NE(posed_error.find("refused over 0.200 m"), std::string::npos) << posed_error;
+  EXPECT_NE(posed_error.find("modelled on a posed frame"), std::string::npos) << posed_error;
+
+  // The right shape in decimetres read as metres (6 m across: under the 20 m the importer refuses
+  // outright, centimetres among them): refused as a wrong scale.
+  const std::string cm = tube_scene("decimetres", {0, 0, 0}, 10.0);
+  std::ifstream cm_in(cm);
+  std::string cm_scene((std::istreambuf_iterator<char>(cm_in)), std::istreambuf_iterator<char>());
+  const std::string scale_field = "\"scale\": 0.100000";
+  ASSERT_NE(cm_scene.find(scale_field), std::string::npos) << cm_scene;
+  cm_scene.replace(cm_scene.find(scale_field), scale_field.size(), "\"scale\": 1");
+  std::ofstream(cm) << cm_scene;
+  const auto [cm_error, cm_log] = build_scene(cm);
+  EXPECT_NE(cm_error.find("wrong scale"), std::string::npos) << cm_error;
+}
+
+// A pin rule that matches nothing says so with the garment's extent and its nearest vertex.
+TEST(Garment, UnmatchedPinsNameTheExtentAndTheNearestVertex) {
+  const std::string scene = tube_scene("unmatched", {0, 0, 0});
+  SceneFile file = load_scene_file(scene);
+  file.mesh.pins.y_min = 0.5;
+  file.mesh.pins.y_max = 0.6;
+  const LoadedMotion motion = load_clip(file.manifest, 0);
+  try {
+    import_garment(motion.skeleton, file.mesh);
+    FAIL() << "no pins, yet it loaded";
+  } catch (const GarmentError& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("matches no vertex (0 pins)"), std::string::npos) << m;
+    EXPECT_NE(m.find("the garment spans (-0.300, -0.500, -0.300) .. (0.300, 0.000, 0.300) m"),
+              std::string::npos)
+        << m;
+    EXPECT_NE(m.find("its nearest vertex is 0.500 m below the band"), std::string::npos) << m;
   }
 }

@@ -90,3 +90,45 @@ TEST(Render, ContactSheetPlacesTiles) {
   EXPECT_EQ(pixel(sheet, 4, 2, 0)[0], 100);
   EXPECT_EQ(pixel(sheet, 4, 3, 3)[0], 255);  // the unused cell stays white
 }
+
+// frame_points frames the garment from each view: every point projects inside the image, the
+// garment fills a good part of it, and the back view looks at the side facing -z (a cape).
+TEST(Render, FramedViewsKeepTheGarmentInTheImage) {
+  // A cape-like sheet behind a character facing +z: 0.6 m wide, 0.8 m tall, at z = -0.15.
+  ClothMesh sheet = make_quad_grid(7, 9, 0.6, 0.8);
+  sheet.rest.row(0).array() -= 0.3;
+  sheet.rest.row(1).array() += 0.6;
+  sheet.rest.row(2).array() = -0.15;
+  const int w = 96, h = 72;
+  for (PreviewView view : {PreviewView::Front, PreviewView::Back, PreviewView::Side}) {
+    SCOPED_TRACE(preview_view_name(view));
+    EXPECT_EQ(parse_preview_view(preview_view_name(view)), view);
+    const PreviewCamera cam = frame_points(sheet.rest, 1.3, view);
+    Eigen::Vector2d lo(1e9, 1e9), hi(-1e9, -1e9);
+    for (Eigen::Index v = 0; v < sheet.rest.cols(); ++v) {
+      const Eigen::Vector3d p = project_to_preview(cam, sheet.rest.col(v), w, h);
+      EXPECT_GT(p.z(), 0.0) << "in front of the eye";
+      EXPECT_GE(p.x(), 0.0);
+      EXPECT_LE(p.x(), w);
+      EXPECT_GE(p.y(), 0.0);
+      EXPECT_LE(p.y(), h);
+      lo = lo.cwiseMin(p.head<2>());
+      hi = hi.cwiseMax(p.head<2>());
+    }
+    EXPECT_GT(hi.y() - lo.y(), 0.4 * h) << "the garment fills the frame's height";
+    // The eye is on the viewed side of the sheet: +z in front, -z behind, +x at the side.
+    if (view == PreviewView::Front) EXPECT_GT(cam.eye.z(), 0.0);
+    if (view == PreviewView::Back) EXPECT_LT(cam.eye.z(), -0.15);
+    if (view == PreviewView::Side) EXPECT_GT(cam.eye.x(), 0.3);
+    // The projection agrees with the renderer: the sheet's centre lands on cloth pixels.
+    PreviewScene scene;
+    scene.cloth = &sheet.rest;
+    scene.triangles = &sheet.triangles;
+    scene.floor = false;
+    const auto img = render_preview(scene, cam, w, h);
+    const Eigen::Vector3d c = project_to_preview(cam, sheet.rest.rowwise().mean(), w, h);
+    const auto px = pixel(img, w, int(c.x()), int(c.y()));
+    EXPECT_GT(px[0], px[2] + 40) << "cloth at the projected centre";
+  }
+  EXPECT_THROW(parse_preview_view("top"), std::invalid_argument);
+}

@@ -9,6 +9,7 @@
 #include <cctype>
 #include <cmath>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <stdexcept>
 
@@ -147,6 +148,38 @@ bool values_finite(const Key* keys, unsigned count) {
   for (unsigned k = 0; k < count; ++k)
     if (!finite(keys[k])) return false;
   return true;
+}
+
+// True when a channel never moves its node: no channel, or every key of each track equal to the
+// track's first key.
+bool channel_static(const aiNodeAnim* c) {
+  if (!c) return true;
+  constexpr double kTol = 1e-9;
+  for (unsigned k = 1; k < c->mNumPositionKeys; ++k)
+    if ((to_eigen(c->mPositionKeys[k].mValue) - to_eigen(c->mPositionKeys[0].mValue)).norm() >
+        kTol * (1.0 + to_eigen(c->mPositionKeys[0].mValue).norm()))
+      return false;
+  for (unsigned k = 1; k < c->mNumRotationKeys; ++k)
+    if (std::abs(to_eigen(c->mRotationKeys[k].mValue).dot(to_eigen(c->mRotationKeys[0].mValue))) <
+        1.0 - kTol)
+      return false;
+  for (unsigned k = 1; k < c->mNumScalingKeys; ++k)
+    if ((to_eigen(c->mScalingKeys[k].mValue) - to_eigen(c->mScalingKeys[0].mValue)).norm() > kTol)
+      return false;
+  return true;
+}
+
+// The local transform a static channel holds (its first keys; the node's own for a track without
+// keys), as the channel replaces the node's transformation.
+Eigen::Affine3d channel_value(const aiNodeAnim* c, const aiNode& node) {
+  aiVector3D s, p;
+  aiQuaternion r;
+  node.mTransformation.Decompose(s, r, p);
+  Eigen::Affine3d t = Eigen::Affine3d::Identity();
+  t.translate(c->mNumPositionKeys ? to_eigen(c->mPositionKeys[0].mValue) : to_eigen(p));
+  t.rotate(c->mNumRotationKeys ? to_eigen(c->mRotationKeys[0].mValue) : to_eigen(r));
+  t.scale(c->mNumScalingKeys ? to_eigen(c->mScalingKeys[0].mValue) : to_eigen(s));
+  return t;
 }
 
 // Frame count declared in a BVH header ("Frames: N"), or -1 if the header has none. assimp reads
@@ -308,6 +341,36 @@ LoadedMotion load_motion(const std::filesystem::path& file, const MotionLoadOpti
     for (int q = nodes[i].parent; q != p; q = nodes[q].parent) nodes[q].joint = true;
   }
 
+  // A static root above the rig is not a joint: Blender's FBX exporter writes the armature object
+  // as a node above the root bone and keys it (constant keys) with the bones, which would make it
+  // the root joint of a skeleton whose root never moves (docs/guide/garment_placement.md, "Motion
+  // from Blender"). Such a root, keyed or not but never moving, not a skinned bone, with exactly
+  // one child joint, becomes part of the static frame above its child, as any non-joint ancestor.
+  std::vector<char> skinned(nodes.size(), 0);
+  for (unsigned m = 0; m < scene->mNumMeshes; ++m)
+    for (unsigned b = 0; b < scene->mMeshes[m]->mNumBones; ++b) {
+      const auto it = by_name.find(scene->mMeshes[m]->mBones[b]->mName.C_Str());
+      if (it != by_name.end()) skinned[it->second] = 1;
+    }
+  std::vector<std::optional<Eigen::Affine3d>> static_local(nodes.size());
+  for (bool demoted = true; demoted;) {
+    demoted = false;
+    for (int i = 0; i < static_cast<int>(nodes.size()) && !demoted; ++i) {
+      if (!nodes[i].joint || skinned[i] || !channel_static(channel_of[i])) continue;
+      int p = nodes[i].parent;
+      while (p >= 0 && !nodes[p].joint) p = nodes[p].parent;
+      if (p >= 0) continue;  // not a root joint
+      int child_joints = 0;
+      for (unsigned c = 0; c < nodes[i].node->mNumChildren; ++c)
+        child_joints += nodes[index_of.at(nodes[i].node->mChildren[c])].joint ? 1 : 0;
+      if (child_joints != 1) continue;
+      nodes[i].joint = false;
+      if (channel_of[i]) static_local[i] = channel_value(channel_of[i], *nodes[i].node);
+      channel_of[i] = nullptr;
+      demoted = true;
+    }
+  }
+
   // Unit scale and up axis. FBX declares both (UnitScaleFactor in centimetres per unit).
   double scale = 1.0;
   UpAxis up = UpAxis::Y;
@@ -333,7 +396,8 @@ LoadedMotion load_motion(const std::filesystem::path& file, const MotionLoadOpti
   std::vector<int> joint_node;
   for (int i = 0; i < static_cast<int>(nodes.size()); ++i) {
     const NodeInfo& n = nodes[i];
-    const Eigen::Affine3d local = to_eigen(n.node->mTransformation);
+    const Eigen::Affine3d local =
+        static_local[i] ? *static_local[i] : to_eigen(n.node->mTransformation);
     const int p = n.parent;
     static_world[i] = p < 0 ? local : static_world[p] * local;
     if (!n.joint) continue;
@@ -372,15 +436,33 @@ LoadedMotion load_motion(const std::filesystem::path& file, const MotionLoadOpti
       const Eigen::Vector3d t(m.a4, m.b4, m.c4);
       sk.end_site[j] = unit * t;
     }
+    // A leaf joint without an end site (glTF stores none; Blender's FBX has one only with "Add
+    // Leaf Bones") continues its parent bone by that bone's length, so that the head, hands and
+    // feet get a capsule whatever the format.
+    for (int j = 0; j < sk.joint_count(); ++j) {
+      const int p = sk.parents[j];
+      if (sk.end_site[j] || p < 0 || !sk.children(j).empty()) continue;
+      const Eigen::Vector3d bone = rest_world[j].translation() - rest_world[p].translation();
+      if (bone.norm() < 1e-6) continue;
+      const Eigen::Matrix3d frame = pose_from_affine(rest_world[j]).rotation.toRotationMatrix();
+      sk.end_site[j] = frame.transpose() * bone;
+    }
   }
 
   // Timing. assimp's ticks are frames for BVH and FBX (ticks per second = frame rate) and
-  // milliseconds for glTF; there the spacing of the keys gives the frame rate.
+  // milliseconds for glTF and Collada; there the key times give the frame rate. Source frame 0 is
+  // the first key: Blender's glTF exporter writes frame f at f / fps seconds, so its first key
+  // (frame 1 of the scene) is at 1 / fps, not 0 (docs/guide/garment_placement.md, "Motion from
+  // Blender").
   const double tps = anim->mTicksPerSecond > 0 ? anim->mTicksPerSecond : 25.0;
   double max_tick = 0.0, min_spacing = 0.0;
+  double first_tick = std::numeric_limits<double>::infinity();  // of tracks with 2+ keys
+  double first_any = std::numeric_limits<double>::infinity();   // of every track
   for (unsigned c = 0; c < anim->mNumChannels; ++c) {
     const aiNodeAnim* ch = anim->mChannels[c];
     auto scan = [&](auto* keys, unsigned count) {
+      if (count > 0) first_any = std::min(first_any, keys[0].mTime);
+      if (count > 1) first_tick = std::min(first_tick, keys[0].mTime);
       for (unsigned k = 0; k < count; ++k) {
         max_tick = std::max(max_tick, keys[k].mTime);
         const double d = k > 0 ? keys[k].mTime - keys[k - 1].mTime : 0.0;
@@ -391,15 +473,40 @@ LoadedMotion load_motion(const std::filesystem::path& file, const MotionLoadOpti
     scan(ch->mRotationKeys, ch->mNumRotationKeys);
     scan(ch->mScalingKeys, ch->mNumScalingKeys);
   }
+  if (!std::isfinite(first_tick)) first_tick = std::isfinite(first_any) ? first_any : 0.0;
+  // Only a later start is honoured: tracks keyed before 0 are sampled from 0, as before.
+  first_tick = std::max(first_tick, 0.0);
+  const double span = std::max(0.0, max_tick - first_tick);
   double ticks_per_frame = tps <= 480.0 || min_spacing == 0.0 ? 1.0 : min_spacing;
   // Key times written in single precision (Collada, glTF) make the smallest spacing a little off
-  // the true one, and the error grows with the frame index (0.1 mm of hip travel by frame 2000 of
-  // a 120 Hz clip): for keys on a regular grid, the span divided by the whole number of frames in
-  // it is exact to the precision of the last key.
-  if (ticks_per_frame != 1.0)
-    ticks_per_frame = max_tick / std::max(1.0, std::round(max_tick / ticks_per_frame));
+  // the true one, and the error grows with the time: Blender's glTF of 01_03 (37.5 s) has a
+  // smallest spacing of 8.328 ms for 8.333, so the span over it counts 4,503 frames for 4,500 and
+  // reads 120.08 Hz. The number of distinct key times over all tracks counts the frames exactly
+  // when every frame is keyed somewhere (baked files); the span from the first key to the last
+  // divided by it gives the spacing to the precision of the last key. Otherwise (keys thinned
+  // out), the span over the smallest spacing, rounded.
+  if (ticks_per_frame != 1.0 && span > 0) {
+    std::vector<double> times;
+    for (unsigned c = 0; c < anim->mNumChannels; ++c) {
+      const aiNodeAnim* ch = anim->mChannels[c];
+      for (unsigned k = 0; k < ch->mNumPositionKeys; ++k)
+        times.push_back(ch->mPositionKeys[k].mTime);
+      for (unsigned k = 0; k < ch->mNumRotationKeys; ++k)
+        times.push_back(ch->mRotationKeys[k].mTime);
+      for (unsigned k = 0; k < ch->mNumScalingKeys; ++k) times.push_back(ch->mScalingKeys[k].mTime);
+    }
+    std::sort(times.begin(), times.end());
+    int distinct = 0;
+    double last_time = -std::numeric_limits<double>::infinity();
+    for (double t : times)
+      if (t >= first_tick && t - last_time > 0.25 * min_spacing) ++distinct, last_time = t;
+    const double by_count = distinct > 1 ? span / (distinct - 1) : 0.0;
+    ticks_per_frame = by_count > 0 && std::abs(by_count / min_spacing - 1.0) < 0.01
+                          ? by_count
+                          : span / std::max(1.0, std::round(span / ticks_per_frame));
+  }
   const double native_rate = snap_rate(tps / ticks_per_frame);
-  const int source_frames = static_cast<int>(std::floor(max_tick / ticks_per_frame + 1e-6)) + 1;
+  const int source_frames = static_cast<int>(std::floor(span / ticks_per_frame + 1e-6)) + 1;
 
   if (lower_extension(file) == ".bvh") {
     const int declared = bvh_declared_frames(file);
@@ -457,7 +564,7 @@ LoadedMotion load_motion(const std::filesystem::path& file, const MotionLoadOpti
   clip.rotations.resize(clip.positions.size());
   std::vector<Eigen::Affine3d> world(sk.joint_count());
   for (int k = 0; k < frame_count; ++k) {
-    const double tick = (first + k * step) * ticks_per_frame;
+    const double tick = first_tick + (first + k * step) * ticks_per_frame;
     for (int j = 0; j < sk.joint_count(); ++j) {
       const Eigen::Affine3d local = tracks[j].channel
                                         ? sample_track(tracks[j], tick)

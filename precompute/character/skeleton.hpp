@@ -28,8 +28,10 @@ struct Skeleton {
   // static transforms of non-joint ancestor nodes and the conversion to metres and +y up, so that
   // composing rest_local down the hierarchy gives world transforms in metres.
   std::vector<Eigen::Affine3d> rest_local;
-  // Offset of a leaf joint's end site (BVH "End Site", or a childless helper node) in the joint's
-  // frame, already in metres: it gives the far end of the last bone of a chain (head top, toe tip).
+  // Offset of a leaf joint's end site (BVH "End Site", or a childless helper node such as
+  // Blender's FBX leaf bones) in the joint's frame, already in metres: it gives the far end of the
+  // last bone of a chain (head top, toe tip). A leaf joint without one (glTF stores none) gets its
+  // parent bone continued by that bone's length, so that every leaf has a capsule.
   std::vector<std::optional<Eigen::Vector3d>> end_site;
 
   int joint_count() const { return static_cast<int>(names.size()); }

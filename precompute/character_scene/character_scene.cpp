@@ -2,7 +2,9 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstdio>
 #include <fstream>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <sstream>
 
@@ -304,6 +306,25 @@ CharacterScene build_character_scene(const SceneFile& file) {
     scene.body = merged;
   } else {
     scene.body = make_body(scene.skeleton, file.body);
+  }
+  // Where the garment sits (docs/guide/garment_placement.md). A mesh garment is judged on it; the
+  // procedural skirt and cape are built from the skeleton (the skirt's waist is loose by design:
+  // its radius adds the thigh's and 2 cm), so their pins are only reported.
+  if (file.garment_kind == GarmentKind::Mesh) {
+    scene.placement = check_placement(scene.skeleton, scene.bind, scene.garment, file.body.radius,
+                                      scene.body.capsules, file.auto_distance > 0,
+                                      file.path.string(), "garment.file (" + file.mesh.file + ")");
+  } else {
+    BodySpec every_bone;
+    every_bone.radius = file.body.radius;
+    scene.placement =
+        measure_placement(scene.skeleton, scene.bind, scene.garment,
+                          make_body(scene.skeleton, every_bone).capsules, scene.body.capsules);
+    scene.placement.auto_colliders = file.auto_distance > 0;
+    const double never = std::numeric_limits<double>::infinity();
+    for (const std::string& w :
+         placement_warnings(scene.placement, file.path.string(), "garment", {never, never}))
+      std::fprintf(stderr, "%s\n", w.c_str());
   }
   scene.env.air_drag = file.air_drag;
   scene.env.collision_margin = file.margin;

@@ -10,7 +10,7 @@
 //     "garment": {"type": "skirt", "bone": "Hips", "vertices": 2000, "length": 0.55},
 //        // or {"type": "cape", "vertices": 1500, "length": 0.8}
 //        // or {"type": "mesh", "file": "dress.obj", "scale": 1, "pins": {"height_band":
-//        [1.0, 1.1]}}
+//        [1.0, 1.1]}}, modelled on the skeleton's rest pose (docs/guide/garment_placement.md)
 //        //    pins: {"vertex_group": "waist"} | {"height_band": [lo, hi]} | {"bone": "Hips",
 //        "distance": 0.05}
 //     "material": {"density": 0.15, "youngs_modulus": 1e8, "poisson": 0.3, "thickness": 5e-4,
@@ -44,6 +44,7 @@
 #include "character/manifest.hpp"
 #include "cloth/model.hpp"
 #include "garment/garment.hpp"
+#include "garment/placement.hpp"
 #include "hard_cases/hard_cases.hpp"
 #include "solvers/solver.hpp"
 
@@ -104,7 +105,8 @@ struct CharacterScene {
   Garment garment;
   ClothModel model;
   Body body;
-  Environment env;  // gravity, drag, margin, friction (capsules are set per step)
+  PlacementReport placement;  // where the garment sits at rest (garment/placement.hpp)
+  Environment env;            // gravity, drag, margin, friction (capsules are set per step)
 
   int clip_index(const std::string& name) const;  // throws SceneError listing the clips
 };

@@ -239,6 +239,9 @@ PrecomputeOutcome run_precompute(const PrecomputeRequest& request, std::FILE* lo
   const double process_cpu_start = process_cpu_seconds();
   const SceneFile file = load_scene_file(request.scene);
   CharacterScene scene = build_character_scene(file);
+  if (log)
+    for (const std::string& line : placement_lines(scene.placement))
+      std::fprintf(log, "%s: %s\n", request.scene.c_str(), line.c_str());
   ExploreOptions options = request.explore;
   options.process_cpu_start = process_cpu_start;
   options.auto_solver = request.automatic;

@@ -16,6 +16,7 @@
 #include "character/body.hpp"
 #include "database/format/artist_mesh.hpp"
 #include "exchange/point_cache.hpp"
+#include "garment/placement.hpp"
 
 namespace clothdb {
 
@@ -547,16 +548,7 @@ Garment import_garment(const Skeleton& skeleton, const MeshGarmentSpec& spec) {
     g.pins.push_back(v);
     g.bindings.push_back({v, {{j, 1.0}}});
   }
-  if (g.pins.empty()) {
-    std::string rule = spec.pins.kind == PinRuleKind::VertexGroup
-                           ? "vertex group '" + spec.pins.group + "'"
-                       : spec.pins.kind == PinRuleKind::HeightBand
-                           ? "height band [" + std::to_string(spec.pins.y_min) + ", " +
-                                 std::to_string(spec.pins.y_max) + "] m"
-                           : "distance " + std::to_string(spec.pins.distance) + " m of bone '" +
-                                 spec.pins.bone + "'";
-    throw GarmentError(spec.file + ": the pin rule (" + rule + ") matches no vertex");
-  }
+  if (g.pins.empty()) throw GarmentError(unmatched_pins_message(skeleton, bind, g.mesh.rest, spec));
   // The garment is carried by the bone most of its pins follow.
   std::vector<int> votes(skeleton.joint_count(), 0);
   for (const auto& b : g.bindings) ++votes[b.weights.front().first];

@@ -58,16 +58,53 @@ struct OsmesaContext {
 
 }  // namespace
 
-PreviewCamera frame_points(const Eigen::Matrix3Xd& points, double margin) {
+const char* preview_view_name(PreviewView view) {
+  switch (view) {
+    case PreviewView::Front:
+      return "front";
+    case PreviewView::Back:
+      return "back";
+    case PreviewView::Side:
+      return "side";
+  }
+  return "?";
+}
+
+PreviewView parse_preview_view(const std::string& text) {
+  if (text == "front") return PreviewView::Front;
+  if (text == "back") return PreviewView::Back;
+  if (text == "side") return PreviewView::Side;
+  throw std::invalid_argument("unknown view '" + text + "' (expected front, back or side)");
+}
+
+PreviewCamera frame_points(const Eigen::Matrix3Xd& points, double margin, PreviewView view) {
   PreviewCamera cam;
   if (points.cols() == 0) return cam;
   const Vec3 lo = points.rowwise().minCoeff(), hi = points.rowwise().maxCoeff();
   const Vec3 center = 0.5 * (lo + hi);
   const double radius = std::max(0.5 * (hi - lo).norm(), 0.05) * margin;
-  const double distance = radius / std::tan(0.5 * cam.fov_degrees / kRadToDeg);
+  // The bounding sphere fits the vertical field of view (previews are wider than tall).
+  const double distance = radius / std::sin(0.5 * cam.fov_degrees / kRadToDeg);
+  const Vec3 direction = view == PreviewView::Front  ? Vec3(0.35, 0.3, 1.0)
+                         : view == PreviewView::Back ? Vec3(-0.35, 0.3, -1.0)
+                                                     : Vec3(1.0, 0.3, 0.35);
   cam.target = center;
-  cam.eye = center + distance * Vec3(0.35, 0.3, 1.0).normalized();
+  cam.eye = center + distance * direction.normalized();
   return cam;
+}
+
+Eigen::Vector3d project_to_preview(const PreviewCamera& camera, const Vec3& point, int width,
+                                   int height) {
+  // gluLookAt's frame and gluPerspective's projection, as render_preview sets them.
+  const Vec3 forward = (camera.target - camera.eye).normalized();
+  const Vec3 right = forward.cross(camera.up).normalized();
+  const Vec3 up = right.cross(forward);
+  const Vec3 d = point - camera.eye;
+  const double depth = d.dot(forward);
+  const double f = 1.0 / std::tan(0.5 * camera.fov_degrees / kRadToDeg);
+  const double aspect = static_cast<double>(width) / height;
+  const double ndc_x = f / aspect * d.dot(right) / depth, ndc_y = f * d.dot(up) / depth;
+  return {0.5 * (ndc_x + 1.0) * width, 0.5 * (1.0 - ndc_y) * height, depth};
 }
 
 std::vector<std::uint8_t> render_preview(const PreviewScene& scene, const PreviewCamera& camera,

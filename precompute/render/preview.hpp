@@ -34,8 +34,21 @@ struct PreviewScene {
   std::array<float, 3> cloth_color{0.85f, 0.35f, 0.3f};
 };
 
-// A camera that frames the given points from the front (+z), slightly above.
-PreviewCamera frame_points(const Eigen::Matrix3Xd& points, double margin = 1.3);
+// Where a preview looks from, in character space (the character faces +z): the front (+z), the
+// back (-z: a cape) or the side (+x), each a little above and off-axis so depth reads.
+enum class PreviewView { Front, Back, Side };
+const char* preview_view_name(PreviewView view);  // "front", "back", "side"
+// Parses "front"/"back"/"side"; throws std::invalid_argument naming the accepted values.
+PreviewView parse_preview_view(const std::string& text);
+
+// A camera that frames the given points (their bounding sphere times `margin`) from `view`.
+PreviewCamera frame_points(const Eigen::Matrix3Xd& points, double margin = 1.3,
+                           PreviewView view = PreviewView::Front);
+
+// Pixel coordinates (x right, y down, from the top-left corner) of `point` in a width x height
+// preview through `camera`; z of the result is the depth along the view (< 0: behind the eye).
+Eigen::Vector3d project_to_preview(const PreviewCamera& camera, const Vec3& point, int width,
+                                   int height);
 
 // Renders to RGBA8, rows top to bottom. Throws std::runtime_error if OSMesa cannot create a
 // context.

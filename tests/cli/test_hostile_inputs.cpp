@@ -87,6 +87,8 @@ TEST(HostileInputs, PlayRefusesNumbersOutsideItsLimits) {
   const std::string db = demo_db();
   const std::string out = (work_dir() / "play_out").string();
   expect_refused({"play", db, "--out", out, "--seconds", "inf"}, {"--seconds inf", "[0, 3600]"});
+  expect_refused({"play", db, "--out", out, "--view", "top"},
+                 {"--view", "unknown view 'top'", "front, back or side"});
   expect_refused({"play", db, "--out", out, "--seconds", "nan"}, {"--seconds nan"});
   expect_refused({"play", db, "--out", out, "--seconds", "1e7"}, {"--seconds 1e+07", "[0, 3600]"});
   expect_refused({"play", db, "--out", out, "--seconds", "-1"}, {"--seconds -1"});
@@ -187,3 +189,34 @@ struct RemoveWorkDir : testing::Environment {
 const auto* const kRemoveWorkDir = testing::AddGlobalTestEnvironment(new RemoveWorkDir);
 
 }  // namespace
+
+// A garment modelled on a posed frame (here: the character standing on the floor, its hips 0.95 m
+// above the rest pose's) is refused before anything is simulated or written, naming the scene
+// file, the field, the pins' distance and the likely cause (docs/guide/garment_placement.md).
+TEST(HostileInputs, PosedGarmentIsRefusedWithItsDistance) {
+  std::string obj;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 8; ++c) {
+      const double a = 2 * 3.14159265358979 * c / 8;
+      obj += "v " + std::to_string(0.14 * std::cos(a)) + " " + std::to_string(0.95 - 0.1 * r) +
+             " " + std::to_string(0.14 * std::sin(a)) + "\n";
+    }
+  for (int r = 0; r < 2; ++r)
+    for (int c = 0; c < 8; ++c) {
+      const int a = r * 8 + c + 1, b = r * 8 + (c + 1) % 8 + 1;
+      obj += "f " + std::to_string(a) + " " + std::to_string(a + 8) + " " + std::to_string(b + 8) +
+             " " + std::to_string(b) + "\n";
+    }
+  const std::string mesh = (work_dir() / "posed.obj").string();
+  std::ofstream(mesh) << obj;
+  const std::string scene = (work_dir() / "posed.json").string();
+  std::ofstream(scene) << R"({"manifest": ")" << kSource << R"(/motions/cmu_walk.json",
+    "clips": ["01_03_level_walk"],
+    "garment": {"type": "mesh", "file": ")"
+                       << mesh << R"(", "bone": "Hips", "pins": {"height_band": [0.94, 0.96]}}})";
+  const std::string out = (work_dir() / "posed_out").string();
+  expect_refused({"simulate", scene, "--out", out},
+                 {scene + ": garment.file (" + mesh + ")", "8 pins on 'Hips' up to 0.",
+                  "refused over 0.200 m", "Likely cause: modelled on a posed frame"});
+  EXPECT_FALSE(fs::exists(out));
+}
