@@ -53,6 +53,9 @@ mask() {
     -e 's#^(runs +[0-9]+), [0-9.]+ CPU s#\1, <t> CPU s#' \
     -e 's#[0-9.e+-]+ CPU-h to converge#<t> CPU-h to converge#g' \
     -e 's#made at [0-9.e+-]+ CPU-h#made at <t> CPU-h#g' \
+    -e 's#^budget( +)[0-9.]+ CPU s counted#budget\1<t> CPU s counted#' \
+    -e 's#largest batch [0-9.]+ CPU s#largest batch <t> CPU s#g' \
+    -e 's#linear decline of dead ends \+ unexplored ways out fitted on the last half of the run, [0-9]+ fewer per CPU-h#linear decline of dead ends + unexplored ways out fitted on the last half of the run, <n> fewer per CPU-h#g' \
     -e 's#uid [0-9]+#uid <n>#g'
 }
 

@@ -810,17 +810,20 @@ TEST(Motion, BlenderFbxAndGltfMatchTheBvh) {
                 worst_shifted);
     EXPECT_LT(worst, tolerance);
     EXPECT_GT(worst_shifted, 5e-2) << "the comparison can tell a one-frame shift";
-    // Capsules: the same radius for every bone in every format (the skeleton's size is its
-    // joints' extent; end sites, which only some formats have, do not count), and a head.
+    // Capsules: within 5 % of the BVH's radius for every bone, and a head. Not the same: the
+    // skeleton's size counts end sites, which differ by format (Blender's FBX leaf bones are
+    // longer; glTF has none and gets its leaves continued), and counting joints only moved the
+    // demo's radii by 1e-7, enough to change chaotic explorations the tests pin
+    // (docs/notebook/blender_motion.md).
     const double size_ratio = skeleton_size(m.skeleton) / skeleton_size(bvh.skeleton);
-    EXPECT_NEAR(size_ratio, 1.0, 0.005);
+    EXPECT_NEAR(size_ratio, 1.0, 0.05);
     bool head = false;
     int compared = 0;
     for (const BoneCapsule& c : all_bone_capsules(m.skeleton)) {
       head = head || m.skeleton.names[c.joint] == "Head";
       const auto it = bvh_radius.find({m.skeleton.names[c.joint], c.child});
       if (it == bvh_radius.end()) continue;
-      EXPECT_NEAR(c.radius, it->second, 0.005 * it->second) << m.skeleton.names[c.joint];
+      EXPECT_NEAR(c.radius, it->second, 0.05 * it->second) << m.skeleton.names[c.joint];
       ++compared;
     }
     EXPECT_TRUE(head) << "the head has a capsule";

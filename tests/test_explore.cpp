@@ -195,13 +195,16 @@ TEST(Explore, StoppedRunWithCodecV2ResumesToTheSameContent) {
   EXPECT_GE(whole.bases_built, 3);
   const std::string path = temp_db("v2_parts");
   int parts = 0, built = 0, removed = 0;
-  for (options.max_frames = 70;; ++parts) {
+  // Parts of about a sixth of the whole run: how many frames it takes to converge changes
+  // chaotically with any change to the scene (a collider radius 1e-7 off), the parts must not.
+  ASSERT_GT(whole.frames, 60);
+  for (options.max_frames = whole.frames / 6;; ++parts) {
     const ExploreReport part = run(scene, path, options);
     built += part.bases_built;
     removed += part.bases_removed;
     if (part.converged) break;
     EXPECT_EQ(part.bases_removed, 0);  // not before convergence
-    ASSERT_LT(parts, 100);
+    ASSERT_LT(parts, 20);
   }
   EXPECT_GE(parts, 3);
   EXPECT_EQ(built, whole.bases_built);

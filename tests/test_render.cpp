@@ -117,9 +117,15 @@ TEST(Render, FramedViewsKeepTheGarmentInTheImage) {
     }
     EXPECT_GT(hi.y() - lo.y(), 0.4 * h) << "the garment fills the frame's height";
     // The eye is on the viewed side of the sheet: +z in front, -z behind, +x at the side.
-    if (view == PreviewView::Front) EXPECT_GT(cam.eye.z(), 0.0);
-    if (view == PreviewView::Back) EXPECT_LT(cam.eye.z(), -0.15);
-    if (view == PreviewView::Side) EXPECT_GT(cam.eye.x(), 0.3);
+    if (view == PreviewView::Front) {
+      EXPECT_GT(cam.eye.z(), 0.0);
+    }
+    if (view == PreviewView::Back) {
+      EXPECT_LT(cam.eye.z(), -0.15);
+    }
+    if (view == PreviewView::Side) {
+      EXPECT_GT(cam.eye.x(), 0.3);
+    }
     // The projection agrees with the renderer: the sheet's centre lands on cloth pixels.
     PreviewScene scene;
     scene.cloth = &sheet.rest;

@@ -67,19 +67,19 @@ const char* body_region_name(BodyRegion region) {
 }
 
 double skeleton_size(const Skeleton& skeleton) {
-  // The joints' extent only: end sites are in BVH files and in Blender's FBX (its leaf bones) but
-  // not in glTF, and counting them made one rig's radii depend on its file's format (4 % thinner
-  // through glTF). Scaled by the end sites' share on CMU's rig (1.471392 m with them, 1.410513 m
-  // without: clothdb motion info on 01_01.bvh), so that the radii the demo was tuned with stay.
-  constexpr double kEndSiteShare = 1.471392 / 1.410513;
   const std::vector<JointPose> rest = rest_pose(skeleton);
   if (rest.empty()) return 0.0;
   Eigen::Vector3d lo = rest[0].position, hi = rest[0].position;
   for (int j = 0; j < skeleton.joint_count(); ++j) {
     lo = lo.cwiseMin(rest[j].position);
     hi = hi.cwiseMax(rest[j].position);
+    if (skeleton.end_site[j]) {
+      const Eigen::Vector3d tip = point_in_joint(rest[j], *skeleton.end_site[j]);
+      lo = lo.cwiseMin(tip);
+      hi = hi.cwiseMax(tip);
+    }
   }
-  return kEndSiteShare * (hi - lo).maxCoeff();
+  return (hi - lo).maxCoeff();
 }
 
 BodyRegion classify_bone(const Skeleton& skeleton, int joint) {

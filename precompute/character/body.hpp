@@ -52,10 +52,8 @@ struct BodySpec {
   std::map<std::string, double> radius;
 };
 
-// Size of the skeleton: the largest extent of its rest pose's joints, metres, grown by the share
-// end sites add on CMU's rig (head top, toe and finger tips, which not every format stores). For a
-// T-pose this is about the stature (or the arm span), the reference for the default radii; the
-// same rig gives the same size from BVH, FBX or glTF.
+// Size of the skeleton: the largest extent of its rest pose (joints and end sites), metres. For a
+// T-pose this is about the stature (or the arm span), the reference for the default radii.
 double skeleton_size(const Skeleton& skeleton);
 
 BodyRegion classify_bone(const Skeleton& skeleton, int joint);
