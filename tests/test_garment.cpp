@@ -625,7 +625,8 @@ TEST(Garment, ArtistsMeshRoundTripsThroughTheDatabaseAndClipExport) {
 
   // clip export: the artist's OBJ (same faces, UVs, normals as the file) and an artist-order PC2.
   testing::internal::CaptureStderr();  // it says it writes no body (no scene in this file)
-  const ExportedClip out = export_clip(r, clip, dir.file("export"), "");
+  // No scene in this file (made by the Writer, not the precompute): the cloth alone.
+  const ExportedClip out = export_clip(r, clip, dir.file("export"), "", "", false);
   testing::internal::GetCapturedStderr();
   const ObjMesh original = read_obj(kQuadSkirt), exported = read_obj(out.cloth_obj);
   EXPECT_EQ(exported.face_sizes, original.face_sizes);

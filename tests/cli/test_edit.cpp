@@ -819,10 +819,28 @@ TEST(SelfContained, AMeshGarmentsFileIsStoredAndTheSceneRebuiltWithoutIt) {
   const std::string src = work("mesh_src"), db = work("mesh.db");
   test::remove_database(db);
   ASSERT_EQ(run_cli("clip export " + base_db() + " 1 --out " + src + " --no-body"), 0);
-  fs::rename(src + "/cloth.obj", src + "/skirt.obj");
-  const ObjMesh mesh = read_obj(src + "/skirt.obj");
+  // The exported frame is in character space (the floor at y = 0); a garment is modelled on the
+  // skeleton's rest pose (Hips at the origin, docs/guide/garment_placement.md): move the waist
+  // band to y = 0.06 m, where the demo skirt's is, as an artist would before exporting.
+  std::ifstream in(src + "/cloth.obj");
+  std::ostringstream moved;
   float top = -1e9f;
-  for (size_t i = 1; i < mesh.positions.size(); i += 3) top = std::max(top, mesh.positions[i]);
+  {
+    const ObjMesh exported = read_obj(src + "/cloth.obj");
+    for (size_t i = 1; i < exported.positions.size(); i += 3)
+      top = std::max(top, exported.positions[i]);
+  }
+  for (std::string line; std::getline(in, line);) {
+    if (line.rfind("v ", 0) == 0) {
+      float x = 0, y = 0, z = 0;
+      std::istringstream(line.substr(2)) >> x >> y >> z;
+      moved << "v " << x << " " << y - top + 0.06f << " " << z << "\n";
+    } else {
+      moved << line << "\n";
+    }
+  }
+  write_text(src + "/skirt.obj", moved.str());
+  top = 0.06f;
   write_text(src + "/scene.json",
              R"({"name": "mesh", "manifest": ")" + kSource + R"(/motions/cmu_walk.json",
   "clips": ["01_01"],
