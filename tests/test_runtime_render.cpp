@@ -18,36 +18,8 @@
 #include "clothrt.h"
 #include "database/format/artist_mesh.hpp"
 #include "runtime/tools/synthetic_db.hpp"
+#include "support/allocation_counter.hpp"
 #include "support/temp_dir.hpp"
-
-// Counts every allocation made through operator new in this process (as test_runtime.cpp does).
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
-namespace {
-std::atomic<uint64_t> g_allocations{0};
-}  // namespace
-
-void* operator new(size_t size) {
-  g_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(size ? size : 1)) return p;
-  throw std::bad_alloc();
-}
-void* operator new[](size_t size) {
-  return operator new(size);
-}
-void operator delete(void* p) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p) noexcept {
-  std::free(p);
-}
-void operator delete(void* p, size_t) noexcept {
-  std::free(p);
-}
-void operator delete[](void* p, size_t) noexcept {
-  std::free(p);
-}
-#pragma GCC diagnostic pop
 
 namespace clothdb {
 namespace {
