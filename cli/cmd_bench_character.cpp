@@ -74,6 +74,17 @@ void register_bench_character(CLI::App& bench) {
   cmd->add_option("--contact-rounds", args->options.contact_rounds,
                   "XPBD rounds of strain limit and frictionless collision after the collision "
                   "pass; 0: off; default: the scene's");
+  cmd->add_option("--strain-limit-relaxation", args->options.strain_limit_relaxation,
+                  "XPBD over-relaxation of the strain limit's passes in [1, 2), 1: off; default: "
+                  "the scene's (docs/guide/resolution.md)")
+      ->check(CLI::Range(1.0, 1.99));
+  cmd->add_option("--chebyshev-rho", args->options.chebyshev_rho,
+                  "XPBD Chebyshev acceleration of the stretch sweeps (Wang 2015): spectral radius "
+                  "estimate in [0, 1), 0: off; default: the scene's (docs/guide/resolution.md)")
+      ->check(CLI::Range(0.0, 0.999));
+  cmd->add_option("--tethers", args->options.tethers,
+                  "XPBD long-range attachments to the pins: 1 on, 0 off; default: the scene's")
+      ->check(CLI::Range(0, 1));
   cmd->add_option("--threads", args->threads, "Comma-separated OpenMP thread counts, e.g. 1,2")
       ->capture_default_str();
   cmd->add_option(

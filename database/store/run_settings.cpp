@@ -61,7 +61,11 @@ void visit_solver_fields(SolverSettings& s, V& v) {
   v.integer("stretch_iterations", s.stretch_iterations, 0, kMaxIterations);
   v.number("strain_limit", s.strain_limit, 0.0, 10.0);
   v.integer("strain_limit_iterations", s.strain_limit_iterations, 1, kMaxIterations);
+  // Below 2: projected over-relaxation converges for 0 < omega < 2 (Cryer 1971).
+  v.number("strain_limit_relaxation", s.strain_limit_relaxation, 1.0, 1.99);
   v.integer("strain_limit_contact_rounds", s.strain_limit_contact_rounds, 0, kMaxIterations);
+  // Below 1: at rho = 1 the weights grow without bound (omega -> 2).
+  v.number("chebyshev_rho", s.chebyshev_rho, 0.0, 0.999);
   // Up to 50 mm: thicker than any garment layer; 0 (off) is not written.
   v.grouped("self_collision", "thickness_mm", s.self_collision_thickness_mm, 0.0, 50.0);
 }

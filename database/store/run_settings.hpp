@@ -112,12 +112,22 @@ struct SolverSettings {
   // 0: off.
   double strain_limit = 0.0;
   int strain_limit_iterations = 1;
+  // XPBD: over-relaxation of the strain limit's passes: an edge over the limit is shortened past
+  // it by (strain_limit_relaxation - 1) times its excess (never below its rest length), so a
+  // correction that must travel along many edges takes fewer passes (docs/guide/resolution.md).
+  // 1: off (shortened to the limit exactly).
+  double strain_limit_relaxation = 1.0;
   // XPBD with the strain limit on: after the collision pass, up to this many rounds of the
   // strain limit, with a frictionless collision projection between rounds, so edges the body
   // pushes on are shortened (by sliding along it) rather than left stretched
   // (docs/GUIDE.md#the-solvers). The last round vertices are kept out of the body but may end
   // inside the collision margin. 0: off.
   int strain_limit_contact_rounds = 0;
+  // XPBD: Chebyshev semi-iterative acceleration of the stretch sweeps (Wang 2015, "A Chebyshev
+  // semi-iterative approach for accelerating projective and position-based dynamics", eq. 12):
+  // after stretch sweep k the free vertices are moved to omega_k (x^ - x^(k-2)) + x^(k-2), with
+  // omega from this estimate of the sweeps' spectral radius (docs/guide/resolution.md). 0: off.
+  double chebyshev_rho = 0.0;
   // XPBD cloth self-collision (docs/guide/self_collision.md): vertex-triangle and edge-edge
   // contacts keep the cloth at least this far (mm) from itself, resolved in every sub-step
   // (precompute/solvers/self_collision.hpp). JSON: "self_collision": {"thickness_mm": T}, written

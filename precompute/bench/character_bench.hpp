@@ -21,11 +21,14 @@ struct CharacterBenchOptions {
   // and for mass-spring the count its stability limit asks for (mass_spring_critical_dt).
   // Mass-spring is never run below that count (it would blow up; the row says so).
   std::vector<int> substeps{0};
-  int iterations = 0;               // constraint iterations (PBD, XPBD); 0: the scene's
-  int stretch_iterations = -1;      // XPBD stretch sweeps; -1: the scene's (0: as iterations)
-  double strain_limit = -1.0;       // XPBD strain limit; negative: the scene's (0: off)
-  int strain_limit_iterations = 0;  // XPBD strain-limit passes; 0: the scene's
-  int contact_rounds = -1;          // XPBD strain_limit_contact_rounds; negative: the scene's
+  int iterations = 0;                    // constraint iterations (PBD, XPBD); 0: the scene's
+  int stretch_iterations = -1;           // XPBD stretch sweeps; -1: the scene's (0: as iterations)
+  double strain_limit = -1.0;            // XPBD strain limit; negative: the scene's (0: off)
+  int strain_limit_iterations = 0;       // XPBD strain-limit passes; 0: the scene's
+  int contact_rounds = -1;               // XPBD strain_limit_contact_rounds; negative: the scene's
+  double strain_limit_relaxation = 0.0;  // XPBD strain_limit_relaxation; 0: the scene's
+  double chebyshev_rho = -1.0;           // XPBD chebyshev_rho; negative: the scene's (0: off)
+  int tethers = -1;                      // XPBD tethers: 0 off, 1 on; negative: the scene's
   std::vector<int> threads{1};
   std::vector<ColliderMotion> collider_motions;  // empty: the scene's
   // XPBD self-collision thicknesses (mm) to run, 0 for off. Empty: the scene's, and when that is

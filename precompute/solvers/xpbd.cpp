@@ -125,6 +125,10 @@ class XpbdSolver final : public Solver {
     if (settings.strain_limit_contact_rounds < 0)
       throw std::invalid_argument("xpbd: strain_limit_contact_rounds must be at least 0");
     if (settings.threads < 1) throw std::invalid_argument("xpbd: threads must be at least 1");
+    if (!(settings.strain_limit_relaxation >= 1.0 && settings.strain_limit_relaxation < 2.0))
+      throw std::invalid_argument("xpbd: strain_limit_relaxation must be in [1, 2) (1: off)");
+    if (!(settings.chebyshev_rho >= 0.0 && settings.chebyshev_rho < 1.0))
+      throw std::invalid_argument("xpbd: chebyshev_rho must be in [0, 1) (0: off)");
     build_constraints();
     if (settings.tethers) build_tethers();
     build_vertex_edges();
@@ -145,8 +149,17 @@ class XpbdSolver final : public Solver {
         std::snprintf(buf, sizeof buf, "x%d", settings_.strain_limit_iterations);
         out += buf;
       }
+      if (settings_.strain_limit_relaxation != 1.0) {
+        std::snprintf(buf, sizeof buf, " relaxation=%g", settings_.strain_limit_relaxation);
+        out += buf;
+      }
       if (settings_.strain_limit_contact_rounds > 0)
         out += " contact_rounds=" + std::to_string(settings_.strain_limit_contact_rounds);
+    }
+    if (settings_.chebyshev_rho > 0.0) {
+      char buf[64];
+      std::snprintf(buf, sizeof buf, " chebyshev_rho=%g", settings_.chebyshev_rho);
+      out += buf;
     }
     if (settings_.self_collision_thickness_mm > 0.0) {
       char buf[64];
@@ -164,6 +177,11 @@ class XpbdSolver final : public Solver {
     return settings_.stretch_iterations > 0 ? settings_.stretch_iterations : settings_.iterations;
   }
   void solve_stretch(int begin, int end, Eigen::Matrix3Xd& x, double alpha_scale);
+  // Chebyshev semi-iterative acceleration of the stretch sweeps (Wang 2015), after stretch sweep
+  // `sweep` of a sub-step with weight omega; called by every thread of the team.
+  void chebyshev_extrapolate(int sweep, double omega, Eigen::Matrix3Xd& x);
+  // x^(k-1) and x^k of Wang 2015 eq. 12 (positions before the previous and the last sweep).
+  Eigen::Matrix3Xd cheb_prev_, cheb_cur_;
   // One full pass of the strain limit over the constraints [begin, end) of one colour, in
   // parallel; marks the vertices it moves in limit_moved_.
   void limit_strain(int begin, int end, Eigen::Matrix3Xd& x, double max_stretch);
@@ -363,6 +381,23 @@ void XpbdSolver::solve_stretch(int begin, int end, Eigen::Matrix3Xd& x, double a
   }
 }
 
+// Wang 2015 eq. 12 with gamma = 1: x^(k+1) = omega_k+1 (x^ - x^(k-1)) + x^(k-1), x^ the positions
+// the sweep produced. Applied to the free vertices only (pins follow their bone). The multipliers
+// are not extrapolated: the stretch constraints are stiff (alpha~ << w), so lambda hardly enters
+// the next sweep's update. Sweep 0 has omega 1 and only shifts x^0 (recorded in cheb_cur_ before
+// the sweeps) and x^1 into place.
+void XpbdSolver::chebyshev_extrapolate(int sweep, double omega, Eigen::Matrix3Xd& x) {
+  const double* w = model_.inv_mass.data();
+  const Eigen::Index n = x.cols();
+#pragma omp for schedule(static)
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (sweep > 0 && w[i] > 0.0)
+      x.col(i) = omega * (x.col(i) - cheb_prev_.col(i)) + cheb_prev_.col(i);
+    cheb_prev_.col(i) = cheb_cur_.col(i);
+    cheb_cur_.col(i) = x.col(i);
+  }
+}
+
 // Provot 1995 sec. 5 ("deformation rate" limit), as a position projection: an edge longer than
 // max_stretch * l0 is shortened to exactly that, split by inverse mass like a PBD distance
 // constraint of stiffness 1. Edges within the limit are left alone, so the material's own
@@ -370,7 +405,13 @@ void XpbdSolver::solve_stretch(int begin, int end, Eigen::Matrix3Xd& x, double a
 // Shortens edge (i, j) to `limit` if it is longer, split by inverse mass; returns whether it did.
 // A relative slack of 1e-9 so an edge a previous pass set to the limit does not count again by
 // rounding.
-bool shorten_edge(Eigen::Matrix3Xd& x, const double* w, int i, int j, double limit) {
+// With relax > 1 the edge is shortened past the limit by (relax - 1) times its excess, never below
+// its rest length `floor`: projected successive over-relaxation (Cryer 1971, "The solution of a
+// quadratic programming problem using systematic overrelaxation") of the unilateral constraints,
+// so a correction that must travel along many edges (a ring pushed out by a limb) takes fewer
+// passes (docs/notebook/resolution.md).
+bool shorten_edge(Eigen::Matrix3Xd& x, const double* w, int i, int j, double limit, double floor,
+                  double relax) {
   const double wi = w[i], wj = w[j];
   const double w_sum = wi + wj;
   if (w_sum <= 0.0) return false;
@@ -379,7 +420,8 @@ bool shorten_edge(Eigen::Matrix3Xd& x, const double* w, int i, int j, double lim
   const double len_sq = diff.squaredNorm();
   if (len_sq <= limit * limit * (1.0 + 1e-9)) return false;
   const double len = std::sqrt(len_sq);
-  const Vec3 correction = diff * ((len - limit) / (len * w_sum));
+  const double target = std::max(limit - (relax - 1.0) * (len - limit), floor);
+  const Vec3 correction = diff * ((len - target) / (len * w_sum));
   xi -= wi * correction;
   xj += wj * correction;
   return true;
@@ -391,9 +433,12 @@ void XpbdSolver::limit_strain(int begin, int end, Eigen::Matrix3Xd& x, double ma
   for (int c = begin; c < end; ++c) {
     const std::size_t cu = static_cast<std::size_t>(c);
     const int i = stretch_.vertices[cu][0], j = stretch_.vertices[cu][1];
-    if (!shorten_edge(x, w, i, j, max_stretch * stretch_.rest[cu])) continue;
-      // Every writer stores the same value: whether a pass corrected anything does not depend on
-      // which thread did it.
+    if (!shorten_edge(x, w, i, j, max_stretch * stretch_.rest[cu], stretch_.rest[cu],
+                      settings_.strain_limit_relaxation)) {
+      continue;
+    }
+    // Every writer stores the same value: whether a pass corrected anything does not depend on
+    // which thread did it.
 #pragma omp atomic write
     limit_corrected_ = 1;
     // One colour's constraints share no vertex, and colours are separated by barriers.
@@ -422,7 +467,9 @@ bool XpbdSolver::limit_strain_dirty(Eigen::Matrix3Xd& x, double max_stretch) {
     if (dirty[c] == 0) continue;
     dirty[c] = 0;
     const int i = edge[c][0], j = edge[c][1];
-    if (!shorten_edge(x, w, i, j, max_stretch * rest[c])) continue;
+    if (!shorten_edge(x, w, i, j, max_stretch * rest[c], rest[c],
+                      settings_.strain_limit_relaxation))
+      continue;
     any = true;
     // Every edge at a moved vertex may now be too long: a later one is seen in this pass, as in
     // a full pass, an earlier one in the next. This edge itself is now at the limit.
@@ -530,6 +577,11 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
   const double gamma = model_.material.damping / h;
   const int stretch_sweeps = stretch_iterations();
   const int sweeps = std::max(settings_.iterations, stretch_sweeps);
+  const double rho = settings_.chebyshev_rho;
+  if (rho > 0.0 && cheb_cur_.cols() != n) {
+    cheb_prev_.resize(3, n);
+    cheb_cur_.resize(3, n);
+  }
   const double max_stretch = settings_.strain_limit > 0.0 ? 1.0 + settings_.strain_limit : 0.0;
   const Vec3 g = env.gravity;
   if (max_stretch > 0.0 && settings_.strain_limit_contact_rounds > 0) {
@@ -574,6 +626,13 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
       // Gauss-Seidel over colours, each colour's constraints in parallel (they share no vertex).
       // Bending first and stretch last in each sweep, so the positions a sub-step ends with are
       // those of a stretch projection; stretch may have more sweeps than bending.
+      // Chebyshev weights (Wang 2015 eq. 12): omega_1 = 1, omega_2 = 2 / (2 - rho^2),
+      // omega_k+1 = 4 / (4 - rho^2 omega_k). Every thread computes the same sequence.
+      double omega = 1.0;
+      if (rho > 0.0) {
+#pragma omp for schedule(static)
+        for (Eigen::Index i = 0; i < n; ++i) cheb_cur_.col(i) = state.x.col(i);
+      }
       for (int it = 0; it < sweeps; ++it) {
         if (it < settings_.iterations) {
           for (int col = 0; col < bend_.color_count(); ++col) {
@@ -587,6 +646,12 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
             solve_stretch(stretch_.color_begin[static_cast<std::size_t>(col)],
                           stretch_.color_begin[static_cast<std::size_t>(col) + 1], state.x,
                           alpha_scale);
+          }
+          if (rho > 0.0) {
+            omega = it == 0   ? 1.0
+                    : it == 1 ? 2.0 / (2.0 - rho * rho)
+                              : 4.0 / (4.0 - rho * rho * omega);
+            chebyshev_extrapolate(it, omega, state.x);
           }
         }
       }
