@@ -106,6 +106,33 @@ TEST(Garment, SkirtOnWalkStaysWithinTheStrainBoundWhereTheBodyPushesOnIt) {
   EXPECT_LE(with_rounds[0].p99_strain, 0.03);
 }
 
+// The demo skirt at 3,000 and 12,000 vertices (motions/skirt_walk_12k.json) with the setting
+// docs/guide/resolution.md gives for 12k (strain-limit over-relaxation 1.8, Chebyshev rho 0.8 on
+// 4 stretch sweeps): over 01_01's first 30 frames after a short settle, within 0.5 % of the strain
+// limit at both resolutions. The 12k skirt goes above it later in the clip
+// (frames 45-73, docs/notebook/resolution.md); this pins the short window only.
+TEST(Garment, DemoSkirtStaysWithinTheStrainBoundAtThreeAndTwelveThousandVertices) {
+  for (const char* name : {"skirt_walk.json", "skirt_walk_12k.json"}) {
+    SceneFile file = load_scene_file(kMotions + name);
+    file.settle_frames = 10;
+    CharacterBenchOptions options;
+    options.clip = "01_01";
+    options.frames = 30;
+    options.strain_limit_relaxation = 1.8;
+    options.chebyshev_rho = 0.8;
+    options.stretch_iterations = 4;
+    const auto rows = run_character_bench(file, options);
+    ASSERT_EQ(rows.size(), 1u);
+    const CharacterBenchRow& r = rows[0];
+    ASSERT_TRUE(r.stable) << name << ": " << r.message;
+    EXPECT_EQ(r.frames, 29) << name;
+    // Measured: p99 2.47 % and 2.49 %, max 2.50 % at both (the limit holds).
+    EXPECT_LE(r.max_strain, 0.03) << name << ", frame " << r.worst_frame;
+    EXPECT_LE(r.p99_strain, 0.026) << name;
+    EXPECT_LE(r.max_penetration, file.material.thickness) << name;
+  }
+}
+
 // Settling (docs/notebook/BENCHMARKS.md, "Settling from any start frame"): settled from 01_01
 // frames where the legs are apart, the skirt used to be put straight into the pose and caught
 // around a leg (over 600 % strain). Settled in the bind pose and blended into the pose, it hangs
