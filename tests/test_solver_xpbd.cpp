@@ -251,6 +251,42 @@ TEST(Xpbd, RelaxedStrainLimitKeepsItsConvergenceAtTwiceTheResolution) {
   EXPECT_GT(plain_fine, limit + 0.02);
 }
 
+// The two fields travel in the solver block like the others (database/store/run_settings.cpp),
+// are left out when off so records made without them read and write byte-identically, and bad
+// values are refused naming the field; the solver refuses them too.
+TEST(Xpbd, AccelerationSettingsRoundTripAndAreLeftOutWhenOff) {
+  const std::string off = solver_settings_json(SolverKind::Xpbd, SolverSettings{});
+  EXPECT_EQ(off.find("strain_limit_relaxation"), std::string::npos);
+  EXPECT_EQ(off.find("chebyshev_rho"), std::string::npos);
+  SolverSettings on;
+  on.strain_limit_relaxation = 1.8;
+  on.chebyshev_rho = 0.8;
+  SolverKind kind = SolverKind::Newton;
+  SolverSettings back;
+  parse_solver_settings_json(solver_settings_json(SolverKind::Xpbd, on), "test", &kind, &back);
+  EXPECT_EQ(kind, SolverKind::Xpbd);
+  EXPECT_EQ(back.strain_limit_relaxation, 1.8);
+  EXPECT_EQ(back.chebyshev_rho, 0.8);
+  for (const char* bad : {R"({"strain_limit_relaxation": 2.5})", R"({"chebyshev_rho": 1.0})"}) {
+    SolverSettings t;
+    try {
+      parse_solver_settings_json(bad, "scene.json", &kind, &t, "solver.");
+      ADD_FAILURE() << bad << " accepted";
+    } catch (const SettingsError& e) {
+      const std::string field = std::string(bad).substr(2, std::string(bad).find('"', 2) - 2);
+      EXPECT_NE(std::string(e.what()).find("scene.json: solver." + field), std::string::npos)
+          << e.what();
+    }
+  }
+  const ClothScene scene = make_hard_case("hanging-sheet");
+  SolverSettings s = xpbd_settings(2, 1);
+  s.chebyshev_rho = 1.0;
+  EXPECT_THROW(make_xpbd_solver(scene.model, s), std::invalid_argument);
+  s.chebyshev_rho = 0.0;
+  s.strain_limit_relaxation = 0.5;
+  EXPECT_THROW(make_xpbd_solver(scene.model, s), std::invalid_argument);
+}
+
 // Chebyshev acceleration of the stretch sweeps (Wang 2015), on the two-corner hanging sheet: the
 // largest strain of a 10-frame run at 10 sub-steps.
 double hanging_sheet_strain(int resolution, int sweeps, double rho) {

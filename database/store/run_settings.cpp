@@ -62,10 +62,10 @@ void visit_solver_fields(SolverSettings& s, V& v) {
   v.number("strain_limit", s.strain_limit, 0.0, 10.0);
   v.integer("strain_limit_iterations", s.strain_limit_iterations, 1, kMaxIterations);
   // Below 2: projected over-relaxation converges for 0 < omega < 2 (Cryer 1971).
-  v.number("strain_limit_relaxation", s.strain_limit_relaxation, 1.0, 1.99);
+  v.optional_number("strain_limit_relaxation", s.strain_limit_relaxation, 1.0, 1.99, 1.0);
   v.integer("strain_limit_contact_rounds", s.strain_limit_contact_rounds, 0, kMaxIterations);
   // Below 1: at rho = 1 the weights grow without bound (omega -> 2).
-  v.number("chebyshev_rho", s.chebyshev_rho, 0.0, 0.999);
+  v.optional_number("chebyshev_rho", s.chebyshev_rho, 0.0, 0.999, 0.0);
   // Up to 50 mm: thicker than any garment layer; 0 (off) is not written.
   v.grouped("self_collision", "thickness_mm", s.self_collision_thickness_mm, 0.0, 50.0);
 }
@@ -128,6 +128,9 @@ struct Validator {
     check_range(where, prefix + name, static_cast<long long>(i), lo, hi);
   }
   void boolean(const char*, bool&) {}
+  void optional_number(const char* name, double& d, double lo, double hi, double) {
+    number(name, d, lo, hi);
+  }
   void grouped(const char* group, const char* name, double& d, double lo, double hi) {
     check_range(where, prefix + group + "." + name, d, lo, hi);
   }
@@ -148,6 +151,11 @@ struct ToJson {
   }
   void integer64(const char* name, long& i, long, long) { out[name] = i; }
   void boolean(const char* name, bool& b) { out[name] = b; }
+  // A field at its `off` value is left out, so records made before it existed (and settings
+  // that leave it off) are written byte-identically.
+  void optional_number(const char* name, double& d, double, double, double off) {
+    if (d != off) out[name] = d;
+  }
   // A group whose only field is 0 means off and is left out.
   void grouped(const char* group, const char* name, double& d, double, double) {
     if (d != 0.0) out[group] = {{name, d}};
@@ -174,6 +182,9 @@ struct FromJson {
     if (!v->is_number()) refuse(where, prefix + name, "expected a number, got " + v->dump());
     d = v->get<double>();
     check_range(where, prefix + name, d, lo, hi);
+  }
+  void optional_number(const char* name, double& d, double lo, double hi, double) {
+    number(name, d, lo, hi);
   }
   long long whole(const char* name, const json* v, long long lo, long long hi) {
     // Integers only, checked before narrowing: 2^40 sub-steps must not wrap to a small number.
