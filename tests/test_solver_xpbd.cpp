@@ -230,12 +230,13 @@ double swung_sheet_strain(int resolution, int passes, double relaxation) {
   return largest_strain(run);
 }
 
-// Plain passes carry a correction about one edge per pass (Gauss-Seidel on a Laplacian: the
-// passes needed grow with the square of the resolution), so at twice the resolution four times
-// the passes still leave the sheet well over its limit. Over-relaxed passes (projected SOR, the
-// passes needed grow about linearly) reach it with four times the passes at twice the resolution
-// as they do at the coarse one. Measured (2026-12-03): coarse at 64 passes 5.7 % plain, 2.3 %
-// relaxed; fine at 256 passes 6.1 % plain, 2.75 % relaxed.
+// Plain passes carry a correction about one edge per pass, so at twice the resolution (per side)
+// the passes must grow for the same strain: four times the passes at twice the resolution leave
+// the plain passes about where they were (5.7 % at 21 a side and 64 passes, 6.1 % at 42 and 256),
+// well over the limit at both. Over-relaxed passes grow the same way but from much nearer the
+// limit: within 1 % of it at both (2.3 % and 2.75 %, measured 2026-12-03). So with the passes
+// scaled with the resolution the relaxed limit converges at both; its work per vertex still grows
+// with the resolution (docs/notebook/resolution.md).
 TEST(Xpbd, RelaxedStrainLimitKeepsItsConvergenceAtTwiceTheResolution) {
   const double limit = 0.02;
   const double plain_coarse = swung_sheet_strain(21, 64, 1.0);

@@ -13,6 +13,9 @@
 // tethers on)": on a tethered 10k sheet, 80 sub-steps gave 27 % strain with damping 1e-3 and 6 %
 // without). Stretch gets its own sweep count (stretch_iterations), and an optional Provot (1995)
 // strain limit clamps the edges that are still longer than (1 + limit) l0 before collisions.
+// For fine meshes (docs/guide/resolution.md) the strain limit's passes can be over-relaxed
+// (strain_limit_relaxation) and the stretch sweeps Chebyshev-accelerated (chebyshev_rho), both off
+// by default.
 // Constraints, the strain limit and collisions run in parallel (each colour's constraints share no
 // vertex; collisions are per vertex): the result does not depend on the number of threads.
 #include <omp.h>
