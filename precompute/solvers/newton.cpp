@@ -19,8 +19,9 @@
 // Iterations start with the projected element Hessians (compressed edges clamped, bending
 // Gauss-Newton), which always give a descent direction, and try the exact Hessian once the residual
 // contracts (newton_projected_first), falling back to the projected one when it is indefinite.
-// The loop stops when the force residual is below the tolerance or when an update changes no
-// velocity by more than newton_velocity_tolerance; PCG's linear tolerance follows Eisenstat &
+// The loop stops when the force residual is below the tolerance or when an update (or, from the
+// contraction of two full steps, the updates still to come) changes no velocity by more than
+// newton_velocity_tolerance; PCG's linear tolerance follows Eisenstat &
 // Walker (1996, choice 2). A sub-step that reaches the iteration cap, or whose line search stalls,
 // is kept if it lowered Phi (newton_accept_decrease); otherwise, and on NaN or a system that is
 // indefinite even when projected, it is halved recursively (seed 004's remedy for degeneracies)
