@@ -136,9 +136,10 @@ void register_precompute(CLI::App& app) {
   cmd->add_flag(
       "--auto", args->automatic,
       "Choose the solver setting: simulate the garment along the first --auto-frames frames of the "
-      "start edge with each setting of the solver benchmark's sweep and with a reference (the "
-      "first solver's finest setting with 4x the sub-steps); take the cheapest (CPU time) whose "
-      "error is within "
+      "start edge with the scene's own solver setting and variations of it (fewer and more "
+      "sub-steps and iterations, every other field kept) and with a reference (the scene's setting "
+      "at 8x the sub-steps); compare over the frames where the reference's own chaos floor stays "
+      "within a quarter of the bound; take the cheapest (CPU time) whose error is within "
       "--auto-fraction x epsilon. Prints the table; the database records the choice and a resumed "
       "run reuses it");
   cmd->add_option("--auto-solvers", args->auto_solvers,
@@ -150,8 +151,7 @@ void register_precompute(CLI::App& app) {
   cmd->add_option("--auto-frames", args->auto_frames, "--auto: frames of the calibration clip")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
-  cmd->add_flag("--auto-quick", args->auto_quick,
-                "--auto: the benchmark's quick sweep (fewer settings)");
+  cmd->add_flag("--auto-quick", args->auto_quick, "--auto: fewer candidate settings");
   cmd->add_flag("--auto-newton-reference", args->auto_newton_reference,
                 "--auto: measure against the benchmark's Newton reference instead (also counts the "
                 "difference between the solvers' material models)");

@@ -5,8 +5,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 
 #include "explore/auto_solver.hpp"
+#include "explore/precompute.hpp"
 
 using namespace clothdb;
 
@@ -33,8 +35,10 @@ TEST(AutoSolver, ChoosesTheCheapestSettingWithinTheBound) {
   options.frames = 8;
   const AutoCalibration cal = calibrate_solvers(scene, poses, clip.rate, options);
   ASSERT_EQ(cal.frames, 8);
-  ASSERT_EQ(cal.candidates.size(), solver_candidates(SolverKind::Pbd, true).size() +
-                                       solver_candidates(SolverKind::Xpbd, true).size());
+  // PBD: the benchmark's table; XPBD, the scene's own solver: variations of its setting.
+  ASSERT_EQ(cal.candidates.size(),
+            solver_candidates(SolverKind::Pbd, true).size() +
+                scene_variations(SolverKind::Xpbd, scene.file.settings, true).size());
   for (const AutoCandidate& c : cal.candidates) {
     if (!c.stable) continue;
     EXPECT_TRUE(std::isfinite(c.error)) << c.config.label;
@@ -84,4 +88,116 @@ TEST(AutoSolver, ChoosesTheCheapestSettingWithinTheBound) {
   EXPECT_EQ(kind, pick.config.kind);
   EXPECT_EQ(settings.substeps, pick.config.settings.substeps);
   EXPECT_EQ(settings.iterations, pick.config.settings.iterations);
+}
+
+// The scene's own solver: the candidates are variations of its setting, the first being the
+// setting itself, and the reference is a converged run of the same model (8x the sub-steps).
+// Whatever the bound, the choice is within it, and its error, measured here again from the same
+// settled start against the reference, is within the bound too.
+TEST(AutoSolver, ChoosesAmongVariationsOfTheScenesSettingWithinTheBound) {
+  const CharacterScene scene = tiny_scene();
+  const MotionClip& clip = scene.clips.front();
+  std::vector<std::vector<JointPose>> poses;
+  for (int f = 0; f < 8; ++f) poses.push_back(clip_pose(clip, f));
+  AutoSolverOptions options;
+  options.quick = true;
+  options.frames = 6;
+  options.epsilon = 0.02;
+  options.fraction = 0.5;
+  const AutoCalibration cal = calibrate_solvers(scene, poses, clip.rate, options);
+  ASSERT_FALSE(cal.candidates.empty());
+  EXPECT_EQ(cal.reference.settings.substeps, 8 * scene.file.settings.substeps);
+  EXPECT_EQ(cal.reference.settings.strain_limit, scene.file.settings.strain_limit);
+  // The scene's own setting is the first candidate, field for field (threads aside).
+  SolverSettings own = scene.file.settings;
+  own.threads = 1;
+  EXPECT_EQ(solver_settings_json(cal.candidates.front().config.kind,
+                                 cal.candidates.front().config.settings),
+            solver_settings_json(scene.file.solver, own));
+  EXPECT_NE(cal.candidates.front().config.label.find("(scene)"), std::string::npos);
+  bool cheaper = false, costlier = false;
+  for (const AutoCandidate& c : cal.candidates) {
+    EXPECT_EQ(c.config.settings.strain_limit, scene.file.settings.strain_limit);
+    EXPECT_EQ(c.config.settings.tethers, scene.file.settings.tethers);
+    cheaper |= c.config.settings.substeps < scene.file.settings.substeps;
+    costlier |= c.config.settings.substeps > scene.file.settings.substeps;
+  }
+  EXPECT_TRUE(cheaper);
+  EXPECT_TRUE(costlier);
+  ASSERT_GE(cal.window, 1);
+  ASSERT_LE(cal.window, cal.frames);
+  ASSERT_EQ(cal.floor.size(), static_cast<size_t>(cal.frames));
+
+  // A bound at the median candidate error, so some qualify and (usually) some do not.
+  std::vector<double> errors;
+  for (const AutoCandidate& c : cal.candidates)
+    if (c.stable) errors.push_back(c.error);
+  ASSERT_FALSE(errors.empty());
+  std::sort(errors.begin(), errors.end());
+  const double bound = errors[errors.size() / 2] * (1 + 1e-9);
+  const double fraction = 0.5, epsilon = bound / fraction;
+  const int chosen = pick_solver(cal, epsilon, fraction);
+  ASSERT_GE(chosen, 0) << auto_table(cal, chosen, epsilon, fraction);
+  const AutoCandidate& pick = cal.candidates[chosen];
+  EXPECT_LE(pick.error, bound);
+  for (const AutoCandidate& c : cal.candidates)
+    if (c.stable && c.error <= bound) {
+      EXPECT_GE(c.cpu_ms_per_frame, pick.cpu_ms_per_frame);
+    }
+
+  // Measured again: the chosen setting and the reference from the reference's settled start, over
+  // the calibration window, positions frame by frame.
+  auto settler = make_solver(cal.reference.kind, scene.model, cal.reference.settings);
+  const std::vector<std::vector<JointPose>> window(poses.begin(), poses.begin() + cal.window + 1);
+  const ClothState start = settle_garment(scene, *settler, window.front());
+  auto again = [&](const SolverCandidate& c) {
+    auto solver = make_solver(c.kind, scene.model, c.settings);
+    ClothState state = start;
+    return simulate_poses(scene, *solver, window, clip.rate, state);
+  };
+  const PoseRun ref = again(cal.reference), run = again(pick.config);
+  ASSERT_TRUE(ref.stable && run.stable);
+  EXPECT_LE(compare_frames(run.frames, ref.frames, 0).worst_frame_rms, bound);
+
+  const std::string table = auto_table(cal, chosen, epsilon, fraction);
+  EXPECT_NE(table.find("chaos floor"), std::string::npos) << table;
+  EXPECT_NE(table.find("within bound"), std::string::npos) << table;
+
+  // A bound nothing meets: the choice is the cheapest at most the scene's own error, so never
+  // costlier than the scene's setting, and the table says why.
+  ASSERT_EQ(scene_index(cal), 0);
+  const AutoCandidate& own_run = cal.candidates.front();
+  ASSERT_TRUE(own_run.stable);
+  const double tiny = 0.1 * errors.front() / fraction;
+  const int fallback = pick_solver(cal, tiny, fraction);
+  ASSERT_GE(fallback, 0);
+  EXPECT_LE(cal.candidates[fallback].error, own_run.error);
+  EXPECT_LE(cal.candidates[fallback].cpu_ms_per_frame, own_run.cpu_ms_per_frame);
+  EXPECT_NE(auto_table(cal, fallback, tiny, fraction).find("at most that error"),
+            std::string::npos);
+}
+
+// No candidate within the bound and the scene's own setting not among them (another solver was
+// asked for): precompute --auto refuses, naming the epsilon.
+TEST(AutoSolver, RefusesNamingTheEpsilonWhenNoCandidateQualifies) {
+  CharacterScene scene = tiny_scene();
+  const ChosenGraph graph = choose_motion_graph(scene, "", "", -1);
+  const ExploreGraph eg = explore_graph(scene, graph.graph, "test");
+  PrecomputeRequest request;
+  request.db = testing::TempDir() + "/clothdb_auto_refuses.db";
+  std::filesystem::remove(request.db);
+  request.automatic = true;
+  request.auto_solvers = "pbd";  // not the scene's solver: its own setting is no candidate
+  request.auto_quick = true;
+  request.auto_frames = 4;
+  request.explore.epsilon = 1e-9;  // 1 nm: no candidate is that close to the reference
+  try {
+    choose_solver(request, scene, eg);
+    ADD_FAILURE() << "a candidate was accepted within 1 nm";
+  } catch (const std::runtime_error& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("--epsilon 1e-06 mm"), std::string::npos) << what;
+    EXPECT_NE(what.find("error above the bound"), std::string::npos) << what;
+  }
+  EXPECT_FALSE(std::filesystem::exists(request.db));
 }

@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <nlohmann/json.hpp>
 #include <sstream>
+#include <tuple>
 
 namespace clothdb {
 
@@ -48,7 +49,7 @@ bool resolve_config(BenchConfig& c, const ClothScene& scene, const SolverBenchOp
 }
 
 BenchRow measure_config(const ClothScene& scene, const BenchConfig& c, int frames,
-                        const RunResult& reference) {
+                        const RunResult& reference, const RunResult* tight) {
   auto solver = make_solver(c.kind, scene.model, c.settings);
   const RunResult run = run_scene(scene, *solver, frames, true);
   BenchRow row;
@@ -67,6 +68,10 @@ BenchRow measure_config(const ClothScene& scene, const BenchConfig& c, int frame
                           std::min(run.frames.size(), reference.frames.size()) > 1;
   row.rms_error_mm = comparable ? 1e3 * errors.rms : NAN;
   row.max_error_mm = comparable ? 1e3 * errors.max : NAN;
+  if (tight && tight->stable && run.stable && !run.frames.empty() &&
+      run.frames.size() == tight->frames.size())
+    std::tie(row.end_vs_tight_rms_mm, row.end_vs_tight_max_mm) =
+        end_state_distance_mm(run.frames.back(), tight->frames.back());
   long iterations = 0, factorizations = 0;
   for (const auto& m : run.metrics) {
     row.max_strain = std::max(row.max_strain, m.max_strain);
@@ -136,6 +141,9 @@ std::vector<BenchConfig> newton_study_configs() {
       update_stop(L::Cholmod, 1e-3, true),
       update_stop(L::CholmodSupernodal, 1e-3, true),
       update_stop(L::CholmodSupernodal, 1e-3, true, 0.0, G::Extrapolate),
+      update_stop(L::CholmodSupernodal, 3e-3, true, 0.0, G::Extrapolate),
+      update_stop(L::CholmodSupernodal, 1e-2, true, 0.0, G::Extrapolate),
+      update_stop(L::CholmodSupernodal, 1e-3, false, 0.0, G::Extrapolate),
       update_stop(L::ConjugateGradient, 1e-3, true),
       update_stop(L::ConjugateGradientIC, 1e-3, true),
       variant(L::SimplicialLDLT, 1e-6, G::Start, 0),  // the loop before this study
@@ -160,6 +168,22 @@ std::vector<BenchConfig> newton_study_configs() {
   };
 }
 
+BenchConfig newton_tight_config() {
+  BenchConfig c = candidate(SolverKind::Newton, 1, 0, 1e-8, LinearSolverKind::SimplicialLDLT);
+  c.settings.newton_velocity_tolerance = 1e-7;
+  c.settings.newton_accept_decrease = true;
+  c.settings.newton_max_iterations = 200;
+  c.label = "tight: ldlt substeps=1 tol=1e-08 vtol=1e-07 max-iterations=200";
+  return c;
+}
+
+std::pair<double, double> end_state_distance_mm(const Eigen::Matrix3Xd& a,
+                                                const Eigen::Matrix3Xd& b) {
+  if (a.cols() != b.cols() || a.cols() == 0) return {NAN, NAN};
+  const Eigen::RowVectorXd d = (a - b).colwise().norm();
+  return {1e3 * std::sqrt(d.squaredNorm() / static_cast<double>(d.size())), 1e3 * d.maxCoeff()};
+}
+
 std::vector<BenchRow> run_newton_study(const std::vector<std::string>& scenes, int frames,
                                        int repeat, const std::vector<std::string>& only,
                                        const std::function<void(const std::string&)>& progress) {
@@ -172,6 +196,15 @@ std::vector<BenchRow> run_newton_study(const std::vector<std::string>& scenes, i
     auto ref_solver = make_solver(ref_config.kind, scene.model, ref_config.settings);
     const RunResult reference = run_scene(scene, *ref_solver, n, true);
     if (progress) progress(name + ": reference " + ref_config.label);
+    const BenchConfig tight_config = newton_tight_config();
+    auto tight_solver = make_solver(tight_config.kind, scene.model, tight_config.settings);
+    const RunResult tight = run_scene(scene, *tight_solver, n, true);
+    if (progress) {
+      int halvings = 0;
+      for (const auto& m : tight.metrics) halvings += m.step_halvings;
+      progress(name + ": " + tight_config.label + ", " + std::to_string(halvings) + " halvings" +
+               (tight.stable ? "" : " UNSTABLE: " + tight.message));
+    }
     for (const BenchConfig& c : newton_study_configs()) {
       if (!only.empty() && std::none_of(only.begin(), only.end(), [&](const std::string& o) {
             return c.label.find(o) != std::string::npos;
@@ -179,7 +212,7 @@ std::vector<BenchRow> run_newton_study(const std::vector<std::string>& scenes, i
         continue;
       BenchRow best;
       for (int k = 0; k < std::max(1, repeat); ++k) {
-        BenchRow row = measure_config(scene, c, n, reference);
+        BenchRow row = measure_config(scene, c, n, reference, &tight);
         if (k == 0 || row.cpu_ms_per_frame < best.cpu_ms_per_frame) best = row;
       }
       rows.push_back(best);
@@ -187,10 +220,11 @@ std::vector<BenchRow> run_newton_study(const std::vector<std::string>& scenes, i
         char buf[512];
         std::snprintf(buf, sizeof buf,
                       "%s: %-40s %8.2f ms/frame (cpu %8.2f)  %5.2f it  %5.2f fact  %d halvings  "
-                      "rms %9.4f mm %s",
+                      "rms %9.4f mm  end vs tight %.3g mm (max %.3g) %s",
                       name.c_str(), best.settings.c_str(), best.ms_per_frame, best.cpu_ms_per_frame,
                       best.iterations_per_frame, best.factorizations_per_frame, best.step_halvings,
-                      best.rms_error_mm, best.stable ? "" : ("UNSTABLE: " + best.message).c_str());
+                      best.rms_error_mm, best.end_vs_tight_rms_mm, best.end_vs_tight_max_mm,
+                      best.stable ? "" : ("UNSTABLE: " + best.message).c_str());
         progress(buf);
       }
     }
@@ -201,15 +235,16 @@ std::vector<BenchRow> run_newton_study(const std::vector<std::string>& scenes, i
 std::string newton_study_markdown(const std::vector<BenchRow>& rows) {
   std::ostringstream o;
   o << "| scene | variant | ms/frame | CPU ms/frame | Newton it./frame | factorisations/frame | "
-       "RMS err "
-       "mm | max err mm | halvings | stable |\n|---|---|---|---|---|---|---|---|---|---|\n";
+       "RMS err mm | max err mm | end vs tight RMS mm | end vs tight max mm | halvings | stable "
+       "|\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   char buf[512];
   for (const auto& r : rows) {
     std::snprintf(buf, sizeof buf,
-                  "| %s | %s | %.2f | %.2f | %.2f | %.2f | %.3g | %.3g | %d | %s |\n",
+                  "| %s | %s | %.2f | %.2f | %.2f | %.2f | %.3g | %.3g | %.3g | %.3g | %d | %s |\n",
                   r.scene.c_str(), r.settings.c_str(), r.ms_per_frame, r.cpu_ms_per_frame,
                   r.iterations_per_frame, r.factorizations_per_frame, r.rms_error_mm,
-                  r.max_error_mm, r.step_halvings, r.stable ? "yes" : "no");
+                  r.max_error_mm, r.end_vs_tight_rms_mm, r.end_vs_tight_max_mm, r.step_halvings,
+                  r.stable ? "yes" : "no");
     o << buf;
   }
   return o.str();
@@ -250,6 +285,8 @@ std::string bench_rows_json(const std::vector<BenchRow>& rows) {
                  {"run", r.run},
                  {"rms_error_mm", num(r.rms_error_mm)},
                  {"max_error_mm", num(r.max_error_mm)},
+                 {"end_vs_tight_rms_mm", num(r.end_vs_tight_rms_mm)},
+                 {"end_vs_tight_max_mm", num(r.end_vs_tight_max_mm)},
                  {"max_strain", num(r.max_strain)},
                  {"max_penetration_mm", num(r.max_penetration_mm)},
                  {"step_halvings", r.step_halvings},

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <functional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "hard_cases/hard_cases.hpp"
@@ -49,6 +50,10 @@ struct BenchRow {
   double cpu_ms_per_frame = 0;          // process CPU time (all threads) per frame
   double iterations_per_frame = 0;      // StepReport::iterations, mean over frames
   double factorizations_per_frame = 0;  // Newton's StepReport::factorizations, mean
+  // The Newton study only: the last frame against the same scene run at a tight tolerance
+  // (newton_tight_config), RMS and max over vertices of |x - x_tight|; NaN elsewhere.
+  double end_vs_tight_rms_mm = NAN;
+  double end_vs_tight_max_mm = NAN;
   bool stable = true;
   bool run = true;  // false: not simulated (mass-spring needing more sub-steps than allowed)
   std::string message;
@@ -68,8 +73,9 @@ bool resolve_config(BenchConfig& config, const ClothScene& scene, const SolverBe
                     std::string& why);
 // Runs one configuration on `scene` and measures it against `reference` (the reference run's
 // frames).
+// With `tight`, also the last frame against that run's (BenchRow::end_vs_tight_*).
 BenchRow measure_config(const ClothScene& scene, const BenchConfig& config, int frames,
-                        const RunResult& reference);
+                        const RunResult& reference, const RunResult* tight = nullptr);
 
 // Builds a benchmark scene by name (hard cases, "large-sheet", "seed004-529").
 ClothScene make_bench_scene(const std::string& name, const SolverBenchOptions& options);
@@ -78,6 +84,13 @@ ClothScene make_bench_scene(const std::string& name, const SolverBenchOptions& o
 // original loop (start at x_n, a factorisation every iteration, tight tolerance) through the
 // predicted start, chord iterations, a looser tolerance, CHOLMOD and PCG with warm starts.
 std::vector<BenchConfig> newton_study_configs();
+// The Newton study's tight-tolerance run, whose last frame every variant's is measured against:
+// Newton, LDLT, one sub-step (the variants' time discretisation, so what is left is what their
+// stopping rule leaves), force tolerance 1e-8 only, never kept unconverged (halved instead).
+BenchConfig newton_tight_config();
+// RMS and max over vertices of |a - b|, mm.
+std::pair<double, double> end_state_distance_mm(const Eigen::Matrix3Xd& a,
+                                                const Eigen::Matrix3Xd& b);
 // Runs every study configuration `repeat` times and keeps the fastest (by CPU time) of each.
 // `only`: when not empty, only the variants whose label contains one of these strings.
 std::vector<BenchRow> run_newton_study(const std::vector<std::string>& scenes, int frames,

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -221,12 +222,16 @@ std::string choose_solver(const PrecomputeRequest& request, CharacterScene& scen
   const AutoCalibration cal = calibrate_solvers(scene, first->poses, eg.rate, o);
   const int chosen = pick_solver(cal, o.epsilon, o.fraction);
   const std::string table = auto_table(cal, chosen, o.epsilon, o.fraction);
-  if (chosen < 0)
-    throw std::runtime_error(
-        "--auto: no candidate is stable with an error within " +
-        std::to_string(std::lround(1e6 * o.fraction * o.epsilon)) + " um on " +
-        scene.file.path.string() +
-        "; raise --epsilon or --auto-fraction, or add solvers with --auto-solvers\n" + table);
+  if (chosen < 0) {
+    char bound[160];
+    std::snprintf(bound, sizeof bound, "%.3g mm (--auto-fraction %.3g x --epsilon %.3g mm)",
+                  1e3 * o.fraction * o.epsilon, o.fraction, 1e3 * o.epsilon);
+    throw std::runtime_error("--auto: no candidate is stable with an error within " +
+                             std::string(bound) + " on " + scene.file.path.string() +
+                             "; raise --epsilon or --auto-fraction, or add solvers with "
+                             "--auto-solvers\n" +
+                             table);
+  }
   scene.file.solver = cal.candidates[chosen].config.kind;
   scene.file.settings = cal.candidates[chosen].config.settings;
   scene.file.settings.threads = 1;

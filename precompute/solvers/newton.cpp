@@ -19,8 +19,9 @@
 // Iterations start with the projected element Hessians (compressed edges clamped, bending
 // Gauss-Newton), which always give a descent direction, and try the exact Hessian once the residual
 // contracts (newton_projected_first), falling back to the projected one when it is indefinite.
-// The loop stops when the force residual is below the tolerance or when an update changes no
-// velocity by more than newton_velocity_tolerance; PCG's linear tolerance follows Eisenstat &
+// The loop stops when the force residual is below the tolerance or when an update (or, from the
+// contraction of two full steps, the updates still to come) changes no velocity by more than
+// newton_velocity_tolerance; PCG's linear tolerance follows Eisenstat &
 // Walker (1996, choice 2). A sub-step that reaches the iteration cap, or whose line search stalls,
 // is kept if it lowered Phi (newton_accept_decrease); otherwise, and on NaN or a system that is
 // indefinite even when projected, it is halved recursively (seed 004's remedy for degeneracies)
@@ -471,13 +472,22 @@ class NewtonSolver final : public Solver {
   // ---- Element evaluation -----------------------------------------------------------------------
 
   // Elastic energy at x; with `gradient` also the full-DOF elastic gradient in grad (3n); with
-  // `hessian` also the element Hessians, exact and projected (into the per-element buffers).
-  // Elements are evaluated in parallel into per-element buffers and summed serially in a fixed
-  // order, so the result does not depend on the thread count.
-  double evaluate(const Eigen::Matrix3Xd& x, bool gradient, bool hessian, Eigen::VectorXd* grad) {
+  // `hessian` also the projected element Hessians and, with `exact`, the exact ones (into the
+  // per-element buffers). Elements are evaluated in parallel into per-element buffers and summed
+  // serially in a fixed order, so the result does not depend on the thread count.
+  double evaluate(const Eigen::Matrix3Xd& x, bool gradient, bool hessian, Eigen::VectorXd* grad,
+                  bool exact = true) {
     const int ne = static_cast<int>(edges_.size()), nh = static_cast<int>(hinges_.size());
     const double* px = x.data();
-#pragma omp parallel num_threads(std::max(1, settings_.threads))
+    if (hessian) {
+      // Where these element Hessians are from, so that the exact ones can be added later at the
+      // same point (ensure_exact) when this evaluation skipped them.
+      hessian_x_ = x;
+      exact_elements_ = exact;
+    }
+    // With one thread no parallel region is opened: libgomp's fork-join (futex wake-ups) cost 5-10
+    // % of a one-thread solve on seed 004's falling grid, where this runs about 20 times a frame.
+#pragma omp parallel num_threads(std::max(1, settings_.threads)) if (settings_.threads > 1)
     {
 #pragma omp for schedule(static)
       for (int e = 0; e < ne; ++e) {
@@ -485,8 +495,9 @@ class NewtonSolver final : public Solver {
         const double* a = px + 3 * el.v[0];
         const double* b = px + 3 * el.v[1];
         if (hessian)
-          edge_energy_[e] = stretch_hessians(a, b, el.rest_length, el.k_s, &edge_grad_[6 * e],
-                                             &edge_hess_[36 * e], &edge_hess_proj_[36 * e]);
+          edge_energy_[e] =
+              stretch_hessians(a, b, el.rest_length, el.k_s, &edge_grad_[6 * e],
+                               exact ? &edge_hess_[36 * e] : nullptr, &edge_hess_proj_[36 * e]);
         else if (gradient)
           edge_energy_[e] = stretch_gradient(a, b, el.rest_length, el.k_s, &edge_grad_[6 * e]);
         else
@@ -500,8 +511,9 @@ class NewtonSolver final : public Solver {
         const double* p2 = px + 3 * el.v[2];
         const double* p3 = px + 3 * el.v[3];
         if (hessian)
-          hinge_energy_[h] = bend_hessians(p0, p1, p2, p3, el.theta0, el.k_b, &hinge_grad_[12 * h],
-                                           &hinge_hess_[144 * h], &hinge_hess_proj_[144 * h]);
+          hinge_energy_[h] =
+              bend_hessians(p0, p1, p2, p3, el.theta0, el.k_b, &hinge_grad_[12 * h],
+                            exact ? &hinge_hess_[144 * h] : nullptr, &hinge_hess_proj_[144 * h]);
         else if (gradient)
           hinge_energy_[h] = bend_gradient(p0, p1, p2, p3, el.theta0, el.k_b, &hinge_grad_[12 * h]);
         else
@@ -524,23 +536,32 @@ class NewtonSolver final : public Solver {
     return energy;
   }
 
-  // Sums the element Hessians of the last evaluate(..., hessian = true) into value arrays of the
-  // free-DOF pattern (lower triangle): the exact stiffness and the projected (PSD) one.
-  void assemble_stiffness(Eigen::VectorXd& exact, Eigen::VectorXd& projected) const {
+  // Sums element Hessians of the last evaluate(..., hessian = true) into a value array of the
+  // free-DOF pattern (lower triangle): the projected (PSD) stiffness, or with `exact` the exact one
+  // (which that evaluation must have computed).
+  void assemble_stiffness(bool exact, Eigen::VectorXd& out) const {
     auto scatter = [](const Scatter& s, const std::vector<double>& hess, int stride, int count,
-                      double* out) {
+                      double* values) {
       for (int el = 0; el < count; ++el) {
         const double* h = hess.data() + static_cast<size_t>(stride) * el;
-        for (int k = s.offset[el]; k < s.offset[el + 1]; ++k) out[s.slot[k]] += h[s.local[k]];
+        for (int k = s.offset[el]; k < s.offset[el + 1]; ++k) values[s.slot[k]] += h[s.local[k]];
       }
     };
     const int ne = static_cast<int>(edges_.size()), nh = static_cast<int>(hinges_.size());
-    exact.setZero(a_.nonZeros());
-    projected.setZero(a_.nonZeros());
-    scatter(edge_scatter_, edge_hess_, 36, ne, exact.data());
-    scatter(hinge_scatter_, hinge_hess_, 144, nh, exact.data());
-    scatter(edge_scatter_, edge_hess_proj_, 36, ne, projected.data());
-    scatter(hinge_scatter_, hinge_hess_proj_, 144, nh, projected.data());
+    out.setZero(a_.nonZeros());
+    scatter(edge_scatter_, exact ? edge_hess_ : edge_hess_proj_, 36, ne, out.data());
+    scatter(hinge_scatter_, exact ? hinge_hess_ : hinge_hess_proj_, 144, nh, out.data());
+  }
+
+  // The exact stiffness at the point of the last Hessian evaluation, into `exact`. Most iterations
+  // factorise only the projected one (newton_projected_first), so the exact element Hessians (the
+  // hinge's curvature term is the costliest part of an evaluation) and their assembly are made
+  // only for the iterations that try them: the same values, computed when needed.
+  void ensure_exact(Eigen::VectorXd& exact) {
+    if (exact_assembled_) return;
+    if (!exact_elements_) evaluate(hessian_x_, true, true, &scratch_grad_, true);
+    assemble_stiffness(true, exact);
+    exact_assembled_ = true;
   }
 
   // Element Hessian blocks (free row, kinematic column) times the kinematic displacement over the
@@ -639,9 +660,10 @@ class NewtonSolver final : public Solver {
 
   // Assembles the Hessian at x = x_n and keeps its projected part as the damping matrix K_n
   // (projected so that damping can only dissipate), with its kinematic coupling load.
-  void start_damping(const SubstepContext& ctx, const Eigen::Matrix3Xd& x, Eigen::VectorXd& exact,
+  void start_damping(const SubstepContext& ctx, const Eigen::Matrix3Xd& x,
                      Eigen::VectorXd& projected) {
-    assemble_stiffness(exact, projected);
+    assemble_stiffness(false, projected);
+    exact_assembled_ = false;
     stiffness_start_ = projected;
     if (ctx.beta > 0.0) kinematic_damping_load(x, ctx.x_n, kinematic_load_);
   }
@@ -675,10 +697,10 @@ class NewtonSolver final : public Solver {
     // gradient evaluation per step.
     const bool kinematic_moving = kinematic_moved(x, ctx.x_n);
     bool hessian_current = kinematic_moving && ctx.beta > 0.0;  // exact/projected are at x
-    double elastic = evaluate(x, true, hessian_current, &grad);
+    double elastic = evaluate(x, true, hessian_current, &grad, false);
     bool have_damping = hessian_current;  // K_n (stiffness_start_) is set
     kinematic_load_.setZero(3 * free_count_);
-    if (have_damping) start_damping(ctx, x, exact, projected);
+    if (have_damping) start_damping(ctx, x, projected);
     residual(ctx, x, grad, r);
     double phi = elastic + extra_potential(ctx, x);
     const double phi_start = phi;  // Phi at x_n (kinematic vertices moved): what must decrease
@@ -706,8 +728,8 @@ class NewtonSolver final : public Solver {
     bool stale_hessian = false;  // exact/projected are from x_n while x is the prediction
     if (guess != nullptr && std::isfinite(rnorm) && !(rnorm < tolerance)) {
       if (!have_damping) {
-        evaluate(x, true, true, &grad);
-        start_damping(ctx, x, exact, projected);
+        evaluate(x, true, true, &grad, false);
+        start_damping(ctx, x, projected);
         update_tolerance();
         have_damping = hessian_current = true;
       }
@@ -728,9 +750,10 @@ class NewtonSolver final : public Solver {
       }
     }
 
-    int skip_exact = 0;  // iterations left that go straight to the projected Hessian
-    double ratio = 1.0;  // last iteration's residual over the one before
-    double eta = 0.1;    // Eisenstat-Walker forcing term (PCG's relative tolerance)
+    int skip_exact = 0;               // iterations left that go straight to the projected Hessian
+    double ratio = 1.0;               // last iteration's residual over the one before
+    double previous_full_step = 0.0;  // the last iteration's max |dx| if it was a full step, else 0
+    double eta = 0.1;                 // Eisenstat-Walker forcing term (PCG's relative tolerance)
     // A non-converged iterate is kept when it lowered Phi by more than rounding
     // (newton_accept_decrease); the caller then does not halve the step.
     auto keep_descent = [&]() {
@@ -788,14 +811,19 @@ class NewtonSolver final : public Solver {
       bool solved = chord && linear_->solve(b, cg_guess, rel_tol, d, solve_why);
       const bool fresh = !solved && !stale_hessian;
       if (!solved) {
+        // Whether this iteration tries the exact Hessian (the branches below).
+        const bool try_exact = settings_.newton_exact_hessian &&
+                               !(settings_.newton_projected_first && !(ratio <= 0.5)) &&
+                               skip_exact == 0;
         if (!hessian_current && !stale_hessian) {
-          evaluate(x, true, true, &grad);
+          evaluate(x, true, true, &grad, try_exact);
           if (!have_damping) {
             // Still at x_n (nothing moved before the first Hessian): this is K_n.
-            start_damping(ctx, x, exact, projected);
+            start_damping(ctx, x, projected);
             have_damping = true;
           } else {
-            assemble_stiffness(exact, projected);
+            assemble_stiffness(false, projected);
+            exact_assembled_ = false;
           }
           update_tolerance();
           hessian_current = true;
@@ -813,6 +841,7 @@ class NewtonSolver final : public Solver {
         } else if (skip_exact > 0) {
           --skip_exact;
         } else {
+          ensure_exact(exact);
           solved = factor_and_solve(exact, cg_guess, rel_tol);
           if (!solved) skip_exact = 2;
         }
@@ -873,10 +902,27 @@ class NewtonSolver final : public Solver {
         double max_step = 0.0;
         for (int f = 0; f < free_count_; ++f)
           max_step = std::max(max_step, alpha * d.segment<3>(3 * f).norm());
-        if (max_step < settings_.newton_velocity_tolerance * ctx.h) {
+        const double bound = settings_.newton_velocity_tolerance * ctx.h;
+        if (max_step < bound) {
           last_residual_ = rnorm;
           return true;
         }
+        // ... or on the updates still to come, estimated from the contraction of two successive
+        // full (alpha = 1) Newton steps, theta = |dx_k| / |dx_k-1| (Deuflhard 2004, "Newton
+        // Methods for Nonlinear Problems", sec. 2.1: with contraction theta < 1 the distance to
+        // the solution after step k is at most theta / (1 - theta) |dx_k|). This saves the
+        // iteration whose only use would be to find its own update below the bound.
+        if (alpha == 1.0 && previous_full_step > 0.0) {
+          const double theta = max_step / previous_full_step;
+          if (theta <= 0.25 && theta / (1.0 - theta) * max_step < bound) {
+            last_residual_ = rnorm;
+            return true;
+          }
+        }
+        // Not from the first step: from x_n (or a prediction) it carries the inertial motion of
+        // the whole step, which says nothing about the elastic part still to converge (measured:
+        // counting it stopped steady frames of seed 004's falling grid 0.35 mm short per frame).
+        previous_full_step = alpha == 1.0 && it > 0 ? max_step : 0.0;
       }
     }
   }
@@ -961,6 +1007,11 @@ class NewtonSolver final : public Solver {
   std::vector<double> edge_grad_, edge_hess_, hinge_grad_, hinge_hess_;
   std::vector<double> edge_hess_proj_, hinge_hess_proj_;  // projected (PSD) element Hessians
   std::vector<double> edge_energy_, hinge_energy_;
+  // The point of the last Hessian evaluation, whether it computed the exact element Hessians, and
+  // whether the exact stiffness assembled from them is current (ensure_exact).
+  Eigen::Matrix3Xd hessian_x_;
+  bool exact_elements_ = false, exact_assembled_ = false;
+  Eigen::VectorXd scratch_grad_;
   Eigen::VectorXd stiffness_start_;  // K_n values (lower triangle) for Rayleigh damping
   Eigen::VectorXd kinematic_load_;   // K_n(free, kinematic) (x - x_n)(kinematic)
   Eigen::VectorXd dx_free_, tmp_, cg_guess_, empty_;

@@ -1,6 +1,7 @@
 #include "solvers/solver_candidates.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 
 namespace clothdb {
@@ -86,6 +87,95 @@ std::vector<SolverCandidate> solver_candidates(SolverKind kind, bool quick) {
               candidate(kind, 1, 0, 1e-5, L::ConjugateGradientIC)};
   }
   return {};
+}
+
+std::string variation_label(SolverKind kind, const SolverSettings& s) {
+  char buf[160] = "";
+  switch (kind) {
+    case SolverKind::MassSpring:
+      std::snprintf(buf, sizeof buf, "substeps=%d", s.substeps);
+      break;
+    case SolverKind::Pbd:
+      std::snprintf(buf, sizeof buf, "substeps=%d iterations=%d", s.substeps, s.iterations);
+      break;
+    case SolverKind::Xpbd:
+      if (s.stretch_iterations > 0)
+        std::snprintf(buf, sizeof buf, "substeps=%d iterations=%d stretch=%d", s.substeps,
+                      s.iterations, s.stretch_iterations);
+      else
+        std::snprintf(buf, sizeof buf, "substeps=%d iterations=%d", s.substeps, s.iterations);
+      break;
+    case SolverKind::Newton:
+      std::snprintf(buf, sizeof buf, "%s substeps=%d tol=%.0e", linear_solver_name(s.linear_solver),
+                    s.substeps, s.newton_tolerance);
+      break;
+  }
+  return buf;
+}
+
+std::vector<SolverCandidate> scene_variations(SolverKind kind, const SolverSettings& own,
+                                              bool quick) {
+  std::vector<SolverCandidate> out;
+  auto add = [&](const SolverSettings& s) {
+    for (const SolverCandidate& c : out)
+      if (c.settings.substeps == s.substeps && c.settings.iterations == s.iterations &&
+          c.settings.stretch_iterations == s.stretch_iterations &&
+          c.settings.newton_tolerance == s.newton_tolerance)
+        return;
+    SolverCandidate c{kind, s, variation_label(kind, s)};
+    if (out.empty()) c.label += " (scene)";
+    out.push_back(c);
+  };
+  auto scaled = [&](double substeps, int iteration_factor) {
+    SolverSettings s = own;
+    s.substeps = std::max(1, static_cast<int>(std::lround(substeps * own.substeps)));
+    s.iterations = own.iterations * iteration_factor;
+    s.stretch_iterations = own.stretch_iterations * iteration_factor;
+    return s;
+  };
+  add(own);
+  switch (kind) {
+    case SolverKind::MassSpring:
+      for (double f : quick ? std::vector<double>{2} : std::vector<double>{1.5, 2})
+        add(scaled(f, 1));
+      break;
+    case SolverKind::Pbd:
+    case SolverKind::Xpbd: {
+      const std::vector<double> factors =
+          quick ? std::vector<double>{0.5, 2} : std::vector<double>{0.25, 0.5, 0.75, 1.5, 2};
+      for (double f : factors) add(scaled(f, 1));
+      if (!quick)
+        for (double f : {0.5, 1.0}) add(scaled(f, 2));
+      break;
+    }
+    case SolverKind::Newton:
+      for (int substeps : quick ? std::vector<int>{1} : std::vector<int>{1, 2})
+        for (double t : {10.0, 1.0, 0.1}) {
+          SolverSettings s = scaled(substeps, 1);
+          s.newton_tolerance = own.newton_tolerance * t;
+          add(s);
+        }
+      break;
+  }
+  return out;
+}
+
+SolverCandidate scene_reference(SolverKind kind, const SolverSettings& own) {
+  // 8x the sub-steps of the scene's own setting, every other field kept: what the setting
+  // converges to as the step shrinks, i.e. the motion of the same model (the same constraints,
+  // strain limit, contact rounds and tethers for XPBD; the same energies for Newton). Measured
+  // against it, a candidate's error is what its discretisation costs, not how far one solver's
+  // model is from another's (XPBD and PBD are 90-130 mm from Newton on the small skirt; see
+  // explore/auto_solver.hpp). 8x is the factor the solver benchmark's reference uses.
+  SolverCandidate c{kind, own, ""};
+  c.settings.substeps = own.substeps * 8;
+  if (kind == SolverKind::Newton) {
+    c.settings.newton_tolerance = std::min(own.newton_tolerance, 1e-9);
+    c.settings.newton_velocity_tolerance = 0.0;
+    c.settings.newton_accept_decrease = false;
+  }
+  c.label = variation_label(kind, c.settings);
+  return c;
 }
 
 SolverCandidate reference_candidate() {
