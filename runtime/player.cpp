@@ -690,8 +690,9 @@ void face_normals(const float* __restrict x, const uint32_t* __restrict tri, siz
 
 // Per vertex, sums the listed rows of `rows` (rows of kVectors 3-vectors, each padded to 4 floats;
 // the lists hold row offsets, two at a time: Db::vertex_faces) into planes: lane k of vector q into
-// out[(3 q + k) * vertices + v]. The adjacency gather of the vertex normals (1 vector) and of the
-// tangent sums (2). The sums start at +0 and add in the listed order, as the scatter did.
+// out[(3 q + k) * vertices + v]: the tangent pass's sums (kVectors 2: the u and v directions; the
+// vertex normals have their own pass, vertex_normals). The sums start at +0 and add in the listed
+// order, as the scatter did.
 template <int kVectors>
 CLOTHRT_MULTIVERSION void gather_rows(const float* __restrict rows,
                                       const uint32_t* __restrict begin,
@@ -735,11 +736,11 @@ CLOTHRT_MULTIVERSION void gather_rows(const float* __restrict rows,
   }
 }
 
-// The vertex normals in one pass: per vertex the sum of its triangles' rows (gather_rows<1>), made
+// The vertex normals in one pass: per vertex the sum of its triangles' rows (as gather_rows), made
 // unit (a zero or NaN sum becomes +y) into planes nv; when wn is not null also interleaved there (3
 // floats per vertex, and the float after the last is written too), turned by m's upper 3x3 and
 // renormalised first when m is not null (a zero vector stays zero). Four vertices at a time in SSE
-// registers, the same operations as normalise_planes and turn_planes lane by lane.
+// registers, each lane doing the scalar code's operations (the tail's loop).
 void vertex_normals(const float* __restrict rows, const uint32_t* __restrict begin,
                     const uint32_t* __restrict faces, size_t n, float* __restrict nv,
                     const float* __restrict m, float* __restrict wn) {
@@ -821,26 +822,10 @@ void vertex_normals(const float* __restrict rows, const uint32_t* __restrict beg
   }
 }
 
-// Unit vectors over planes x, y, z: in place, and interleaved into xyz when not null; a zero (or
-// NaN) vector becomes +y (vertex normals), or is kept when keep_zero.
+// Unit vectors in place over planes x, y, z; a zero (or NaN) vector is kept (the tangent pass's
+// normals, already unit, renormalised as the scalar code did).
 CLOTHRT_MULTIVERSION void normalise_planes(float* __restrict x, float* __restrict y,
-                                           float* __restrict z, size_t n, bool keep_zero,
-                                           float* __restrict xyz) {
-  const float fx = 0, fy = keep_zero ? 0.0f : 1.0f;
-  if (xyz) {
-    for (size_t v = 0; v < n; ++v) {
-      const float a = x[v], b = y[v], c = z[v];
-      const float l2 = a * a + b * b + c * c;
-      const bool ok = l2 > 0;
-      const float s = 1.0f / std::sqrt(ok ? l2 : 1.0f);
-      const float as = a * s, bs = b * s, cs = c * s;
-      const float za = keep_zero ? a : fx, zb = keep_zero ? b : fy, zc = keep_zero ? c : fx;
-      x[v] = xyz[3 * v] = ok ? as : za;
-      y[v] = xyz[3 * v + 1] = ok ? bs : zb;
-      z[v] = xyz[3 * v + 2] = ok ? cs : zc;
-    }
-    return;
-  }
+                                           float* __restrict z, size_t n) {
   for (size_t v = 0; v < n; ++v) {
     const float a = x[v], b = y[v], c = z[v];
     const float l2 = a * a + b * b + c * c;
@@ -849,22 +834,21 @@ CLOTHRT_MULTIVERSION void normalise_planes(float* __restrict x, float* __restric
     // vectorises.
     const float s = 1.0f / std::sqrt(ok ? l2 : 1.0f);
     const float as = a * s, bs = b * s, cs = c * s;
-    const float za = keep_zero ? a : fx, zb = keep_zero ? b : fy, zc = keep_zero ? c : fx;
-    x[v] = ok ? as : za;
-    y[v] = ok ? bs : zb;
-    z[v] = ok ? cs : zc;
+    x[v] = ok ? as : a;
+    y[v] = ok ? bs : b;
+    z[v] = ok ? cs : c;
   }
 }
 
 // Planes turned by the upper 3x3 of the column-major m (a root transform's linear part) and
-// renormalised (a zero vector stays zero), into planes (oz != null) or interleaved at ox.
+// renormalised (a zero vector stays zero), into planes ox, oy, oz.
 CLOTHRT_MULTIVERSION void turn_planes(const float* __restrict x, const float* __restrict y,
                                       const float* __restrict z, size_t n,
                                       const float* __restrict m, float* __restrict ox,
                                       float* __restrict oy, float* __restrict oz) {
   const float m0 = m[0], m1 = m[1], m2 = m[2], m4 = m[4], m5 = m[5], m6 = m[6], m8 = m[8],
               m9 = m[9], m10 = m[10];
-  auto turned = [&](size_t v, float* o) {
+  for (size_t v = 0; v < n; ++v) {
     const float a = x[v], b = y[v], c = z[v];
     const float p = m0 * a + m4 * b + m8 * c, q = m1 * a + m5 * b + m9 * c,
                 r = m2 * a + m6 * b + m10 * c;
@@ -872,18 +856,9 @@ CLOTHRT_MULTIVERSION void turn_planes(const float* __restrict x, const float* __
     const bool ok = l2 > 0;
     const float s = 1.0f / std::sqrt(ok ? l2 : 1.0f);
     const float ps = p * s, qs = q * s, rs = r * s;
-    o[0] = ok ? ps : p;
-    o[1] = ok ? qs : q;
-    o[2] = ok ? rs : r;
-  };
-  if (oz) {
-    for (size_t v = 0; v < n; ++v) {
-      float o[3];
-      turned(v, o);
-      ox[v] = o[0], oy[v] = o[1], oz[v] = o[2];
-    }
-  } else {
-    for (size_t v = 0; v < n; ++v) turned(v, ox + 3 * v);
+    ox[v] = ok ? ps : p;
+    oy[v] = ok ? qs : q;
+    oz[v] = ok ? rs : r;
   }
 }
 
@@ -1119,7 +1094,7 @@ int Player::render(const clothrt_render_output& out, const float* m) {
       }
       pl[r] = v[0], pl[rn + r] = v[1], pl[2 * rn + r] = v[2];
     }
-    normalise_planes(pl, pl + rn, pl + 2 * rn, rn, true, nullptr);
+    normalise_planes(pl, pl + rn, pl + 2 * rn, rn);
     float* u = pl + 3 * rn;
     float* hand = pl + 6 * rn;
     tangent_frames(pl, pl + rn, pl + 2 * rn, u, u + rn, u + 2 * rn, hand, hand + rn, hand + 2 * rn,
