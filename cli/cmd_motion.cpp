@@ -26,6 +26,13 @@ void print_motion(const LoadedMotion& m, bool list_joints) {
   std::printf("  frames: %d at %g Hz, duration %.3f s\n", c.frame_count, c.rate, c.duration());
   std::printf("  scale: %g m per file unit; skeleton size (rest) %.3f m\n", c.scale,
               skeleton_size(sk));
+  // The size counts end sites, so say which are the file's and which the loader made up
+  // (docs/guide/garment_placement.md, "Motion from Blender").
+  int from_file = 0, made_up = 0;
+  for (int j = 0; j < sk.joint_count(); ++j)
+    if (sk.end_site[j]) ++(sk.end_site_from_file[j] ? from_file : made_up);
+  std::printf("  end sites: %d from the file, %d made up for leaves the file gives no end\n",
+              from_file, made_up);
   Eigen::Vector3d lo = c.positions.front(), hi = c.positions.front();
   double hip_lo = c.position(0, 0).y(), hip_hi = hip_lo;
   for (int f = 0; f < c.frame_count; ++f) {

@@ -42,6 +42,31 @@ void repack(const float* x, size_t n, const float origin[3], float step, uint16_
   }
 }
 
+// The triangles around each vertex as compressed rows, ascending (a counting sort over the
+// corners, so a triangle that names a vertex twice is listed twice, as a scatter would add it),
+// only those `keep` accepts. Each entry is the triangle's offset in a buffer of `row_floats` floats
+// per triangle; each vertex's list is padded to an even length with the row after the last
+// triangle (n * row_floats), which the player keeps at zero: adding +0 to a sum that started at +0
+// changes no bit, and pairs let the gather loop run two rows per turn. Indices were checked
+// against `vertices` by the caller.
+template <typename Keep>
+void adjacency(const std::vector<uint32_t>& tri, uint32_t vertices, Keep keep, uint32_t row_floats,
+               std::vector<uint32_t>* begin, std::vector<uint32_t>* faces) {
+  const size_t n = tri.size() / 3;
+  std::vector<uint32_t> count(vertices, 0);
+  for (size_t t = 0; t < n; ++t)
+    if (keep(t))
+      for (int k = 0; k < 3; ++k) ++count[tri[3 * t + size_t(k)]];
+  begin->assign(size_t(vertices) + 1, 0);
+  for (size_t v = 0; v < vertices; ++v) (*begin)[v + 1] = (*begin)[v] + (count[v] + 1) / 2 * 2;
+  faces->assign((*begin)[vertices], uint32_t(n) * row_floats);
+  std::vector<uint32_t> next(begin->begin(), begin->end() - 1);
+  for (size_t t = 0; t < n; ++t)
+    if (keep(t))
+      for (int k = 0; k < 3; ++k)
+        (*faces)[next[tri[3 * t + size_t(k)]]++] = uint32_t(t) * row_floats;
+}
+
 }  // namespace
 
 int to_code(Status status) {
@@ -137,6 +162,31 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
         render_uvs[2 * r + 1] = artist.uvs[2 * size_t(uv) + 1];
       }
     }
+  }
+
+  // The triangles around each vertex (internal.hpp, vertex_faces): simulation mesh, and with UVs
+  // the render triangles that carry a tangent.
+  adjacency(
+      triangles, vertex_count, [](size_t) { return true; }, 4, &vertex_faces_begin, &vertex_faces);
+  if (!render_uvs.empty()) {
+    const size_t rt = render_triangles.size() / 3;
+    render_uv_edges.resize(rt * 5);
+    for (size_t t = 0; t < rt; ++t) {
+      const uint32_t* i = &render_triangles[3 * t];
+      const float* uv = render_uvs.data();
+      float* e = &render_uv_edges[5 * t];
+      e[0] = uv[2 * i[1]] - uv[2 * i[0]];
+      e[1] = uv[2 * i[1] + 1] - uv[2 * i[0] + 1];
+      e[2] = uv[2 * i[2]] - uv[2 * i[0]];
+      e[3] = uv[2 * i[2] + 1] - uv[2 * i[0] + 1];
+      const float det = e[0] * e[3] - e[2] * e[1];
+      e[4] = det == 0 ? 0.0f : 1.0f / det;
+    }
+    // A triangle degenerate in UV space contributes no tangent.
+    adjacency(
+        render_triangles, render_vertex_count,
+        [&](size_t t) { return render_uv_edges[5 * t + 4] != 0; }, 8, &render_faces_begin,
+        &render_faces);
   }
 
   // Codec version 2 bases: every blob that names one decodes with it (normally one per file).
@@ -268,7 +318,10 @@ Status Db::open(const std::string& file, const clothrt_db_options& opts, Error* 
       triangles.size() * sizeof(uint32_t) +
       (render_triangles.size() + render_sim.size() + render_source.size()) * sizeof(uint32_t) +
       (render_weights.size() + render_uvs.size()) * sizeof(float) +
-      (primary_by_id.size() + clip_by_id.size()) * 32;
+      (vertex_faces_begin.size() + vertex_faces.size() + render_faces_begin.size() +
+       render_faces.size()) *
+          sizeof(uint32_t) +
+      render_uv_edges.size() * sizeof(float) + (primary_by_id.size() + clip_by_id.size()) * 32;
   for (const PrimaryInfo& p : primaries) metadata_bytes += p.name.size();
   for (const auto& b : bases) metadata_bytes += b.memory_bytes();
 

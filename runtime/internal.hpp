@@ -138,6 +138,18 @@ struct Db {
   std::vector<uint32_t> render_source;  // artist vertex per render vertex
   std::vector<float> render_uvs;        // 2 per render vertex; empty: no UVs
   bool all_indexed = true;
+  // Built at open for the per-frame normals and tangents (Player::render): the triangles around
+  // each vertex in ascending order, as compressed rows (vertex v's are faces[begin[v] ..
+  // begin[v + 1]), padded to an even count with a zero row; db.cpp, adjacency), so a vertex sums
+  // its triangles' vectors by reading them in the order a scatter over the triangles would add
+  // them (the same float sums, bit for bit). Entries are offsets into the player's rows (4 floats
+  // per simulation triangle, 8 per render triangle). vertex_faces* cover the simulation mesh;
+  // render_faces* the render triangles whose UV triangle is not degenerate (only when the mesh
+  // has UVs), with per render triangle its UV edges and 1 / det (Lengyel 2001): du1, dv1, du2,
+  // dv2, 1 / det.
+  std::vector<uint32_t> vertex_faces_begin, vertex_faces;
+  std::vector<uint32_t> render_faces_begin, render_faces;
+  std::vector<float> render_uv_edges;
   std::vector<PrimaryInfo> primaries;
   std::vector<int> successors;  // primary indices
   std::vector<int> candidates;  // clip indices, grouped by primary clip, by state id
@@ -248,9 +260,13 @@ struct Player {
   // The pose shown is clip(t) + max(0, r0 - t / blend_span) * offset_. When holding it is offset_.
   std::vector<float> offset_;
   std::vector<float> local_;  // character-space pose before a transform or a strided copy
-  // Render-mesh scratch, sized at creation: simulation-vertex normals, and per render vertex the
-  // tangent and bitangent sums (only when the mesh has UVs).
-  std::vector<float> normals_, tangent_sums_;
+  // Render-mesh scratch, sized at creation (Player::render): face normals (4 floats per
+  // simulation triangle, and a zero row after them), simulation-vertex normals (as x, y, z planes
+  // of vertex_count floats), their world-space turn and the world-space positions (3 floats per
+  // vertex); with UVs, per render triangle its tangent and bitangent directions (8 floats; a zero
+  // row after them) and per render vertex 9 planes (the normal, the tangent sum, the bitangent
+  // sum; overwritten in place by the tangent and its sign).
+  std::vector<float> face_normals_, normals_, world_normals_, world_, face_tangents_, tangents_;
   double r0_ = 0, blend_span_ = 1;
   bool fallback_ = false, holding_ = false;
   int next_k_ = -1;  // successor chosen for the node ahead (-1: not yet)

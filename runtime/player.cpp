@@ -5,6 +5,10 @@
 #include <cmath>
 #include <cstring>
 
+#if defined(__SSE2__)
+#include <immintrin.h>
+#endif
+
 #include "internal.hpp"
 
 namespace clothrt {
@@ -52,6 +56,18 @@ inline float value(const ClipView& v, size_t n, size_t f, size_t i) {
 #define CLOTHRT_MULTIVERSION __attribute__((target_clones("avx2", "default")))
 #else
 #define CLOTHRT_MULTIVERSION
+#endif
+// The render pass's 3-vectors as one SSE vector each (part of every x86-64), and two per AVX
+// vector where the processor has AVX2 (checked at run time).
+#if defined(__SSE2__)
+#define CLOTHRT_SSE 1
+#else
+#define CLOTHRT_SSE 0
+#endif
+#if CLOTHRT_SSE && defined(__x86_64__) && defined(__GNUC__)
+#define CLOTHRT_AVX_DISPATCH 1
+#else
+#define CLOTHRT_AVX_DISPATCH 0
 #endif
 
 template <bool kInterp, bool kBlend>
@@ -104,12 +120,16 @@ CLOTHRT_MULTIVERSION void transform(const float* __restrict src, size_t vertices
                                     const float* __restrict m, float* __restrict out, size_t vs) {
   const float m0 = m[0], m1 = m[1], m2 = m[2], m4 = m[4], m5 = m[5], m6 = m[6], m8 = m[8],
               m9 = m[9], m10 = m[10], m12 = m[12], m13 = m[13], m14 = m[14];
-  for (size_t v = 0; v < vertices; ++v) {
+  auto one = [&](size_t v, float* o) {
     const float x = src[3 * v], y = src[3 * v + 1], z = src[3 * v + 2];
-    float* o = out + v * vs;
     o[0] = m0 * x + m4 * y + m8 * z + m12;
     o[1] = m1 * x + m5 * y + m9 * z + m13;
     o[2] = m2 * x + m6 * y + m10 * z + m14;
+  };
+  if (vs == 3) {  // packed: a constant stride, which vectorises
+    for (size_t v = 0; v < vertices; ++v) one(v, out + 3 * v);
+  } else {
+    for (size_t v = 0; v < vertices; ++v) one(v, out + v * vs);
   }
 }
 
@@ -118,9 +138,17 @@ CLOTHRT_MULTIVERSION void transform(const float* __restrict src, size_t vertices
 Player::Player(Db* d) : db(d) {
   const size_t n = size_t(db->vertex_count) * 3;
   offset_.assign(n, 0.0f);
-  local_.assign(n, 0.0f);
+  local_.assign(n + 1, 0.0f);  // + 1: the render pass reads points as 4 floats
   normals_.assign(n, 0.0f);
-  if (!db->render_uvs.empty()) tangent_sums_.assign(size_t(db->render_vertex_count) * 6, 0.0f);
+  face_normals_.assign((db->triangles.size() / 3 + 1) * 4, 0.0f);
+  if (db->all_indexed) {
+    world_normals_.assign(n + 1, 0.0f);  // + 1: vertex_normals writes 4 floats at a time
+    world_.assign(n, 0.0f);
+  }
+  if (!db->render_uvs.empty()) {
+    face_tangents_.assign((db->render_triangles.size() / 3 + 1) * 8, 0.0f);
+    tangents_.assign(size_t(db->render_vertex_count) * 9, 0.0f);
+  }
   pinned_.assign(db->max_successors, -1);
   pending_.assign(db->max_successors, 0);
   std::lock_guard<std::mutex> lk(db->mu);
@@ -139,7 +167,9 @@ Player::~Player() {
 
 size_t Player::memory() const {
   return sizeof(Player) +
-         (offset_.capacity() + local_.capacity() + normals_.capacity() + tangent_sums_.capacity()) *
+         (offset_.capacity() + local_.capacity() + normals_.capacity() + face_normals_.capacity() +
+          world_normals_.capacity() + world_.capacity() + face_tangents_.capacity() +
+          tangents_.capacity()) *
              sizeof(float) +
          pinned_.capacity() * sizeof(int) + pending_.capacity();
 }
@@ -584,50 +614,349 @@ int Player::positions(float* out, size_t stride, const float* m) {
 namespace {
 
 // Area-weighted vertex normals of the simulation mesh (the cross product of a triangle's edges is
-// its normal times twice its area), normalised; a vertex of no triangle gets +y.
-CLOTHRT_MULTIVERSION void vertex_normals(const float* __restrict x, const uint32_t* __restrict tri,
-                                         size_t triangles, size_t vertices, float* __restrict out) {
-  std::memset(out, 0, vertices * 3 * sizeof(float));
+// its normal times twice its area), normalised; a vertex of no triangle gets +y. First each
+// triangle's normal once, into 4-float rows; then each vertex gathers its triangles' rows through
+// the adjacency (Db::vertex_faces, ascending), which adds the same floats in the same order as
+// scattering them triangle by triangle, without the scatter's store-to-load chains; the square
+// roots run last over contiguous planes, where they vectorise. With SSE a row is one vector: a
+// point is read as 4 floats (the 4th is the next point's x, or the padding float after the last
+// point; its lane is never used), and each lane does the scalar code's operations, so the results
+// are the same bits.
+#if CLOTHRT_SSE
+// One triangle's normal row (the scalar code's operations, lane by lane).
+inline __m128 face_normal(const float* pa, const float* pb, const float* pc) {
+  const __m128 a = _mm_loadu_ps(pa);
+  const __m128 e = _mm_sub_ps(_mm_loadu_ps(pb), a), f = _mm_sub_ps(_mm_loadu_ps(pc), a);
+  // (e1 f2 - e2 f1, e2 f0 - e0 f2, e0 f1 - e1 f0): e.yzx * f.zxy - e.zxy * f.yzx
+  const __m128 eyzx = _mm_shuffle_ps(e, e, _MM_SHUFFLE(3, 0, 2, 1));
+  const __m128 ezxy = _mm_shuffle_ps(e, e, _MM_SHUFFLE(3, 1, 0, 2));
+  const __m128 fyzx = _mm_shuffle_ps(f, f, _MM_SHUFFLE(3, 0, 2, 1));
+  const __m128 fzxy = _mm_shuffle_ps(f, f, _MM_SHUFFLE(3, 1, 0, 2));
+  return _mm_sub_ps(_mm_mul_ps(eyzx, fzxy), _mm_mul_ps(ezxy, fyzx));
+}
+#endif
+
+#if CLOTHRT_AVX_DISPATCH
+// Two triangles per 256-bit vector (one per 128-bit half, where the shuffles stay): half the
+// arithmetic of face_normal per triangle, the same operations in every lane.
+__attribute__((target("avx2"))) void face_normals_avx2(const float* __restrict x,
+                                                       const uint32_t* __restrict tri,
+                                                       size_t triangles, float* __restrict fn) {
+  // Corner k of triangles t (low half) and t + 1 (high half).
+#define CLOTHRT_PAIR(i, k)                                                           \
+  _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(x + 3 * size_t((i)[k]))), \
+                       _mm_loadu_ps(x + 3 * size_t((i)[3 + (k)])), 1)
+  size_t t = 0;
+  for (; t + 2 <= triangles; t += 2) {
+    const uint32_t* i = tri + 3 * t;
+    const __m256 a = CLOTHRT_PAIR(i, 0);
+    const __m256 e = _mm256_sub_ps(CLOTHRT_PAIR(i, 1), a), f = _mm256_sub_ps(CLOTHRT_PAIR(i, 2), a);
+    const __m256 eyzx = _mm256_shuffle_ps(e, e, _MM_SHUFFLE(3, 0, 2, 1));
+    const __m256 ezxy = _mm256_shuffle_ps(e, e, _MM_SHUFFLE(3, 1, 0, 2));
+    const __m256 fyzx = _mm256_shuffle_ps(f, f, _MM_SHUFFLE(3, 0, 2, 1));
+    const __m256 fzxy = _mm256_shuffle_ps(f, f, _MM_SHUFFLE(3, 1, 0, 2));
+    _mm256_storeu_ps(fn + 4 * t,
+                     _mm256_sub_ps(_mm256_mul_ps(eyzx, fzxy), _mm256_mul_ps(ezxy, fyzx)));
+  }
+#undef CLOTHRT_PAIR
+  for (; t < triangles; ++t)
+    _mm_storeu_ps(fn + 4 * t,
+                  face_normal(x + 3 * size_t(tri[3 * t]), x + 3 * size_t(tri[3 * t + 1]),
+                              x + 3 * size_t(tri[3 * t + 2])));
+}
+#endif
+
+void face_normals(const float* __restrict x, const uint32_t* __restrict tri, size_t triangles,
+                  float* __restrict fn) {
+#if CLOTHRT_AVX_DISPATCH
+  if (__builtin_cpu_supports("avx2")) return face_normals_avx2(x, tri, triangles, fn);
+#endif
   for (size_t t = 0; t < triangles; ++t) {
-    const uint32_t a = tri[3 * t], b = tri[3 * t + 1], c = tri[3 * t + 2];
-    const float* pa = x + 3 * size_t(a);
-    const float* pb = x + 3 * size_t(b);
-    const float* pc = x + 3 * size_t(c);
+    const float* pa = x + 3 * size_t(tri[3 * t]);
+    const float* pb = x + 3 * size_t(tri[3 * t + 1]);
+    const float* pc = x + 3 * size_t(tri[3 * t + 2]);
+#if CLOTHRT_SSE
+    _mm_storeu_ps(fn + 4 * t, face_normal(pa, pb, pc));
+#else
     const float e0 = pb[0] - pa[0], e1 = pb[1] - pa[1], e2 = pb[2] - pa[2];
     const float f0 = pc[0] - pa[0], f1 = pc[1] - pa[1], f2 = pc[2] - pa[2];
-    const float n0 = e1 * f2 - e2 * f1, n1 = e2 * f0 - e0 * f2, n2 = e0 * f1 - e1 * f0;
-    for (const uint32_t v : {a, b, c}) {
-      float* o = out + 3 * size_t(v);
-      o[0] += n0;
-      o[1] += n1;
-      o[2] += n2;
+    float* o = fn + 4 * t;
+    o[0] = e1 * f2 - e2 * f1;
+    o[1] = e2 * f0 - e0 * f2;
+    o[2] = e0 * f1 - e1 * f0;
+#endif
+  }
+}
+
+// Per vertex, sums the listed rows of `rows` (rows of kVectors 3-vectors, each padded to 4 floats;
+// the lists hold row offsets, two at a time: Db::vertex_faces) into planes: lane k of vector q into
+// out[(3 q + k) * vertices + v]: the tangent pass's sums (kVectors 2: the u and v directions; the
+// vertex normals have their own pass, vertex_normals). The sums start at +0 and add in the listed
+// order, as the scatter did.
+template <int kVectors>
+CLOTHRT_MULTIVERSION void gather_rows(const float* __restrict rows,
+                                      const uint32_t* __restrict begin,
+                                      const uint32_t* __restrict faces, size_t vertices,
+                                      float* __restrict out) {
+  constexpr size_t kStride = 4 * kVectors;
+  size_t v = 0;
+#if CLOTHRT_SSE
+  // One vertex's sums, vector q.
+  auto sums = [&](size_t u, __m128* sum) {
+    for (int q = 0; q < kVectors; ++q) sum[q] = _mm_setzero_ps();
+    for (uint32_t j = begin[u]; j < begin[u + 1]; j += 2) {
+      const float* r0 = rows + faces[j];
+      const float* r1 = rows + faces[j + 1];
+      for (int q = 0; q < kVectors; ++q)
+        sum[q] = _mm_add_ps(_mm_add_ps(sum[q], _mm_loadu_ps(r0 + 4 * q)), _mm_loadu_ps(r1 + 4 * q));
+    }
+  };
+  // Four vertices at a time, turned into planes by a 4x4 transpose.
+  for (; v + 4 <= vertices; v += 4) {
+    __m128 s[4][kVectors];
+    for (int i = 0; i < 4; ++i) sums(v + size_t(i), s[i]);
+    for (int q = 0; q < kVectors; ++q) {
+      __m128 a = s[0][q], b = s[1][q], c = s[2][q], d = s[3][q];
+      _MM_TRANSPOSE4_PS(a, b, c, d);
+      _mm_storeu_ps(out + (3 * size_t(q)) * vertices + v, a);
+      _mm_storeu_ps(out + (3 * size_t(q) + 1) * vertices + v, b);
+      _mm_storeu_ps(out + (3 * size_t(q) + 2) * vertices + v, c);
     }
   }
-  for (size_t v = 0; v < vertices; ++v) {
-    float* o = out + 3 * v;
-    const float l2 = o[0] * o[0] + o[1] * o[1] + o[2] * o[2];
-    if (l2 > 0) {
-      const float s = 1.0f / std::sqrt(l2);
-      o[0] *= s;
-      o[1] *= s;
-      o[2] *= s;
+#endif
+  for (; v < vertices; ++v) {
+    float acc[kStride];
+    for (size_t k = 0; k < kStride; ++k) acc[k] = 0.0f;
+    for (uint32_t j = begin[v]; j < begin[v + 1]; ++j) {
+      const float* r = rows + faces[j];
+      for (size_t k = 0; k < kStride; ++k) acc[k] += r[k];
+    }
+    for (size_t q = 0; q < size_t(kVectors); ++q)
+      for (size_t k = 0; k < 3; ++k) out[(3 * q + k) * vertices + v] = acc[4 * q + k];
+  }
+}
+
+// The vertex normals in one pass: per vertex the sum of its triangles' rows (as gather_rows), made
+// unit (a zero or NaN sum becomes +y) into planes nv; when wn is not null also interleaved there (3
+// floats per vertex, and the float after the last is written too), turned by m's upper 3x3 and
+// renormalised first when m is not null (a zero vector stays zero). Four vertices at a time in SSE
+// registers, each lane doing the scalar code's operations (the tail's loop).
+void vertex_normals(const float* __restrict rows, const uint32_t* __restrict begin,
+                    const uint32_t* __restrict faces, size_t n, float* __restrict nv,
+                    const float* __restrict m, float* __restrict wn) {
+  auto unit = [](float a, float b, float c, float fy, float* o) {
+    const float l2 = a * a + b * b + c * c;
+    const bool ok = l2 > 0;
+    const float s = 1.0f / std::sqrt(ok ? l2 : 1.0f);
+    o[0] = ok ? a * s : fy == 0 ? a : 0.0f;
+    o[1] = ok ? b * s : fy == 0 ? b : fy;
+    o[2] = ok ? c * s : fy == 0 ? c : 0.0f;
+  };
+  size_t v = 0;
+#if CLOTHRT_SSE
+  const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.0f);
+  auto select = [](__m128 mask, __m128 a, __m128 b) {
+    return _mm_or_ps(_mm_and_ps(mask, a), _mm_andnot_ps(mask, b));
+  };
+  for (; v + 4 <= n; v += 4) {
+    __m128 sum[4];
+    for (int i = 0; i < 4; ++i) {
+      sum[i] = zero;
+      for (uint32_t j = begin[v + size_t(i)]; j < begin[v + size_t(i) + 1]; j += 2)
+        sum[i] = _mm_add_ps(_mm_add_ps(sum[i], _mm_loadu_ps(rows + faces[j])),
+                            _mm_loadu_ps(rows + faces[j + 1]));
+    }
+    __m128 a = sum[0], b = sum[1], c = sum[2], d = sum[3];
+    _MM_TRANSPOSE4_PS(a, b, c, d);
+    __m128 l2 = _mm_add_ps(_mm_add_ps(_mm_mul_ps(a, a), _mm_mul_ps(b, b)), _mm_mul_ps(c, c));
+    __m128 ok = _mm_cmpgt_ps(l2, zero);
+    __m128 sc = _mm_div_ps(one, _mm_sqrt_ps(select(ok, l2, one)));
+    a = select(ok, _mm_mul_ps(a, sc), zero);
+    b = select(ok, _mm_mul_ps(b, sc), one);
+    c = select(ok, _mm_mul_ps(c, sc), zero);
+    _mm_storeu_ps(nv + v, a);
+    _mm_storeu_ps(nv + n + v, b);
+    _mm_storeu_ps(nv + 2 * n + v, c);
+    if (!wn) continue;
+    if (m) {
+      const __m128 p =
+          _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_set1_ps(m[0]), a), _mm_mul_ps(_mm_set1_ps(m[4]), b)),
+                     _mm_mul_ps(_mm_set1_ps(m[8]), c));
+      const __m128 q =
+          _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_set1_ps(m[1]), a), _mm_mul_ps(_mm_set1_ps(m[5]), b)),
+                     _mm_mul_ps(_mm_set1_ps(m[9]), c));
+      const __m128 r =
+          _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_set1_ps(m[2]), a), _mm_mul_ps(_mm_set1_ps(m[6]), b)),
+                     _mm_mul_ps(_mm_set1_ps(m[10]), c));
+      l2 = _mm_add_ps(_mm_add_ps(_mm_mul_ps(p, p), _mm_mul_ps(q, q)), _mm_mul_ps(r, r));
+      ok = _mm_cmpgt_ps(l2, zero);
+      sc = _mm_div_ps(one, _mm_sqrt_ps(select(ok, l2, one)));
+      a = select(ok, _mm_mul_ps(p, sc), p);
+      b = select(ok, _mm_mul_ps(q, sc), q);
+      c = select(ok, _mm_mul_ps(r, sc), r);
+    }
+    d = zero;
+    _MM_TRANSPOSE4_PS(a, b, c, d);
+    // Each store's 4th float is the next vertex's x, written again by the next store.
+    _mm_storeu_ps(wn + 3 * v, a);
+    _mm_storeu_ps(wn + 3 * v + 3, b);
+    _mm_storeu_ps(wn + 3 * v + 6, c);
+    _mm_storeu_ps(wn + 3 * v + 9, d);
+  }
+#endif
+  for (; v < n; ++v) {
+    float acc[4] = {0, 0, 0, 0};
+    for (uint32_t j = begin[v]; j < begin[v + 1]; ++j)
+      for (size_t k = 0; k < 4; ++k) acc[k] += rows[faces[j] + k];
+    float o[3];
+    unit(acc[0], acc[1], acc[2], 1.0f, o);
+    nv[v] = o[0], nv[n + v] = o[1], nv[2 * n + v] = o[2];
+    if (!wn) continue;
+    if (m) {
+      const float a = o[0], b = o[1], c = o[2];
+      unit(m[0] * a + m[4] * b + m[8] * c, m[1] * a + m[5] * b + m[9] * c,
+           m[2] * a + m[6] * b + m[10] * c, 0.0f, wn + 3 * v);
     } else {
-      o[0] = 0, o[1] = 1, o[2] = 0;
+      std::memcpy(wn + 3 * v, o, 12);
     }
   }
 }
 
-// A vector of a render vertex from per-simulation-vertex values: a copy, or the map's weighted sum.
-inline void gather(const float* src, const uint32_t* sim, const float* w, bool indexed, float* o) {
-  if (indexed) {
-    const float* p = src + 3 * size_t(sim[0]);
-    o[0] = p[0], o[1] = p[1], o[2] = p[2];
-    return;
+// Unit vectors in place over planes x, y, z; a zero (or NaN) vector is kept (the tangent pass's
+// normals, already unit, renormalised as the scalar code did).
+CLOTHRT_MULTIVERSION void normalise_planes(float* __restrict x, float* __restrict y,
+                                           float* __restrict z, size_t n) {
+  for (size_t v = 0; v < n; ++v) {
+    const float a = x[v], b = y[v], c = z[v];
+    const float l2 = a * a + b * b + c * c;
+    const bool ok = l2 > 0;
+    // Everything computed on both sides of the choice, so the choice is a blend and the loop
+    // vectorises.
+    const float s = 1.0f / std::sqrt(ok ? l2 : 1.0f);
+    const float as = a * s, bs = b * s, cs = c * s;
+    x[v] = ok ? as : a;
+    y[v] = ok ? bs : b;
+    z[v] = ok ? cs : c;
   }
-  const float* p = src + 3 * size_t(sim[0]);
-  const float* q = src + 3 * size_t(sim[1]);
-  const float* r = src + 3 * size_t(sim[2]);
-  for (int k = 0; k < 3; ++k) o[k] = w[0] * p[k] + w[1] * q[k] + w[2] * r[k];
+}
+
+// Planes turned by the upper 3x3 of the column-major m (a root transform's linear part) and
+// renormalised (a zero vector stays zero), into planes ox, oy, oz.
+CLOTHRT_MULTIVERSION void turn_planes(const float* __restrict x, const float* __restrict y,
+                                      const float* __restrict z, size_t n,
+                                      const float* __restrict m, float* __restrict ox,
+                                      float* __restrict oy, float* __restrict oz) {
+  const float m0 = m[0], m1 = m[1], m2 = m[2], m4 = m[4], m5 = m[5], m6 = m[6], m8 = m[8],
+              m9 = m[9], m10 = m[10];
+  for (size_t v = 0; v < n; ++v) {
+    const float a = x[v], b = y[v], c = z[v];
+    const float p = m0 * a + m4 * b + m8 * c, q = m1 * a + m5 * b + m9 * c,
+                r = m2 * a + m6 * b + m10 * c;
+    const float l2 = p * p + q * q + r * r;
+    const bool ok = l2 > 0;
+    const float s = 1.0f / std::sqrt(ok ? l2 : 1.0f);
+    const float ps = p * s, qs = q * s, rs = r * s;
+    ox[v] = ok ? ps : p;
+    oy[v] = ok ? qs : q;
+    oz[v] = ok ? rs : r;
+  }
+}
+
+// Per render triangle the directions of increasing u and v in space (Lengyel 2001, "Computing
+// tangent space basis vectors"), from its UV edges and 1 / det (Db::render_uv_edges), into 8-float
+// rows (u direction in 0-2, v direction in 4-6). x is per render vertex when `sim` is null, else
+// per simulation vertex through the indexed map; points are read as 4 floats, as in face_normals.
+CLOTHRT_MULTIVERSION void face_tangents(const float* __restrict x, const uint32_t* __restrict sim,
+                                        const uint32_t* __restrict tri,
+                                        const float* __restrict uv_edges, size_t triangles,
+                                        float* __restrict out) {
+  for (size_t t = 0; t < triangles; ++t) {
+    const float* p[3];
+    for (int k = 0; k < 3; ++k) {
+      const uint32_t i = tri[3 * t + size_t(k)];
+      p[k] = x + 3 * size_t(sim ? sim[3 * size_t(i)] : i);
+    }
+    const float* e = uv_edges + 5 * t;
+    float* o = out + 8 * t;
+#if CLOTHRT_SSE
+    const __m128 a = _mm_loadu_ps(p[0]);
+    const __m128 e1 = _mm_sub_ps(_mm_loadu_ps(p[1]), a), e2 = _mm_sub_ps(_mm_loadu_ps(p[2]), a);
+    const __m128 du1 = _mm_set1_ps(e[0]), dv1 = _mm_set1_ps(e[1]), du2 = _mm_set1_ps(e[2]),
+                 dv2 = _mm_set1_ps(e[3]), f = _mm_set1_ps(e[4]);
+    _mm_storeu_ps(o, _mm_mul_ps(f, _mm_sub_ps(_mm_mul_ps(dv2, e1), _mm_mul_ps(dv1, e2))));
+    _mm_storeu_ps(o + 4, _mm_mul_ps(f, _mm_sub_ps(_mm_mul_ps(du1, e2), _mm_mul_ps(du2, e1))));
+#else
+    const float du1 = e[0], dv1 = e[1], du2 = e[2], dv2 = e[3], f = e[4];
+    for (int k = 0; k < 3; ++k) {
+      const float e1 = p[1][k] - p[0][k], e2 = p[2][k] - p[0][k];
+      o[k] = f * (dv2 * e1 - dv1 * e2);
+      o[4 + k] = f * (du1 * e2 - du2 * e1);
+    }
+#endif
+  }
+}
+
+// Tangent frames in place over planes (normal n, tangent sum u, bitangent sum w, n unit): the
+// tangent is u made orthogonal to n (Gram-Schmidt) and unit, or any unit vector orthogonal to n
+// where u has no component off n; its sign is -1 where cross(n, tangent) points away from w.
+// Writes the tangent over u and the sign over w's x plane. With m, the tangent is turned and
+// renormalised.
+CLOTHRT_MULTIVERSION void tangent_frames(const float* __restrict nx, const float* __restrict ny,
+                                         const float* __restrict nz, float* __restrict ux,
+                                         float* __restrict uy, float* __restrict uz,
+                                         float* __restrict wx, const float* __restrict wy,
+                                         const float* __restrict wz, size_t n) {
+  for (size_t r = 0; r < n; ++r) {
+    const float a = nx[r], b = ny[r], c = nz[r];
+    const float d = a * ux[r] + b * uy[r] + c * uz[r];
+    const float u0 = ux[r] - d * a, u1 = uy[r] - d * b, u2 = uz[r] - d * c;
+    const bool none = u0 * u0 + u1 * u1 + u2 * u2 <= 0;
+    // No UV gradient here: x (or y when the normal is near x) made orthogonal to the normal.
+    // (Both sides of each choice computed, so the loop vectorises.)
+    const float g0 = std::fabs(a) < 0.9f ? 1.0f : 0.0f;
+    const float g1 = g0 == 0 ? 1.0f : 0.0f;
+    const float ge = a * g0 + b * g1;
+    const float h0 = g0 - ge * a, h1 = g1 - ge * b, h2 = 0.0f - ge * c;
+    float t0 = none ? h0 : u0, t1 = none ? h1 : u1, t2 = none ? h2 : u2;
+    const float l2 = t0 * t0 + t1 * t1 + t2 * t2;
+    const bool ok = l2 > 0;
+    const float s = 1.0f / std::sqrt(ok ? l2 : 1.0f);
+    const float s0 = t0 * s, s1 = t1 * s, s2 = t2 * s;
+    t0 = ok ? s0 : t0;
+    t1 = ok ? s1 : t1;
+    t2 = ok ? s2 : t2;
+    const float c0 = b * t2 - c * t1, c1 = c * t0 - a * t2, c2 = a * t1 - b * t0;
+    const float hand = c0 * wx[r] + c1 * wy[r] + c2 * wz[r] < 0 ? -1.0f : 1.0f;
+    ux[r] = t0, uy[r] = t1, uz[r] = t2;
+    wx[r] = hand;
+  }
+}
+
+// Per render vertex r, the 3 floats of its simulation vertex (sim[3 r]: an indexed map) from p
+// and from q into the caller's strided buffers (a null buffer is skipped).
+void copy_rows(const float* __restrict p, float* __restrict po, size_t ps,
+               const float* __restrict q, float* __restrict qo, size_t qs,
+               const uint32_t* __restrict sim, size_t rn) {
+  if (po && qo) {
+    for (size_t r = 0; r < rn; ++r) {
+      const size_t v = 3 * size_t(sim[3 * r]);
+      std::memcpy(po + r * ps, p + v, 12);
+      std::memcpy(qo + r * qs, q + v, 12);
+    }
+  } else if (po || qo) {
+    const float* src = po ? p : q;
+    float* dst = po ? po : qo;
+    const size_t s = po ? ps : qs;
+    for (size_t r = 0; r < rn; ++r) std::memcpy(dst + r * s, src + 3 * size_t(sim[3 * r]), 12);
+  }
+}
+
+// A vector of a render vertex from per-simulation-vertex values in planes (plane stride n): the
+// map's weighted sum.
+inline void gather_weighted(const float* src, size_t n, const uint32_t* sim, const float* w,
+                            float* o) {
+  for (size_t k = 0; k < 3; ++k)
+    o[k] = w[0] * src[k * n + sim[0]] + w[1] * src[k * n + sim[1]] + w[2] * src[k * n + sim[2]];
 }
 
 inline void normalise(float* v) {
@@ -665,14 +994,20 @@ int Player::render(const clothrt_render_output& out, const float* m) {
   if (timed) t0 = Clock::now();
   float* x = local_.data();
   sample_into(x);
-  const bool want_normals = out.normals || out.tangents;
-  if (want_normals)
-    vertex_normals(x, db->triangles.data(), db->triangles.size() / 3, db->vertex_count,
-                   normals_.data());
+  const size_t n = db->vertex_count;
   const size_t rn = db->render_vertex_count;
   const uint32_t* sim = db->render_sim.data();
   const float* w = db->render_weights.data();
   const bool indexed = db->all_indexed;
+  // Simulation-vertex normals in planes; with a root transform, their turn too.
+  // (Planes where the loops vectorise; interleaved where render vertices copy them.)
+  float* nv = normals_.data();
+  const float* wn = world_normals_.data();  // indexed only: 3 floats per vertex
+  if (out.normals || out.tangents) {
+    face_normals(x, db->triangles.data(), db->triangles.size() / 3, face_normals_.data());
+    vertex_normals(face_normals_.data(), db->vertex_faces_begin.data(), db->vertex_faces.data(), n,
+                   nv, m, indexed ? world_normals_.data() : nullptr);
+  }
   // The root transform's linear part turns normals and tangents (renormalised after).
   auto turn = [m](const float* v, float* o) {
     const float a = v[0], b = v[1], c = v[2];
@@ -680,95 +1015,98 @@ int Player::render(const clothrt_render_output& out, const float* m) {
     o[1] = m[1] * a + m[5] * b + m[9] * c;
     o[2] = m[2] * a + m[6] * b + m[10] * c;
   };
-  if (out.positions) {
-    const size_t s = out.position_stride / sizeof(float);
-    for (size_t r = 0; r < rn; ++r) {
-      float p[3];
-      gather(x, sim + 3 * r, w + 3 * r, indexed, p);
-      float* o = out.positions + r * s;
-      if (m) {
-        turn(p, o);
-        o[0] += m[12], o[1] += m[13], o[2] += m[14];
-      } else {
-        o[0] = p[0], o[1] = p[1], o[2] = p[2];
+  if (indexed) {
+    // Each simulation vertex moved and turned once, then copied to its render vertices (seam
+    // copies), positions and normals in one pass over the caller's buffer.
+    const float* src = x;
+    if (out.positions && m) {
+      transform(x, n, m, world_.data(), 3);
+      src = world_.data();
+    }
+    copy_rows(src, out.positions, out.position_stride / sizeof(float), wn, out.normals,
+              out.normal_stride / sizeof(float), sim, rn);
+  } else {
+    if (out.positions) {
+      const size_t s = out.position_stride / sizeof(float);
+      for (size_t r = 0; r < rn; ++r) {
+        const float* p = x + 3 * size_t(sim[3 * r]);
+        const float* q = x + 3 * size_t(sim[3 * r + 1]);
+        const float* u = x + 3 * size_t(sim[3 * r + 2]);
+        const float* wr = w + 3 * r;
+        float v[3];
+        for (int k = 0; k < 3; ++k) v[k] = wr[0] * p[k] + wr[1] * q[k] + wr[2] * u[k];
+        float* o = out.positions + r * s;
+        if (m) {
+          turn(v, o);
+          o[0] += m[12], o[1] += m[13], o[2] += m[14];
+        } else {
+          o[0] = v[0], o[1] = v[1], o[2] = v[2];
+        }
       }
     }
-  }
-  if (out.normals) {
-    const size_t s = out.normal_stride / sizeof(float);
-    for (size_t r = 0; r < rn; ++r) {
-      float nv[3];
-      gather(normals_.data(), sim + 3 * r, w + 3 * r, indexed, nv);
-      float* o = out.normals + r * s;
-      if (m) {
-        turn(nv, o);
-        normalise(o);
-      } else {
-        if (!indexed) normalise(nv);
-        o[0] = nv[0], o[1] = nv[1], o[2] = nv[2];
+    if (out.normals) {
+      const size_t s = out.normal_stride / sizeof(float);
+      for (size_t r = 0; r < rn; ++r) {
+        float* o = out.normals + r * s;
+        float v[3];
+        gather_weighted(nv, n, sim + 3 * r, w + 3 * r, v);
+        if (m) {
+          turn(v, o);
+          normalise(o);
+        } else {
+          normalise(v);
+          o[0] = v[0], o[1] = v[1], o[2] = v[2];
+        }
       }
     }
   }
   if (out.tangents) {
-    // Per triangle in UV space, the directions of increasing u and v (Lengyel 2001, "Computing
-    // tangent space basis vectors"), summed per render vertex; then Gram-Schmidt against the
-    // normal, and w from the bitangent's side.
-    float* sums = tangent_sums_.data();
-    std::memset(sums, 0, rn * 6 * sizeof(float));
-    const uint32_t* tri = db->render_triangles.data();
-    const float* uv = db->render_uvs.data();
-    for (size_t t = 0; t < db->render_triangles.size() / 3; ++t) {
-      const uint32_t i[3] = {tri[3 * t], tri[3 * t + 1], tri[3 * t + 2]};
-      float p[3][3];
-      for (int k = 0; k < 3; ++k)
-        gather(x, sim + 3 * size_t(i[k]), w + 3 * size_t(i[k]), indexed, p[k]);
-      const float e1[3] = {p[1][0] - p[0][0], p[1][1] - p[0][1], p[1][2] - p[0][2]};
-      const float e2[3] = {p[2][0] - p[0][0], p[2][1] - p[0][1], p[2][2] - p[0][2]};
-      const float du1 = uv[2 * i[1]] - uv[2 * i[0]], dv1 = uv[2 * i[1] + 1] - uv[2 * i[0] + 1];
-      const float du2 = uv[2 * i[2]] - uv[2 * i[0]], dv2 = uv[2 * i[2] + 1] - uv[2 * i[0] + 1];
-      const float det = du1 * dv2 - du2 * dv1;
-      if (det == 0) continue;  // degenerate in UV space: contributes nothing
-      const float f = 1.0f / det;
-      float tu[3], tv[3];
-      for (int k = 0; k < 3; ++k) {
-        tu[k] = f * (dv2 * e1[k] - dv1 * e2[k]);
-        tv[k] = f * (du1 * e2[k] - du2 * e1[k]);
+    // Per render triangle its tangent directions (Lengyel 2001), summed per render vertex through
+    // the adjacency rows; then per vertex the frame against its (renormalised) normal.
+    const size_t rt = db->render_triangles.size() / 3;
+    float* pl = tangents_.data();  // 9 planes: normal, tangent sum, bitangent sum
+    if (indexed) {
+      face_tangents(x, sim, db->render_triangles.data(), db->render_uv_edges.data(), rt,
+                    face_tangents_.data());
+    } else {
+      // The render vertices' positions first, in the first 3 planes (overwritten by the normals
+      // once the triangles' rows are made).
+      float* rp = pl;
+      for (size_t r = 0; r < rn; ++r) {
+        const float* wr = w + 3 * r;
+        for (int k = 0; k < 3; ++k)
+          rp[3 * r + size_t(k)] = wr[0] * x[3 * size_t(sim[3 * r]) + size_t(k)] +
+                                  wr[1] * x[3 * size_t(sim[3 * r + 1]) + size_t(k)] +
+                                  wr[2] * x[3 * size_t(sim[3 * r + 2]) + size_t(k)];
       }
-      for (const uint32_t v : i)
-        for (int k = 0; k < 3; ++k) {
-          sums[6 * size_t(v) + size_t(k)] += tu[k];
-          sums[6 * size_t(v) + 3 + size_t(k)] += tv[k];
-        }
+      face_tangents(rp, nullptr, db->render_triangles.data(), db->render_uv_edges.data(), rt,
+                    face_tangents_.data());
+    }
+    gather_rows<2>(face_tangents_.data(), db->render_faces_begin.data(), db->render_faces.data(),
+                   rn, pl + 3 * rn);
+    for (size_t r = 0; r < rn; ++r) {
+      float v[3];
+      if (indexed) {
+        const size_t i = sim[3 * r];
+        v[0] = nv[i], v[1] = nv[n + i], v[2] = nv[2 * n + i];
+      } else {
+        gather_weighted(nv, n, sim + 3 * r, w + 3 * r, v);
+      }
+      pl[r] = v[0], pl[rn + r] = v[1], pl[2 * rn + r] = v[2];
+    }
+    normalise_planes(pl, pl + rn, pl + 2 * rn, rn);
+    float* u = pl + 3 * rn;
+    float* hand = pl + 6 * rn;
+    tangent_frames(pl, pl + rn, pl + 2 * rn, u, u + rn, u + 2 * rn, hand, hand + rn, hand + 2 * rn,
+                   rn);
+    if (m) {  // into the normal's planes, done with
+      turn_planes(u, u + rn, u + 2 * rn, rn, m, pl, pl + rn, pl + 2 * rn);
+      u = pl;
     }
     const size_t s = out.tangent_stride / sizeof(float);
     for (size_t r = 0; r < rn; ++r) {
-      float nv[3];
-      gather(normals_.data(), sim + 3 * r, w + 3 * r, indexed, nv);
-      normalise(nv);
-      const float* tu = sums + 6 * r;
-      const float* tv = tu + 3;
-      const float d = nv[0] * tu[0] + nv[1] * tu[1] + nv[2] * tu[2];
-      float tg[3] = {tu[0] - d * nv[0], tu[1] - d * nv[1], tu[2] - d * nv[2]};
-      if (tg[0] * tg[0] + tg[1] * tg[1] + tg[2] * tg[2] <= 0) {
-        // No UV gradient here: any unit vector orthogonal to the normal.
-        tg[0] = std::fabs(nv[0]) < 0.9f ? 1.0f : 0.0f;
-        tg[1] = tg[0] == 0 ? 1.0f : 0.0f;
-        tg[2] = 0;
-        const float e = nv[0] * tg[0] + nv[1] * tg[1];
-        tg[0] -= e * nv[0], tg[1] -= e * nv[1], tg[2] -= e * nv[2];
-      }
-      normalise(tg);
-      const float c[3] = {nv[1] * tg[2] - nv[2] * tg[1], nv[2] * tg[0] - nv[0] * tg[2],
-                          nv[0] * tg[1] - nv[1] * tg[0]};
-      const float hand = c[0] * tv[0] + c[1] * tv[1] + c[2] * tv[2] < 0 ? -1.0f : 1.0f;
       float* o = out.tangents + r * s;
-      if (m) {
-        turn(tg, o);
-        normalise(o);
-      } else {
-        o[0] = tg[0], o[1] = tg[1], o[2] = tg[2];
-      }
-      o[3] = hand;
+      o[0] = u[r], o[1] = u[rn + r], o[2] = u[2 * rn + r], o[3] = hand[r];
     }
   }
   if (timed) add(sample_ns, ns_since(t0));

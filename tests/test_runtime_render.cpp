@@ -135,6 +135,89 @@ TEST(RuntimeRender, WorldSpaceTurnsNormalsAndMovesPositions) {
   }
 }
 
+// The normals as the straightforward loop makes them: each triangle's edge cross product scattered
+// onto its corners in triangle order, normalised in float (+y for a vertex of no triangle), then
+// copied to the render vertices; with a root transform turned and renormalised. The runtime gathers
+// the same sums through its adjacency rows in SIMD registers and must give these bits.
+std::vector<float> reference_normals(const std::vector<float>& x, const std::vector<uint32_t>& tri,
+                                     const std::vector<uint32_t>& sim_of_render, const float* m) {
+  const size_t n = x.size() / 3;
+  std::vector<float> sum(n * 3, 0.0f);
+  for (size_t t = 0; t < tri.size() / 3; ++t) {
+    const float* a = &x[3 * size_t(tri[3 * t])];
+    const float* b = &x[3 * size_t(tri[3 * t + 1])];
+    const float* c = &x[3 * size_t(tri[3 * t + 2])];
+    const float e0 = b[0] - a[0], e1 = b[1] - a[1], e2 = b[2] - a[2];
+    const float f0 = c[0] - a[0], f1 = c[1] - a[1], f2 = c[2] - a[2];
+    const float nv[3] = {e1 * f2 - e2 * f1, e2 * f0 - e0 * f2, e0 * f1 - e1 * f0};
+    for (int k = 0; k < 3; ++k)
+      for (int i = 0; i < 3; ++i) sum[3 * size_t(tri[3 * t + size_t(k)]) + size_t(i)] += nv[i];
+  }
+  auto unit = [](float* v, bool fallback) {
+    const float l2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+    if (l2 > 0) {
+      const float s = 1.0f / std::sqrt(l2);
+      v[0] *= s, v[1] *= s, v[2] *= s;
+    } else if (fallback) {
+      v[0] = 0, v[1] = 1, v[2] = 0;
+    }
+  };
+  for (size_t v = 0; v < n; ++v) unit(&sum[3 * v], true);
+  std::vector<float> out(sim_of_render.size() * 3);
+  for (size_t r = 0; r < sim_of_render.size(); ++r) {
+    const float* a = &sum[3 * size_t(sim_of_render[r])];
+    float* o = &out[3 * r];
+    if (m) {
+      o[0] = m[0] * a[0] + m[4] * a[1] + m[8] * a[2];
+      o[1] = m[1] * a[0] + m[5] * a[1] + m[9] * a[2];
+      o[2] = m[2] * a[0] + m[6] * a[1] + m[10] * a[2];
+      unit(o, false);
+    } else {
+      o[0] = a[0], o[1] = a[1], o[2] = a[2];
+    }
+  }
+  return out;
+}
+
+TEST(RuntimeRender, NormalsAreTheScatteredSumsBitForBit) {
+  for (const uint32_t side : {kSide, 13u}) {  // 13: a vertex count that is not a multiple of 4
+    test::TempDir dir;
+    synthetic::Spec spec = synthetic::demo_spec(side);
+    spec.artist_mesh = true;
+    synthetic::build(dir.file("n.clothdb"), spec);
+    clothrt_db* db = nullptr;
+    ASSERT_EQ(clothrt_db_open(dir.file("n.clothdb").c_str(), nullptr, &db), CLOTHRT_OK);
+    clothrt_player* player = nullptr;
+    ASSERT_EQ(clothrt_player_create(db, &player), CLOTHRT_OK);
+    ASSERT_EQ(clothrt_player_start(player, 0), CLOTHRT_OK);
+    const uint32_t n = clothrt_db_vertex_count(db), rn = clothrt_db_render_vertex_count(db);
+    std::vector<uint32_t> tri(size_t(clothrt_db_triangle_count(db)) * 3);
+    ASSERT_EQ(clothrt_db_triangles(db, tri.data(), tri.size()), CLOTHRT_OK);
+    const db::ArtistMesh artist = synthetic::sheet_artist_mesh(side);
+    std::vector<uint32_t> sim_of_render(rn);
+    for (uint32_t r = 0; r < rn; ++r)
+      sim_of_render[r] = artist.map_vertices[3 * size_t(artist.render_vertices[3 * r])];
+    const float c = std::cos(0.7f), s = std::sin(0.7f);
+    const float m[16] = {c, 0, -s, 0, 0, 1, 0, 0, s, 0, c, 0, 1, 2, 3, 1};
+    std::vector<float> x(size_t(n) * 3), nr(size_t(rn) * 4);
+    for (int step = 0; step < 12; ++step) {
+      ASSERT_EQ(clothrt_player_advance(player, 1.0 / 45), CLOTHRT_OK);
+      ASSERT_EQ(clothrt_player_get_positions(player, x.data(), 12, nullptr), CLOTHRT_OK);
+      for (const float* mm : {static_cast<const float*>(nullptr), m}) {
+        const clothrt_render_output out{nullptr, 0, nr.data(), 16, nullptr, 0};
+        ASSERT_EQ(clothrt_player_get_render_mesh(player, &out, mm), CLOTHRT_OK);
+        const std::vector<float> want = reference_normals(x, tri, sim_of_render, mm);
+        for (uint32_t r = 0; r < rn; ++r)
+          for (int k = 0; k < 3; ++k)
+            ASSERT_EQ(nr[4 * r + k], want[3 * r + k])
+                << "render vertex " << r << ", side " << side << (mm ? ", world" : "");
+      }
+    }
+    clothrt_player_destroy(player);
+    clothrt_db_close(db);
+  }
+}
+
 TEST(RuntimeRender, ProceduralGarmentRendersItsSimulationMesh) {
   Opened h(false);
   const uint32_t n = clothrt_db_vertex_count(h.db);

@@ -423,6 +423,7 @@ LoadedMotion load_motion(const std::filesystem::path& file, const MotionLoadOpti
   {
     std::vector<Eigen::Affine3d> rest_world(sk.joint_count());
     sk.end_site.assign(sk.joint_count(), std::nullopt);
+    sk.end_site_from_file.assign(sk.joint_count(), false);
     for (int j = 0; j < sk.joint_count(); ++j) {
       const int p = sk.parents[j];
       rest_world[j] = p < 0 ? sk.rest_local[j] : rest_world[p] * sk.rest_local[j];
@@ -435,17 +436,35 @@ LoadedMotion load_motion(const std::filesystem::path& file, const MotionLoadOpti
       const aiMatrix4x4& m = child->mTransformation;
       const Eigen::Vector3d t(m.a4, m.b4, m.c4);
       sk.end_site[j] = unit * t;
+      sk.end_site_from_file[j] = true;
     }
     // A leaf joint without an end site (glTF stores none; Blender's FBX has one only with "Add
-    // Leaf Bones") continues its parent bone by that bone's length, so that the head, hands and
-    // feet get a capsule whatever the format.
+    // Leaf Bones") gets one, so that the head, hands and feet get a capsule whatever the format.
+    // Blender writes every bone's frame with +y along the bone (its head to its tail), and for a
+    // BVH-imported leaf the tail is the BVH's End Site: in such a rig (every child offset along
+    // its parent's +y) the leaf's own +y is the direction the BVH had, and only the length is
+    // lost. Elsewhere the parent bone is continued. The length is the parent bone's in both cases
+    // (the head's end on CMU's rig is 0.100 m against 0.0998 m for the neck:
+    // docs/guide/garment_placement.md, "Motion from Blender").
+    bool bone_axes = false;
+    for (int j = 0; j < sk.joint_count(); ++j) {
+      const int p = sk.parents[j];
+      if (p < 0) continue;
+      const Eigen::Vector3d t = sk.rest_local[j].translation();
+      // A joint on its parent (CMU's Neck, LeftShoulder: a few 1e-9 m of float noise in glTF).
+      if (t.norm() < 1e-6) continue;
+      bone_axes =
+          std::abs(t.x()) <= 1e-4 * t.norm() && std::abs(t.z()) <= 1e-4 * t.norm() && t.y() > 0;
+      if (!bone_axes) break;
+    }
     for (int j = 0; j < sk.joint_count(); ++j) {
       const int p = sk.parents[j];
       if (sk.end_site[j] || p < 0 || !sk.children(j).empty()) continue;
       const Eigen::Vector3d bone = rest_world[j].translation() - rest_world[p].translation();
       if (bone.norm() < 1e-6) continue;
       const Eigen::Matrix3d frame = pose_from_affine(rest_world[j]).rotation.toRotationMatrix();
-      sk.end_site[j] = frame.transpose() * bone;
+      sk.end_site[j] = bone_axes ? Eigen::Vector3d(0, bone.norm(), 0)
+                                 : Eigen::Vector3d(frame.transpose() * bone);
     }
   }
 

@@ -30,9 +30,15 @@ struct Skeleton {
   std::vector<Eigen::Affine3d> rest_local;
   // Offset of a leaf joint's end site (BVH "End Site", or a childless helper node such as
   // Blender's FBX leaf bones) in the joint's frame, already in metres: it gives the far end of the
-  // last bone of a chain (head top, toe tip). A leaf joint without one (glTF stores none) gets its
-  // parent bone continued by that bone's length, so that every leaf has a capsule.
+  // last bone of a chain (head top, toe tip). A leaf joint without one (glTF stores none) gets one
+  // made up, so that every leaf has a capsule: along the joint's own bone axis where the rig's
+  // frames follow its bones (Blender's +y), else its parent bone continued, in both cases by the
+  // parent bone's length.
   std::vector<std::optional<Eigen::Vector3d>> end_site;
+  // Per joint: true when its end site was in the file (BVH "End Site", an FBX leaf node), false
+  // when the loader made it up for a leaf the file gives no end (glTF). Only file end sites are
+  // measurements of the rig; a made-up one is the loader's guess (motion_loader.cpp).
+  std::vector<bool> end_site_from_file;
 
   int joint_count() const { return static_cast<int>(names.size()); }
   // Index of the joint called `name`, or -1.
