@@ -138,26 +138,43 @@ size_t segment_offset(const uint8_t* blob, const Header& h, uint32_t s) {
 // null.
 void reconstruct(const Basis& b, uint32_t M, const int32_t* q, double cstep, const int32_t* Q,
                  double rstep, uint32_t count, float* out, size_t n) {
-  constexpr size_t kTile = 1024;
+  // A tile of 256 coordinates of all M modes (M KB) stays in cache across the frames; each frame's
+  // tile is summed in registers, four modes per pass over it, in mode order.
+  constexpr size_t kTile = 256;
+  float acc[kTile];
+  float w[kMaxBasisModes];
   for (size_t lo = 0; lo < n; lo += kTile) {
     const size_t len = std::min(kTile, n - lo);
-    for (uint32_t j = 0; j < count; ++j)
-      std::memcpy(out + size_t(j) * n + lo, b.mean.data() + lo, len * sizeof(float));
-    for (uint32_t k = 0; k < M; ++k) {
-      const float* u = b.modes.data() + size_t(k) * n + lo;
-      for (uint32_t j = 0; j < count; ++j) {
-        const float w = float(double(q[size_t(j) * M + k]) * cstep);
-        if (w == 0.0f) continue;
-        float* o = out + size_t(j) * n + lo;
-        for (size_t i = 0; i < len; ++i) o[i] += w * u[i];
+    const float* u = b.modes.data() + lo;
+    for (uint32_t j = 0; j < count; ++j) {
+      for (uint32_t k = 0; k < M; ++k) w[k] = float(double(q[size_t(j) * M + k]) * cstep);
+      std::memcpy(acc, b.mean.data() + lo, len * sizeof(float));
+      uint32_t k = 0;
+      for (; k + 4 <= M; k += 4) {
+        const float *u0 = u + size_t(k) * n, *u1 = u0 + n, *u2 = u1 + n, *u3 = u2 + n;
+        const float w0 = w[k], w1 = w[k + 1], w2 = w[k + 2], w3 = w[k + 3];
+        for (size_t i = 0; i < len; ++i) {
+          float a = acc[i];
+          a += w0 * u0[i];
+          a += w1 * u1[i];
+          a += w2 * u2[i];
+          a += w3 * u3[i];
+          acc[i] = a;
+        }
+      }
+      for (; k < M; ++k) {
+        const float* uk = u + size_t(k) * n;
+        const float wk = w[k];
+        for (size_t i = 0; i < len; ++i) acc[i] += wk * uk[i];
+      }
+      float* o = out + size_t(j) * n + lo;
+      if (Q != nullptr) {
+        const int32_t* r = Q + size_t(j) * n + lo;
+        for (size_t i = 0; i < len; ++i) o[i] = acc[i] + float(double(r[i]) * rstep);
+      } else {
+        std::memcpy(o, acc, len * sizeof(float));
       }
     }
-    if (Q != nullptr)
-      for (uint32_t j = 0; j < count; ++j) {
-        float* o = out + size_t(j) * n + lo;
-        const int32_t* r = Q + size_t(j) * n + lo;
-        for (size_t i = 0; i < len; ++i) o[i] += float(double(r[i]) * rstep);
-      }
   }
 }
 
