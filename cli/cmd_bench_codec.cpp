@@ -682,7 +682,8 @@ void register_bench_codec(CLI::App& bench) {
          "Codecs for the comparison table: v1, v2 (subspace + residual), v2-body (v2 relative to "
          "a rigid frame of the garment's highest 5 %), meshopt "
          "(meshoptimizer's vertex codec on the same quantised frames; if built with it), v3 "
-         "(subspace + a residual smooth in time within the --rms-mm/--max-mm/--jitter-mm "
+         "(subspace + a residual steered so the coding error stays within the "
+         "--rms-mm/--max-mm/--jitter-mm "
          "contract, clip by clip), kim (Kim et al.'s PCA without a residual, the fewest modes "
          "within --rms-mm)")
       ->capture_default_str();
