@@ -25,8 +25,8 @@
 //
 // Format version 3 (encode_v3) keeps an error contract in what a player sees (contract.hpp: RMS,
 // max and jitter caps) instead of a per-coordinate bound: subspace coefficients plus a residual
-// smooth in time, only where the contract needs it (docs/DATABASE.md, "version 3"). It needs its
-// basis like version 2.
+// steered so the coding error stays smooth in time, in segments that decode on their own
+// (docs/DATABASE.md, "version 3"). It needs its basis like version 2.
 #pragma once
 
 #include <cstddef>
