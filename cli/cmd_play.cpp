@@ -557,8 +557,8 @@ struct BenchArgs {
 void run_bench(const BenchArgs& a) {
   if (a.codec != "v1" && a.file != "synthetic")
     throw std::runtime_error(
-        "--codec v2: only with FILE synthetic (recode a file with `clothdb db recode FILE "
-        "--codec v2`)");
+        "--codec v2, v3: only with FILE synthetic (recode a file with `clothdb db recode FILE "
+        "--codec v2` or v3)");
   std::printf(
       "clothdb bench runtime %s\nmachine: %s, %u hardware threads; all scenarios run "
       "players on one thread\n\n",
@@ -583,18 +583,23 @@ void run_bench(const BenchArgs& a) {
         "simulation): %u vertices x %zu clips of 60 frames, and %u vertices x %zu clips "
         "(built in %.1f s)\n",
         b.vertices, b.clip.size(), s.vertices, s.clip.size(), us_since(t0) / 1e6);
-    if (a.codec == "v2") {
+    if (a.codec != "v1") {
       // Every blob recoded (--always: even where v1 is smaller), so every frame played is
-      // decoded through the subspace, with the basis in the runtime's memory.
+      // decoded through the subspace, with the basis in the runtime's memory. Version 3 within
+      // the contract RMS 1 / max 3 / jitter 0.1 mm.
       for (const std::string& path : {big, small}) {
         RecodeOptions o;
         o.modes = a.modes;
         o.always = true;
+        if (a.codec == "v3") {
+          o.codec = 3;
+          o.contract = {0.001, 0.003, codec::kDefaultJitterCap};
+        }
         const RecodeReport r = recode_database(path, o);
         std::printf(
-            "  %s recoded to codec v2: basis of %u modes, blobs %.2f -> %.2f MB, largest new "
+            "  %s recoded to codec %s: basis of %u modes, blobs %.2f -> %.2f MB, largest new "
             "error %.3f mm\n",
-            std::filesystem::path(path).filename().c_str(), r.basis_modes,
+            std::filesystem::path(path).filename().c_str(), a.codec.c_str(), r.basis_modes,
             r.blob_bytes_before / 1e6, r.blob_bytes_after / 1e6, r.max_error * 1e3);
       }
     }
@@ -720,11 +725,12 @@ void register_bench_runtime(CLI::App& bench) {
   cmd->add_option("--cache-mb", a->cache_mb, "Cache cap of the shared-database scenario, MB")
       ->capture_default_str();
   cmd->add_option("--codec", a->codec,
-                  "With FILE synthetic: v1, or v2 (every blob recoded to the subspace codec, "
+                  "With FILE synthetic: v1, v2 or v3 (every blob recoded to the subspace codec; "
+                  "v3 within RMS 1 / max 3 / jitter 0.1 mm; "
                   "docs/DATABASE.md, \"version 2\")")
-      ->check(CLI::IsMember({"v1", "v2"}))
+      ->check(CLI::IsMember({"v1", "v2", "v3"}))
       ->capture_default_str();
-  cmd->add_option("--modes", a->modes, "--codec v2: basis modes")
+  cmd->add_option("--modes", a->modes, "--codec v2, v3: basis modes")
       ->check(CLI::Range(1u, codec::kMaxBasisModes))
       ->capture_default_str();
   cmd->callback([a] { run_bench(*a); });

@@ -66,14 +66,28 @@ void register_precompute(CLI::App& app) {
                   "fixed when it is made: an existing file with another bound is refused)")
       ->check(number_in(1e-6, 1e3));
   auto codec_name = std::make_shared<std::string>("v1");
+  // Codec version 3's contract in mm (0: not given).
+  auto contract_mm =
+      std::make_shared<codec::Contract>(codec::Contract{0, 0, codec::kDefaultJitterCap * 1e3});
   cmd->add_option("--codec", *codec_name,
-                  "Frame codec of the clips this run stores: v1, or v2 (a garment subspace built "
+                  "Frame codec of the clips this run stores: v1, v2 (a garment subspace built "
                   "from the clips stored so far, from --basis-first-frames on and again each time "
                   "the frames double; each clip keeps the smaller of v1 and v2; docs/DATABASE.md, "
-                  "\"clothdb precompute ... --codec v2\")")
-      ->check(CLI::IsMember({"v1", "v2"}))
+                  "\"clothdb precompute ... --codec v2\"), or v3 (the same bases, each clip coded "
+                  "within --rms-mm, --max-mm and --jitter-mm against its simulated frames and "
+                  "kept where smaller than v1)")
+      ->check(CLI::IsMember({"v1", "v2", "v3"}))
       ->capture_default_str();
-  cmd->add_option("--modes", args->explore.subspace_modes, "--codec v2: modes of each basis")
+  cmd->add_option("--rms-mm", contract_mm->rms,
+                  "--codec v3: cap on each frame's RMS vertex distance (mm)")
+      ->check(number_in(1e-6, 1e3));
+  cmd->add_option("--max-mm", contract_mm->max, "--codec v3: cap on any vertex's distance (mm)")
+      ->check(number_in(1e-6, 1e3));
+  cmd->add_option("--jitter-mm", contract_mm->jitter,
+                  "--codec v3: cap on the coding error's second difference over frames (mm)")
+      ->capture_default_str()
+      ->check(number_in(1e-6, 1e3));
+  cmd->add_option("--modes", args->explore.subspace_modes, "--codec v2, v3: modes of each basis")
       ->check(number_in(1, 1024));
   cmd->add_flag("--body-frame", args->explore.subspace_body_frame,
                 "--codec v2: code the cloth relative to a rigid body frame fitted to the "
@@ -167,12 +181,23 @@ void register_precompute(CLI::App& app) {
   cmd->add_flag("--mpi-verbose", args->mpi_verbose,
                 "Under mpirun: one line per job handed out, lost or late");
 #endif
-  cmd->callback([args, epsilon_mm, position_bound_mm, quiet, floor_seconds, codec_name] {
+  cmd->callback([args, epsilon_mm, position_bound_mm, quiet, floor_seconds, codec_name,
+                 contract_mm] {
     PrecomputeRequest request = *args;
-    if (*codec_name == "v2") {
+    if (*codec_name == "v2" || *codec_name == "v3") {
       if (request.explore.subspace_modes == 0) request.explore.subspace_modes = 64;
     } else if (request.explore.subspace_modes != 0 || request.explore.subspace_body_frame) {
-      throw std::runtime_error("--modes, --body-frame: only with --codec v2");
+      throw std::runtime_error("--modes, --body-frame: only with --codec v2 or v3");
+    }
+    if (*codec_name == "v3") {
+      if (!(contract_mm->rms > 0) || !(contract_mm->max > 0))
+        throw std::runtime_error("--codec v3: needs --rms-mm and --max-mm");
+      if (request.explore.subspace_body_frame)
+        throw std::runtime_error("--body-frame: only with --codec v2");
+      request.explore.subspace_contract = {1e-3 * contract_mm->rms, 1e-3 * contract_mm->max,
+                                           1e-3 * contract_mm->jitter};
+    } else if (contract_mm->rms > 0 || contract_mm->max > 0) {
+      throw std::runtime_error("--rms-mm, --max-mm: only with --codec v3");
     }
     request.explore.epsilon = 1e-3 * *epsilon_mm;
     request.position_bound = 1e-3 * *position_bound_mm;
@@ -232,7 +257,15 @@ void register_precompute(CLI::App& app) {
         report.bytes_per_state, report.state_cache.capacity / 1048576.0,
         report.state_cache.peak_alive_bytes / 1048576.0, report.state_cache.reads,
         report.state_cache.hits, report.exact_evaluations);
-    if (request.explore.subspace_modes > 0)
+    if (request.explore.subspace_modes > 0 && request.explore.subspace_contract.jitter > 0)
+      std::printf(
+          "codec        v3 (%u modes, contract RMS %g / max %g / jitter %g mm): %d bases built "
+          "this run, %d removed (no clip chose them), %d of this run's clips stored as v3\n",
+          request.explore.subspace_modes, 1e3 * request.explore.subspace_contract.rms,
+          1e3 * request.explore.subspace_contract.max,
+          1e3 * request.explore.subspace_contract.jitter, report.bases_built, report.bases_removed,
+          report.clips_v3);
+    else if (request.explore.subspace_modes > 0)
       std::printf(
           "codec        v2 (%u modes): %d bases built this run, %d removed (no clip chose "
           "them), %d of this run's clips stored as v2\n",

@@ -466,7 +466,10 @@ Status Db::load_impl(int clip, Loader& loader, Error* err) {
                     "%s: cloth clip %lld holds %u frames of %u vertices, expected %d of %u",
                     path.c_str(), (long long)ci.id, info.frame_count, info.vertex_count, ci.frames,
                     vertex_count);
-  const bool quantised = info.qmax[0] <= 65535 && info.qmax[1] <= 65535 && info.qmax[2] <= 65535;
+  // Frames on a grid (a per-coordinate bound: versions 1 and 2) of at most 65536 steps per axis are
+  // kept as uint16; a blob within an error contract instead (bound 0: version 3) has no grid.
+  const bool quantised =
+      info.bound > 0 && info.qmax[0] <= 65535 && info.qmax[1] <= 65535 && info.qmax[2] <= 65535;
   const size_t n = size_t(vertex_count) * 3;
   const size_t floats = n * info.frame_count;
   const size_t bytes = floats * (quantised ? sizeof(uint16_t) : sizeof(float));

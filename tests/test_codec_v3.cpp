@@ -11,6 +11,7 @@
 #include "compress/subspace.hpp"
 #include "database/codec/codec.hpp"
 #include "database/codec/contract.hpp"
+#include "support/allocation_counter.hpp"
 
 namespace clothdb::codec {
 namespace {
@@ -116,6 +117,57 @@ TEST(CodecV3, ResidualOnlyWhereTheContractNeedsIt) {
   const Basis few = basis_of(smooth, V, 2);
   encode_v3(detailed.data(), 30, V, few, s, &stats);
   EXPECT_GT(stats.residual_interval, 0u) << "two modes cannot hold 1 cm of detail";
+}
+
+// A player decodes a clip one segment at a time (BlobInfo::key_interval frames, as the runtime
+// stages it): the decoder then holds one segment, however long the clip, and allocates nothing
+// once it has seen a segment of the largest size.
+TEST(CodecV3, DecodingHoldsOneSegmentAndAllocatesNothingWhenWarm) {
+  const uint32_t side = 12, V = side * side;
+  const size_t n = size_t(V) * 3;
+  const auto sample = waves(60, side, 0.0, 0.004);
+  const Basis basis = basis_of(sample, V, 4);
+  V3Settings s;
+  s.contract = {0.001, 0.003, 0.0001};
+  s.segment_frames = 16;
+  std::vector<std::vector<uint8_t>> blobs;
+  std::vector<std::vector<float>> inputs;
+  for (uint32_t frames : {40u, 300u, 290u}) {
+    inputs.push_back(waves(frames, side, 0.2 * frames, 0.004));
+    V3Stats stats;
+    blobs.push_back(encode_v3(inputs.back().data(), frames, V, basis, s, &stats));
+    EXPECT_EQ(stats.residual_interval, 1u);
+  }
+  DecodeScratch scratch;
+  Error err;
+  std::vector<float> out(size_t(s.segment_frames) * n);
+  auto play = [&](size_t b) {
+    BlobInfo info;
+    ASSERT_EQ(read_info(blobs[b].data(), blobs[b].size(), &info, &err), Status::Ok);
+    ASSERT_EQ(info.key_interval, s.segment_frames);
+    for (uint32_t f = 0; f < info.frame_count; f += info.key_interval) {
+      const uint32_t count = std::min(info.key_interval, info.frame_count - f);
+      ASSERT_EQ(decode_frames(blobs[b].data(), blobs[b].size(), f, count, out.data(), out.size(),
+                              scratch, &err, &basis),
+                Status::Ok)
+          << err.message;
+      EXPECT_EQ(scratch.frames_reconstructed(), count);
+    }
+  };
+  play(0);
+  const size_t short_clip = scratch.memory_bytes();
+  play(1);
+  // One segment of integers and their bytes: 2 x 4 bytes x K x (3V + M), not the clip's.
+  EXPECT_LE(scratch.memory_bytes(), 8 * size_t(s.segment_frames) * (n + 4));
+  EXPECT_EQ(scratch.memory_bytes(), short_clip);
+  const uint64_t before = g_allocations.load();
+  play(2);
+  play(0);
+  EXPECT_EQ(g_allocations.load(), before) << "decoding allocated once warm";
+  // And the segments decode to the clip within its contract.
+  std::vector<float> y;
+  ASSERT_EQ(decode_all(blobs[1].data(), blobs[1].size(), y, scratch, &err, &basis), Status::Ok);
+  EXPECT_TRUE(within(measure_contract(y.data(), inputs[1].data(), 300, V), s.contract));
 }
 
 TEST(CodecV3, RefusesBadInputAndDamagedOrNewerBlobs) {

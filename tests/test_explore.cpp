@@ -16,6 +16,7 @@
 #include "clothrt.h"
 #include "database/codec/codec.hpp"
 #include "database/format/checksum.hpp"
+#include "database/format/contracts.hpp"
 #include "database/store/check.hpp"
 #include "database/store/writer.hpp"
 #include "explore/explorer.hpp"
@@ -346,6 +347,57 @@ TEST(Explore, CodecV2BasesFromTheStoredClipsKeepTheGraphAndTheBound) {
     }
     EXPECT_TRUE(named) << "basis " << row.id << " is named by no clip";
   }
+}
+
+// Codec version 3 during the run (docs/DATABASE.md, "clothdb precompute ... --codec v3"): on the
+// bases built as the file grows, every later clip is coded within the contract against its
+// simulated frames, its figures recorded within the caps; the graph is a version 1 run's, db check
+// passes, a run stopped in parts resumes to the same file, and two threads give the same file.
+TEST(Explore, CodecV3ClipsWithinTheirContractAndResumeToTheSameContent) {
+  const CharacterScene scene = small_scene();
+  ExploreOptions options;
+  options.epsilon = 0.02;
+  options.batch = 2;
+  const ExploreReport v1 = run(scene, temp_db("codec3_v1"), options);
+  options.subspace_modes = 8;
+  options.subspace_first_frames = 40;
+  options.subspace_always = true;
+  options.subspace_contract = {0.001, 0.003, 0.0001};
+  const std::string path = temp_db("codec3_whole");
+  const ExploreReport whole = run(scene, path, options);
+  ASSERT_TRUE(whole.converged);
+  EXPECT_EQ(whole.states, v1.states);
+  EXPECT_EQ(whole.clips, v1.clips);
+  EXPECT_GT(whole.clips_v3, 0);
+  const db::DatabaseInfo info = db::read_database_info(path);
+  EXPECT_EQ(info.clips_v3, static_cast<uint64_t>(whole.clips_v3));
+  EXPECT_EQ(info.contracts, info.clips_v3);
+  db::Reader r;
+  db::Error err;
+  ASSERT_EQ(r.open(path, &err), db::Status::Ok) << err.message;
+  std::vector<db::ClipContract> contracts;
+  ASSERT_EQ(db::clip_contracts(r.handle(), path, &contracts, &err), db::Status::Ok) << err.message;
+  EXPECT_EQ(contracts.size(), static_cast<size_t>(whole.clips_v3));
+  for (const db::ClipContract& c : contracts) {
+    EXPECT_TRUE(codec::within(c.measured, options.subspace_contract))
+        << "clip " << c.clip << ": " << codec::describe(c.measured);
+    EXPECT_EQ(c.caps.jitter, options.subspace_contract.jitter);
+  }
+  const db::CheckReport check = db::check_database(path);
+  EXPECT_TRUE(check.problems.empty());
+  for (const auto& problem : check.problems) ADD_FAILURE() << problem;
+  // Stopped in parts and resumed.
+  const std::string parts_path = temp_db("codec3_parts");
+  options.max_frames = whole.frames / 3;
+  for (int parts = 0;; ++parts) {
+    if (run(scene, parts_path, options).converged) break;
+    ASSERT_LT(parts, 10);
+  }
+  expect_same_file(db_path("codec3_whole"), parts_path);
+  options.max_frames = 0;
+  options.threads = 2;
+  ASSERT_TRUE(run(scene, temp_db("codec3_two_threads"), options).converged);
+  expect_same_file(db_path("codec3_whole"), db_path("codec3_two_threads"));
 }
 
 TEST(Explore, RarelyTakenEdgesAreExpandedLater) {

@@ -103,6 +103,24 @@ void expect_plays(const std::string& path, int frames) {
   clothrt_db_close(db);
 }
 
+// The positions a player shows over `frames` frames from the start clip (frame-major).
+std::vector<float> played(const std::string& path, int frames) {
+  clothrt_db* db = nullptr;
+  EXPECT_EQ(clothrt_db_open(path.c_str(), nullptr, &db), CLOTHRT_OK) << clothrt_last_open_errmsg();
+  clothrt_player* p = nullptr;
+  EXPECT_EQ(clothrt_player_create(db, &p), CLOTHRT_OK);
+  EXPECT_EQ(clothrt_player_start(p, clothrt_db_start_clip(db)), CLOTHRT_OK);
+  const size_t n = size_t(clothrt_db_vertex_count(db)) * 3;
+  std::vector<float> out(n * size_t(frames));
+  for (int f = 0; f < frames; ++f) {
+    EXPECT_EQ(clothrt_player_advance(p, 1.0 / 30), CLOTHRT_OK) << clothrt_player_errmsg(p);
+    EXPECT_EQ(clothrt_player_get_positions(p, out.data() + n * size_t(f), 12, nullptr), CLOTHRT_OK);
+  }
+  clothrt_player_destroy(p);
+  clothrt_db_close(db);
+  return out;
+}
+
 void expect_checks(const std::string& path) {
   const db::CheckReport report = db::check_database(path);
   for (const auto& p : report.problems) ADD_FAILURE() << p;
@@ -363,9 +381,24 @@ TEST(RecodeV3, EveryClipWithinItsCapsChecksAndPlays) {
   const std::string path = dir.file("v3.db");
   synthetic::build(path, spec());
   const Contents before = read_all(path);
+  const std::vector<float> shown_before = played(path, 90);
   const RecodeReport r = recode_database(path, v3_options());
   EXPECT_EQ(r.clips_replaced, r.clips);
   EXPECT_EQ(r.states_replaced, 0u) << "states keep the strict bound";
+  // What a player shows moves by no more than the max cap (the same walk: the graph and the
+  // states are unchanged; blends are convex combinations of frames each within the cap).
+  const std::vector<float> shown_after = played(path, 90);
+  ASSERT_EQ(shown_before.size(), shown_after.size());
+  double worst = 0;
+  for (size_t i = 0; i + 2 < shown_before.size(); i += 3) {
+    double d2 = 0;
+    for (size_t a = 0; a < 3; ++a) {
+      const double d = double(shown_after[i + a]) - double(shown_before[i + a]);
+      d2 += d * d;
+    }
+    worst = std::max(worst, std::sqrt(d2));
+  }
+  EXPECT_LE(worst, v3_options().contract.max * (1 + 1e-3));
   const uint32_t V = uint32_t(spec().side * spec().side);
   expect_within_contract(before, read_all(path), v3_options().contract, V);
   expect_checks(path);

@@ -120,10 +120,11 @@ void reseal(uint8_t* blob, size_t size);
 }  // namespace clothdb::codec::v2
 
 namespace clothdb::codec::v3 {
-// The version 3 halves (database/codec_v3.cpp); one payload instead of a chunk table.
+// The version 3 halves (database/codec_v3.cpp); its segments are the chunks.
 Status parse(const uint8_t* blob, size_t size, BlobInfo* info, Error* err);
 Status decode(const uint8_t* blob, size_t size, uint32_t first, uint32_t count, float* out,
               size_t out_floats, DecodeScratch& scratch, Error* err, const Basis* basis);
 void reseal(uint8_t* blob, size_t size);
-ChunkSpan payload(const uint8_t* blob);
+// The segments of a blob parse() accepted.
+void spans(const uint8_t* blob, std::vector<ChunkSpan>* out);
 }  // namespace clothdb::codec::v3

@@ -381,6 +381,7 @@ DecodeScratch::DecodeScratch(DecodeScratch&& other) noexcept
       body_(std::move(other.body_)),
       v3_ints_(std::move(other.v3_ints_)),
       v3_key_(other.v3_key_),
+      v3_segment_(other.v3_segment_),
       v3_valid_(other.v3_valid_),
       frames_reconstructed_(other.frames_reconstructed_) {
   other.v3_valid_ = false;
@@ -397,6 +398,7 @@ DecodeScratch& DecodeScratch::operator=(DecodeScratch&& other) noexcept {
     std::swap(body_, other.body_);
     std::swap(v3_ints_, other.v3_ints_);
     std::swap(v3_key_, other.v3_key_);
+    std::swap(v3_segment_, other.v3_segment_);
     std::swap(v3_valid_, other.v3_valid_);
     frames_reconstructed_ = other.frames_reconstructed_;
   }
@@ -415,7 +417,16 @@ void DecodeScratch::reserve(uint32_t vertex_count, uint32_t key_interval, uint32
     if (coefficients_.size() < size_t(modes) * key_interval)
       coefficients_.resize(size_t(modes) * key_interval);
     if (body_.size() < size_t(12) * key_interval) body_.resize(size_t(12) * key_interval);
+    // Version 3: one segment of coefficients and residual as integers.
+    if (v3_ints_.size() < (n + modes) * key_interval) v3_ints_.resize((n + modes) * key_interval);
   }
+}
+
+size_t DecodeScratch::memory_bytes() const {
+  size_t bytes = bytes_.capacity() + 4 * (subspace_.capacity() + coefficients_.capacity() +
+                                          body_.capacity() + v3_ints_.capacity());
+  for (const auto& q : q_) bytes += 4 * q.capacity();
+  return bytes;
 }
 
 Status read_info(const uint8_t* blob, size_t size, BlobInfo* info, Error* err) {
@@ -427,7 +438,7 @@ Status chunk_spans(const uint8_t* blob, size_t size, std::vector<ChunkSpan>* out
   BlobInfo info;
   if (Status st = parse(blob, size, &info, err); st != Status::Ok) return st;
   if (info.version == kFormatVersionV3) {
-    out->push_back(v3::payload(blob));
+    v3::spans(blob, out);
     return Status::Ok;
   }
   // Versions 1 and 2: u16 header size at byte 6, then the chunk table (u32 compressed size first in

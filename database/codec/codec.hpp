@@ -25,8 +25,8 @@
 //
 // Format version 3 (encode_v3) keeps an error contract in what a player sees (contract.hpp: RMS,
 // max and jitter caps) instead of a per-coordinate bound: subspace coefficients plus a residual
-// smooth in time, only where the contract needs it (docs/DATABASE.md, "version 3"). It needs its
-// basis like version 2.
+// steered so the coding error stays smooth in time, in segments that decode on their own
+// (docs/DATABASE.md, "version 3"). It needs its basis like version 2.
 #pragma once
 
 #include <cstddef>
@@ -127,7 +127,7 @@ struct BlobInfo {
   double coefficient_step = 0;
   bool uses_mean = false;
   bool body_frame = false;  // per-frame rigid transforms stored (SubspaceSettings::body_frames)
-  // Version 3 only: frames between the residual's B-spline knots (0: no residual); `step` is then
+  // Version 3 only: 1 when the blob carries a residual on every frame (0: none); `step` is then
   // the residual's quantisation step and `bound` 0 (the blob keeps a contract, not a bound).
   uint32_t residual_interval = 0;
 };
@@ -192,15 +192,23 @@ struct V3Settings {
   Contract contract;            // every cap positive (m)
   uint32_t modes = 0;           // modes of the basis to use (0: all)
   double coefficient_step = 0;  // m per coefficient unit; 0: half the jitter cap
+  // Frames per segment (each decodable on its own: what a player stages at a time).
+  uint32_t segment_frames = 32;
   int zstd_level = kDefaultZstdLevel;
 };
 
 struct V3Stats {
   ContractFigures figures;         // measured on the decoded blob against the input
   uint32_t modes = 0;              // used
-  uint32_t residual_interval = 0;  // 0: no residual was needed
+  uint32_t residual_interval = 0;  // 0: no residual was needed; 1: a residual on every frame
   double residual_step = 0;
-  int attempts = 0;  // encodings tried (each decoded and measured)
+  double residual_band = 0;  // m: the error the residual's controller lets drift before steering
+  int attempts = 0;          // encodings tried (each decoded and measured)
+  // Where the bytes go: the blob's header and segment table, the coefficients' and the residual's
+  // compressed bytes (each part compressed alone, so the two add up to about the payload).
+  size_t header_bytes = 0, coefficient_bytes = 0, residual_bytes = 0;
+  // Residual symbols (coordinate-frames after each segment's first two) that are not 0.
+  uint64_t residual_symbols = 0, residual_nonzero = 0;
 };
 
 // Encodes frame_count frames as a version 3 blob predicted from `basis` (positions; the mean is
@@ -241,6 +249,9 @@ class DecodeScratch {
 
   void reserve(uint32_t vertex_count, uint32_t key_interval, uint32_t modes = 0);
 
+  // Bytes the scratch's buffers hold (not the zstd context): what a player's decoder keeps.
+  size_t memory_bytes() const;
+
   // Frames reconstructed by the last decode call (random-access cost, for tests and benchmarks).
   uint64_t frames_reconstructed() const { return frames_reconstructed_; }
 
@@ -256,10 +267,11 @@ class DecodeScratch {
   std::vector<float> subspace_;
   std::vector<int32_t> coefficients_;
   std::vector<float> body_;  // version 2: one chunk's body transforms
-  // Version 3: the last blob's payload as integers (coefficients, then residual control points),
-  // kept while the same blob (by header checksum) is decoded again frame by frame.
+  // Version 3: the last segment decoded, as integers (coefficients, then residual), kept while
+  // frames of the same segment of the same blob (header checksum, segment) are decoded again.
   std::vector<int32_t> v3_ints_;
   uint64_t v3_key_ = 0;
+  uint32_t v3_segment_ = 0;
   bool v3_valid_ = false;
   uint64_t frames_reconstructed_ = 0;
 };

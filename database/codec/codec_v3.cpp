@@ -1,18 +1,23 @@
 // Codec version 3 (docs/DATABASE.md, "version 3"): a clip as the coefficients of the garment's
 // subspace (Kim et al. 2013, section 6: a few hundred PCA modes per garment) plus, only where the
-// error contract (contract.hpp) needs it, a residual that is smooth in time: a uniform cubic
-// B-spline over frames whose control points are least-squares fits of what the modes leave.
-// Every part of the coding error is smooth in time or tiny, so the jitter a player would see stays
-// under its cap:
+// error contract (contract.hpp) needs it, a residual predicted from frame to frame whose
+// quantisation is steered so the coding error stays smooth in time:
 //  - coefficients are quantised finely (their error reaches a coordinate scaled by about
 //    sqrt(modes / 3V)) and coded as their second difference in time (integers, so the decoder's
 //    coefficients are exactly the encoder's);
-//  - what the modes leave of a smooth motion is smooth;
-//  - the B-spline's second difference is that of its control points divided by R^2 (R frames
-//    between knots), so quantising control points coarsely adds little jitter.
-// The encoder measures the contract on the decoded clip against its input and tries cheaper
-// residuals first (none, then knots every 16, 8, 4, 2, 1 frames, each at a coarse step and 1/2,
-// 1/4, 1/8 of it); the first that holds is kept.
+//  - the residual r (what the decoded modes leave) is coded per coordinate as r^[f] = 2 r^[f-1] -
+//    r^[f-2] + s q[f]. The coding error e = r^ - r then has second difference e''[f] = s q[f] -
+//    r''[f] exactly, so any q within J of r''/s keeps the jitter under its cap J whatever the
+//    error itself is; among those the encoder takes 0 (nothing to send) while the error stays in
+//    a band, and otherwise the q that steers the error back (a double integrator driven by a
+//    bounded acceleration: bang-bang control toward zero error and zero velocity). Rounding each
+//    frame on its own instead would give jitter up to 2 s per coordinate (version 1's 0.57 mm at
+//    a 0.1 mm bound, docs/notebook/codec_v3.md).
+// A clip is cut into segments of K frames, each its own zstd frame and decodable on its own (the
+// first two frames of a segment carry their values, the rest second differences), so a player
+// stages one segment, not the clip. The encoder measures the contract on the decoded blob against
+// its input and tries cheaper settings first (no residual, then finer steps and narrower bands);
+// the first that holds is kept.
 #include <zstd.h>
 
 #include <algorithm>
@@ -31,179 +36,225 @@ namespace {
 using namespace bytes;
 
 // Byte layout (little-endian), docs/DATABASE.md "version 3":
-//   0 magic "CLDF" | 4 u16 version (3) | 6 u16 header size (80) | 8 u32 vertices | 12 u32 frames
-//  16 u32 modes | 20 u32 residual knot interval R (0: no residual) | 24 i64 basis id
-//  32 f64 coefficient step | 40 f64 residual step | 48 u32 control points P (0 without residual)
-//  52 u32 payload bytes before zstd | 56 u32 payload bytes (zstd) | 60 u32 reserved (0)
-//  64 u64 XXH64 of the payload | 72 u64 XXH64 of bytes 0..71 | 80 the payload (one zstd frame).
-// Payload before zstd: N = F x modes + P x 3V zigzagged int32 split into 4 byte planes (all
-// low bytes, then all second bytes, ...): first the coefficients' second differences in time
-// (frame-major; frame 0 as is, frame 1 minus frame 0), then the control points' differences from
-// the previous point (control point-major, x y z per vertex; point 0 as is).
-constexpr size_t kHeaderSize = 80;
-constexpr size_t kChecksumOffset = 72;
+//   0 magic "CLDF" | 4 u16 version (3) | 6 u16 header size (64) | 8 u32 vertices V
+//  12 u32 frames F | 16 u32 modes M | 20 u32 segment frames K | 24 i64 basis id
+//  32 f64 coefficient step | 40 f64 residual step (0: no residual) | 48 u32 segments S
+//  52 u32 reserved (0) | 56 u64 XXH64 of bytes 0..55 and the segment table
+//  64 segment table: S x {u64 XXH64 of the segment's bytes, u32 compressed bytes, u32 bytes before
+//     zstd} | then the segments back to back, each one zstd frame.
+// A segment of k frames before zstd: k x M zigzagged int32 coefficients, then (with a residual)
+// k x 3V zigzagged int32 residual values, each part split into 4 byte planes (all low bytes, then
+// all second bytes, ...); both frame-major, the segment's first frame as is, its second minus the
+// first, the rest minus the linear prediction 2 a[f-1] - a[f-2].
+constexpr size_t kHeaderSize = 64;
+constexpr size_t kChecksumOffset = 56;
+constexpr size_t kEntrySize = 16;
 constexpr int32_t kMaxInt = (1 << 27) - 1;  // so 2 a - b never overflows int32
 constexpr double kMaxStep = 1e3;
-constexpr uint32_t kMaxKnotInterval = 1024;
+constexpr uint32_t kMaxSegmentFrames = 4096;
 
 struct Header {
-  uint32_t V = 0, F = 0, modes = 0, R = 0, P = 0, raw = 0, csize = 0;
+  uint32_t V = 0, F = 0, modes = 0, K = 0, S = 0;
   int64_t basis_id = 0;
   double cstep = 0, rstep = 0;
+  bool residual() const { return rstep > 0; }
+  uint32_t frames_in(uint32_t s) const { return std::min(K, F - s * K); }
+  size_t ints_per_frame() const { return size_t(modes) + (residual() ? size_t(V) * 3 : 0); }
 };
 
 Status parse_header(const uint8_t* blob, size_t size, Header* h, Error* err) {
   if (size < kHeaderSize)
     return fail(err, Status::Truncated, "frame blob truncated: %zu bytes, header needs %zu", size,
                 kHeaderSize);
+  if (get_u16(blob + 6) != kHeaderSize)
+    return fail(err, Status::Corrupt, "frame blob (codec version 3): header size %u, expected %zu",
+                get_u16(blob + 6), kHeaderSize);
+  h->S = get_u32(blob + 48);
+  const uint64_t table = kHeaderSize + uint64_t(h->S) * kEntrySize;
+  if (size < table)
+    return fail(err, Status::Truncated, "frame blob truncated: %zu bytes, segment table needs %llu",
+                size, (unsigned long long)table);
   const uint64_t stored = get_u64(blob + kChecksumOffset);
-  const uint64_t actual = xxh64(blob, kChecksumOffset);
+  uint64_t actual = xxh64(blob, kChecksumOffset);
+  actual ^= xxh64(blob + kHeaderSize, size_t(table - kHeaderSize)) * 0x9E3779B97F4A7C15ull;
   if (stored != actual)
     return fail(err, Status::ChecksumMismatch,
                 "frame blob header checksum mismatch (stored %016llx, computed %016llx)",
                 (unsigned long long)stored, (unsigned long long)actual);
-  if (get_u16(blob + 6) != kHeaderSize)
-    return fail(err, Status::Corrupt, "frame blob (codec version 3): header size %u, expected %zu",
-                get_u16(blob + 6), kHeaderSize);
   h->V = get_u32(blob + 8);
   h->F = get_u32(blob + 12);
   h->modes = get_u32(blob + 16);
-  h->R = get_u32(blob + 20);
+  h->K = get_u32(blob + 20);
   h->basis_id = int64_t(get_u64(blob + 24));
   h->cstep = get_f64(blob + 32);
   h->rstep = get_f64(blob + 40);
-  h->P = get_u32(blob + 48);
-  h->raw = get_u32(blob + 52);
-  h->csize = get_u32(blob + 56);
   if (h->V == 0 || h->V > kMaxVertices)
     return fail(err, Status::Corrupt, "frame blob: %u vertices (1..%u)", h->V, kMaxVertices);
   if (h->F == 0) return fail(err, Status::Corrupt, "frame blob: 0 frames");
   if (h->modes > kMaxBasisModes)
     return fail(err, Status::Corrupt, "frame blob: %u modes (at most %u)", h->modes,
                 kMaxBasisModes);
-  if (!(h->cstep > 0 && h->cstep <= kMaxStep) ||
-      (h->R > 0 && !(h->rstep > 0 && h->rstep <= kMaxStep)))
+  if (!(h->cstep > 0 && h->cstep <= kMaxStep) || !(h->rstep >= 0 && h->rstep <= kMaxStep))
     return fail(err, Status::Corrupt, "frame blob: coefficient or residual step out of range");
-  if (h->R > kMaxKnotInterval)
-    return fail(err, Status::Corrupt, "frame blob: residual knot interval %u (at most %u)", h->R,
-                kMaxKnotInterval);
-  const uint64_t segments =
-      h->R == 0 ? 0 : std::max<uint64_t>(1, (uint64_t(h->F) - 1 + h->R - 1) / h->R);
-  const uint64_t P = h->R == 0 ? 0 : segments + 3;
-  if (P != h->P)
-    return fail(err, Status::Corrupt,
-                "frame blob: %u control points, %u frames at interval %u need %llu", h->P, h->F,
-                h->R, (unsigned long long)P);
-  const uint64_t ints = uint64_t(h->F) * h->modes + P * 3 * h->V;
-  if (ints * 4 != h->raw || ints > kMaxChunkFloats)
-    return fail(err, Status::Corrupt, "frame blob: payload of %u bytes does not fit its counts",
-                h->raw);
-  if (get_u32(blob + 60) != 0)
+  if (h->K == 0 || h->K > kMaxSegmentFrames)
+    return fail(err, Status::Corrupt, "frame blob: %u frames per segment (1..%u)", h->K,
+                kMaxSegmentFrames);
+  if (uint64_t(h->S) != (uint64_t(h->F) + h->K - 1) / h->K)
+    return fail(err, Status::Corrupt, "frame blob: %u segments, %u frames of %u need %u", h->S,
+                h->F, h->K, (h->F + h->K - 1) / h->K);
+  if (uint64_t(h->K) * h->ints_per_frame() > kMaxChunkFloats)
+    return fail(err, Status::Corrupt, "frame blob: segments of %u frames too large", h->K);
+  if (get_u32(blob + 52) != 0)
     return fail(err, Status::Corrupt, "frame blob header: reserved bytes set");
-  if (size != kHeaderSize + uint64_t(h->csize)) {
-    if (size < kHeaderSize + uint64_t(h->csize))
+  uint64_t end = table;
+  for (uint32_t s = 0; s < h->S; ++s) {
+    const uint8_t* e = blob + kHeaderSize + size_t(s) * kEntrySize;
+    if (get_u32(e + 12) != 4 * h->frames_in(s) * h->ints_per_frame())
+      return fail(err, Status::Corrupt,
+                  "frame blob: segment %u of %u bytes does not fit its counts", s, get_u32(e + 12));
+    end += get_u32(e + 8);
+  }
+  if (size != end) {
+    if (size < end)
       return fail(err, Status::Truncated, "frame blob truncated: %zu bytes, header says %llu", size,
-                  (unsigned long long)(kHeaderSize + uint64_t(h->csize)));
+                  (unsigned long long)end);
     return fail(err, Status::Corrupt, "frame blob: %zu bytes, header says %llu", size,
-                (unsigned long long)(kHeaderSize + uint64_t(h->csize)));
+                (unsigned long long)end);
   }
   return Status::Ok;
 }
 
-// Uniform cubic B-spline weights at u in [0, 1] (de Boor; the segment's four control points).
-void bspline_weights(double u, double w[4]) {
-  const double u2 = u * u, u3 = u2 * u, v = 1 - u;
-  w[0] = v * v * v / 6;
-  w[1] = (3 * u3 - 6 * u2 + 4) / 6;
-  w[2] = (-3 * u3 + 3 * u2 + 3 * u + 1) / 6;
-  w[3] = u3 / 6;
+size_t segment_offset(const uint8_t* blob, const Header& h, uint32_t s) {
+  size_t off = kHeaderSize + size_t(h.S) * kEntrySize;
+  for (uint32_t i = 0; i < s; ++i) off += get_u32(blob + kHeaderSize + size_t(i) * kEntrySize + 8);
+  return off;
 }
 
-// Frame f's segment (first control point) and weights for knots every R frames, P points.
-uint32_t segment(uint32_t f, uint32_t R, uint32_t P, double w[4]) {
-  const uint32_t i = std::min(f / R, P - 4);
-  bspline_weights(double(f - i * R) / double(R), w);
-  return i;
-}
-
-// One frame of the subspace: mean + sum_k c_k modes[k] in float, the same order in encoder and
-// decoder (the library is built with -ffp-contract=off).
-void subspace_frame(const Basis& b, uint32_t modes, const int32_t* q, double cstep, float* out,
-                    size_t n) {
-  std::memcpy(out, b.mean.data(), n * sizeof(float));
-  for (uint32_t k = 0; k < modes; ++k) {
-    const float w = float(double(q[k]) * cstep);
-    if (w == 0.0f) continue;
-    const float* u = b.modes.data() + size_t(k) * n;
-    for (size_t i = 0; i < n; ++i) out[i] += w * u[i];
+// Frames of the subspace plus the residual: out[j] = mean + sum_k c_jk modes[k] (+ s_r r_j), in
+// float, each coordinate summed in mode order whatever the tiling, so encoder and decoder agree to
+// the bit (the library is built with -ffp-contract=off). Tiled over coordinates so one tile of a
+// mode is read once for all `count` frames: the basis (M x 3V floats) is streamed once per call,
+// not once per frame. q: count x M coefficient units (stride M); Q: count x n residual units or
+// null.
+void reconstruct(const Basis& b, uint32_t M, const int32_t* q, double cstep, const int32_t* Q,
+                 double rstep, uint32_t count, float* out, size_t n) {
+  // A tile of 256 coordinates of all M modes (M KB) stays in cache across the frames; each frame's
+  // tile is summed in registers, four modes per pass over it, in mode order.
+  constexpr size_t kTile = 256;
+  float acc[kTile];
+  float w[kMaxBasisModes];
+  for (size_t lo = 0; lo < n; lo += kTile) {
+    const size_t len = std::min(kTile, n - lo);
+    const float* u = b.modes.data() + lo;
+    for (uint32_t j = 0; j < count; ++j) {
+      for (uint32_t k = 0; k < M; ++k) w[k] = float(double(q[size_t(j) * M + k]) * cstep);
+      std::memcpy(acc, b.mean.data() + lo, len * sizeof(float));
+      uint32_t k = 0;
+      for (; k + 4 <= M; k += 4) {
+        const float *u0 = u + size_t(k) * n, *u1 = u0 + n, *u2 = u1 + n, *u3 = u2 + n;
+        const float w0 = w[k], w1 = w[k + 1], w2 = w[k + 2], w3 = w[k + 3];
+        for (size_t i = 0; i < len; ++i) {
+          float a = acc[i];
+          a += w0 * u0[i];
+          a += w1 * u1[i];
+          a += w2 * u2[i];
+          a += w3 * u3[i];
+          acc[i] = a;
+        }
+      }
+      for (; k < M; ++k) {
+        const float* uk = u + size_t(k) * n;
+        const float wk = w[k];
+        for (size_t i = 0; i < len; ++i) acc[i] += wk * uk[i];
+      }
+      float* o = out + size_t(j) * n + lo;
+      if (Q != nullptr) {
+        const int32_t* r = Q + size_t(j) * n + lo;
+        for (size_t i = 0; i < len; ++i) o[i] = acc[i] + float(double(r[i]) * rstep);
+      } else {
+        std::memcpy(o, acc, len * sizeof(float));
+      }
+    }
   }
 }
 
-void add_residual(const int32_t* Q, uint32_t f, uint32_t R, uint32_t P, double rstep, float* out,
-                  size_t n) {
-  double w[4];
-  const uint32_t i = segment(f, R, P, w);
-  const int32_t* q0 = Q + size_t(i) * n;
-  for (size_t c = 0; c < n; ++c) {
-    const double r = w[0] * q0[c] + w[1] * q0[n + c] + w[2] * q0[2 * n + c] + w[3] * q0[3 * n + c];
-    out[c] += float(r * rstep);
-  }
+// Segment integers (k frames of `width` values, frame-major) from their prediction residuals, in
+// place: with `spatial` > 0 each residual first plus the one `spatial` values before it in the same
+// frame (the previous vertex's on the same axis); then in time, first frame as is, second plus the
+// first, the rest plus 2 a[f-1] - a[f-2]. Wrapping arithmetic, then range-checked so a damaged
+// payload cannot overflow later.
+bool integrate(int32_t* v, uint32_t k, size_t width, size_t spatial) {
+  if (spatial > 0)
+    for (uint32_t f = 0; f < k; ++f) {
+      int32_t* d = v + size_t(f) * width;
+      for (size_t c = spatial; c < width; ++c)
+        d[c] = int32_t(uint32_t(d[c]) + uint32_t(d[c - spatial]));
+    }
+  for (uint32_t f = 1; f < k; ++f)
+    for (size_t c = 0; c < width; ++c) {
+      const size_t i = size_t(f) * width + c;
+      const uint32_t pred =
+          f == 1 ? uint32_t(v[i - width]) : 2 * uint32_t(v[i - width]) - uint32_t(v[i - 2 * width]);
+      const int32_t x = int32_t(pred + uint32_t(v[i]));
+      if (x > kMaxInt || x < -kMaxInt) return false;
+      v[i] = x;
+    }
+  for (size_t c = 0; c < width; ++c)
+    if (v[c] > kMaxInt || v[c] < -kMaxInt) return false;
+  return true;
 }
 
 }  // namespace
 
 struct DecoderV3Access {
-  // Decompresses and checks the payload into s.v3_ints_ (coefficients F x modes, then control
-  // points P x 3V), unless the scratch already holds this blob's (same header checksum).
-  static Status load(const uint8_t* blob, const Header& h, DecodeScratch& s, Error* err) {
-    const uint8_t* src = blob + kHeaderSize;
-    if (xxh64(src, h.csize) != get_u64(blob + 64))
-      return fail(err, Status::ChecksumMismatch, "frame blob payload checksum mismatch");
+  // Decompresses and checks segment s into s.v3_ints_ (coefficients k x M, then the residual
+  // k x 3V), unless the scratch already holds it.
+  static Status load(const uint8_t* blob, const Header& h, uint32_t seg, DecodeScratch& s,
+                     Error* err) {
+    const uint8_t* entry = blob + kHeaderSize + size_t(seg) * kEntrySize;
+    const uint32_t csize = get_u32(entry + 8), raw = get_u32(entry + 12);
+    const uint8_t* src = blob + segment_offset(blob, h, seg);
     const uint64_t key = get_u64(blob + kChecksumOffset);
-    if (s.v3_key_ == key && s.v3_valid_) return Status::Ok;
+    if (s.v3_valid_ && s.v3_key_ == key && s.v3_segment_ == seg) return Status::Ok;
+    if (xxh64(src, csize) != get_u64(entry))
+      return fail(err, Status::ChecksumMismatch, "frame blob segment %u checksum mismatch", seg);
     s.v3_valid_ = false;
-    const unsigned long long declared = ZSTD_getFrameContentSize(src, h.csize);
-    if (declared != h.raw)
-      return fail(err, Status::Corrupt, "frame blob: zstd frame declares %llu bytes, expected %u",
-                  declared, h.raw);
-    if (s.bytes_.size() < h.raw) s.bytes_.resize(h.raw);
+    const unsigned long long declared = ZSTD_getFrameContentSize(src, csize);
+    if (declared != raw)
+      return fail(err, Status::Corrupt,
+                  "frame blob segment %u: zstd frame declares %llu bytes, expected %u", seg,
+                  declared, raw);
+    if (s.bytes_.size() < raw) s.bytes_.resize(raw);
     const size_t got =
-        ZSTD_decompressDCtx(static_cast<ZSTD_DCtx*>(s.dctx_), s.bytes_.data(), h.raw, src, h.csize);
+        ZSTD_decompressDCtx(static_cast<ZSTD_DCtx*>(s.dctx_), s.bytes_.data(), raw, src, csize);
     if (ZSTD_isError(got))
-      return fail(err, Status::Corrupt, "frame blob: zstd: %s", ZSTD_getErrorName(got));
-    if (got != h.raw)
-      return fail(err, Status::Corrupt, "frame blob: %zu bytes decompressed of %u", got, h.raw);
-    const size_t N = h.raw / 4;
+      return fail(err, Status::Corrupt, "frame blob segment %u: zstd: %s", seg,
+                  ZSTD_getErrorName(got));
+    if (got != raw)
+      return fail(err, Status::Corrupt, "frame blob segment %u: %zu bytes decompressed of %u", seg,
+                  got, raw);
+    const uint32_t k = h.frames_in(seg);
+    const size_t N = raw / 4;
     if (s.v3_ints_.size() < N) s.v3_ints_.resize(N);
     int32_t* v = s.v3_ints_.data();
     const uint8_t* b = s.bytes_.data();
-    for (size_t i = 0; i < N; ++i)
-      v[i] = int32_t(unzigzag(uint32_t(b[i]) | uint32_t(b[N + i]) << 8 |
-                              uint32_t(b[2 * N + i]) << 16 | uint32_t(b[3 * N + i]) << 24));
-    // Coefficients: second differences in time, back to values (wrapping, then range-checked).
-    const uint32_t M = h.modes;
-    for (uint32_t f = 0; f < h.F; ++f)
-      for (uint32_t k = 0; k < M; ++k) {
-        const size_t i = size_t(f) * M + k;
-        const uint32_t pred = f == 0   ? 0u
-                              : f == 1 ? uint32_t(v[i - M])
-                                       : 2 * uint32_t(v[i - M]) - uint32_t(v[i - 2 * M]);
-        const int32_t x = int32_t(pred + uint32_t(v[i]));
-        if (x > kMaxInt || x < -kMaxInt)
-          return fail(err, Status::Corrupt, "frame blob: coefficient out of range");
-        v[i] = x;
-      }
-    const size_t n = size_t(h.V) * 3;
-    int32_t* Q = v + size_t(h.F) * M;
-    for (uint32_t j = 1; j < h.P; ++j)
-      for (size_t c = 0; c < n; ++c) {
-        const size_t i = size_t(j) * n + c;
-        const int32_t x = int32_t(uint32_t(Q[i - n]) + uint32_t(Q[i]));
-        if (x > kMaxInt || x < -kMaxInt)
-          return fail(err, Status::Corrupt, "frame blob: residual control point out of range");
-        Q[i] = x;
-      }
+    // Two parts, each in 4 byte planes.
+    const size_t parts[2] = {size_t(k) * h.modes, N - size_t(k) * h.modes};
+    size_t at = 0;
+    for (size_t part : parts) {
+      const uint8_t* p = b + 4 * at;
+      for (size_t i = 0; i < part; ++i)
+        v[at + i] =
+            int32_t(unzigzag(uint32_t(p[i]) | uint32_t(p[part + i]) << 8 |
+                             uint32_t(p[2 * part + i]) << 16 | uint32_t(p[3 * part + i]) << 24));
+      at += part;
+    }
+    if (!integrate(v, k, h.modes, 0))
+      return fail(err, Status::Corrupt, "frame blob segment %u: coefficient out of range", seg);
+    if (h.residual() && !integrate(v + size_t(k) * h.modes, k, size_t(h.V) * 3, 3))
+      return fail(err, Status::Corrupt, "frame blob segment %u: residual out of range", seg);
     s.v3_key_ = key;
+    s.v3_segment_ = seg;
     s.v3_valid_ = true;
     return Status::Ok;
   }
@@ -228,25 +279,29 @@ struct DecoderV3Access {
                   "%u modes)",
                   h.V, h.modes, (long long)basis->id, basis->vertex_count, basis->mode_count);
     if (count == 0 && out != nullptr) return Status::Ok;
-    if (out == nullptr) {  // verify: the whole payload, no output
-      first = 0;
-      count = 0;
-    } else if (first >= h.F || count > h.F - first) {
+    if (out == nullptr) {  // verify: every segment, no output
+      for (uint32_t seg = 0; seg < h.S; ++seg) {
+        s.v3_valid_ = false;  // verify checks the bytes even when a segment is cached
+        if (Status st = load(blob, h, seg, s, err); st != Status::Ok) return st;
+      }
+      return Status::Ok;
+    }
+    if (first >= h.F || count > h.F - first)
       return fail(err, Status::InvalidArgument, "frames %u..%u requested from a %u-frame blob",
                   first, first + count - 1, h.F);
-    } else if (out_floats < size_t(count) * n) {
+    if (out_floats < size_t(count) * n)
       return fail(err, Status::OutputTooSmall, "output holds %zu floats, %u frames need %zu",
                   out_floats, count, size_t(count) * n);
-    }
-    if (Status st = load(blob, h, s, err); st != Status::Ok) return st;
-    const int32_t* q = s.v3_ints_.data();
-    const int32_t* Q = q + size_t(h.F) * h.modes;
-    for (uint32_t j = 0; j < count; ++j) {
-      const uint32_t f = first + j;
-      float* o = out + size_t(j) * n;
-      subspace_frame(*basis, h.modes, q + size_t(f) * h.modes, h.cstep, o, n);
-      if (h.R > 0) add_residual(Q, f, h.R, h.P, h.rstep, o, n);
-      ++s.frames_reconstructed_;
+    for (uint32_t f = first; f < first + count;) {
+      const uint32_t seg = f / h.K, k = h.frames_in(seg), at = f - seg * h.K;
+      const uint32_t take = std::min(first + count - f, k - at);
+      if (Status st = load(blob, h, seg, s, err); st != Status::Ok) return st;
+      const int32_t* q = s.v3_ints_.data();
+      const int32_t* Q = h.residual() ? q + size_t(k) * h.modes + size_t(at) * n : nullptr;
+      reconstruct(*basis, h.modes, q + size_t(at) * h.modes, h.cstep, Q, h.rstep, take,
+                  out + size_t(f - first) * n, n);
+      s.frames_reconstructed_ += take;
+      f += take;
     }
     return Status::Ok;
   }
@@ -261,15 +316,15 @@ Status parse(const uint8_t* blob, size_t size, BlobInfo* info, Error* err) {
   in.version = kFormatVersionV3;
   in.vertex_count = h.V;
   in.frame_count = h.F;
-  in.key_interval = h.F;  // the payload is one unit: any frame costs one frame once it is loaded
-  in.chunk_count = 1;
+  in.key_interval = std::min(h.K, h.F);  // a segment decodes on its own
+  in.chunk_count = h.S;
   in.step = h.rstep;
   in.size = size;
   in.basis_id = h.basis_id;
   in.modes = h.modes;
   in.coefficient_step = h.cstep;
   in.uses_mean = true;
-  in.residual_interval = h.R;
+  in.residual_interval = h.residual() ? 1 : 0;
   *info = in;
   return Status::Ok;
 }
@@ -281,127 +336,35 @@ Status decode(const uint8_t* blob, size_t size, uint32_t first, uint32_t count, 
 
 void reseal(uint8_t* blob, size_t size) {
   if (size < kHeaderSize) return;
-  const uint32_t csize = get_u32(blob + 56);
-  if (kHeaderSize + uint64_t(csize) <= size) put_u64(blob + 64, xxh64(blob + kHeaderSize, csize));
-  put_u64(blob + kChecksumOffset, xxh64(blob, kChecksumOffset));
+  const uint32_t S = get_u32(blob + 48);
+  const uint64_t table = kHeaderSize + uint64_t(S) * kEntrySize;
+  if (table > size) return;
+  uint64_t off = table;
+  for (uint32_t s = 0; s < S; ++s) {
+    uint8_t* e = blob + kHeaderSize + size_t(s) * kEntrySize;
+    const uint32_t csize = get_u32(e + 8);
+    if (off + csize > size) break;
+    put_u64(e, xxh64(blob + off, csize));
+    off += csize;
+  }
+  put_u64(blob + kChecksumOffset,
+          xxh64(blob, kChecksumOffset) ^
+              xxh64(blob + kHeaderSize, size_t(table - kHeaderSize)) * 0x9E3779B97F4A7C15ull);
 }
 
-ChunkSpan payload(const uint8_t* blob) {
-  return {kHeaderSize, get_u32(blob + 56)};
+void spans(const uint8_t* blob, std::vector<ChunkSpan>* out) {
+  const uint32_t S = get_u32(blob + 48);
+  size_t off = kHeaderSize + size_t(S) * kEntrySize;
+  for (uint32_t s = 0; s < S; ++s) {
+    const uint32_t csize = get_u32(blob + kHeaderSize + size_t(s) * kEntrySize + 8);
+    out->push_back({off, csize});
+    off += csize;
+  }
 }
 
 }  // namespace v3
 
 namespace {
-
-// Least-squares control points (P x n, point-major) of a uniform cubic B-spline with knots every R
-// frames through T (F x n), with a small penalty on the control points' second difference so the
-// system is well posed when P > F (short clips, R = 1) and the points stay smooth (cheap to code).
-// The normal matrix is banded (width 3): Cholesky in O(P), solved for all n columns at once.
-std::vector<double> fit_bspline(const std::vector<double>& T, uint32_t F, size_t n, uint32_t R,
-                                uint32_t P) {
-  std::vector<double> N(size_t(P) * P, 0.0), B(size_t(P) * n, 0.0);
-  double w[4];
-  for (uint32_t f = 0; f < F; ++f) {
-    const uint32_t i = segment(f, R, P, w);
-    for (int a = 0; a < 4; ++a) {
-      for (int b = 0; b < 4; ++b) N[size_t(i + a) * P + (i + b)] += w[a] * w[b];
-      double* dst = B.data() + size_t(i + a) * n;
-      const double* src = T.data() + size_t(f) * n;
-      for (size_t c = 0; c < n; ++c) dst[c] += w[a] * src[c];
-    }
-  }
-  // With knots every frame (R = 1) the spline must follow the frames exactly, noise included (the
-  // contract is against them), so its penalty is only what keeps the system well posed.
-  const double mu = R == 1 ? 1e-9 : 1e-4, ridge = 1e-12;
-  const double d[3] = {1, -2, 1};
-  for (uint32_t r = 0; r + 2 < P; ++r)
-    for (int a = 0; a < 3; ++a)
-      for (int b = 0; b < 3; ++b) N[size_t(r + a) * P + (r + b)] += mu * d[a] * d[b];
-  for (uint32_t i = 0; i < P; ++i) N[size_t(i) * P + i] += ridge;
-  // Banded Cholesky N = L L^T (L in the lower triangle of N).
-  for (uint32_t i = 0; i < P; ++i) {
-    const uint32_t lo = i >= 3 ? i - 3 : 0;
-    for (uint32_t j = lo; j <= i; ++j) {
-      double sum = N[size_t(i) * P + j];
-      for (uint32_t k = std::max(lo, j >= 3 ? j - 3 : 0); k < j; ++k)
-        sum -= N[size_t(i) * P + k] * N[size_t(j) * P + k];
-      N[size_t(i) * P + j] = j == i ? std::sqrt(std::max(sum, 1e-300)) : sum / N[size_t(j) * P + j];
-    }
-  }
-  for (uint32_t i = 0; i < P; ++i) {  // forward: L y = b
-    double* x = B.data() + size_t(i) * n;
-    for (uint32_t k = i >= 3 ? i - 3 : 0; k < i; ++k) {
-      const double l = N[size_t(i) * P + k];
-      const double* y = B.data() + size_t(k) * n;
-      for (size_t c = 0; c < n; ++c) x[c] -= l * y[c];
-    }
-    const double inv = 1 / N[size_t(i) * P + i];
-    for (size_t c = 0; c < n; ++c) x[c] *= inv;
-  }
-  for (uint32_t i = P; i-- > 0;) {  // backward: L^T x = y
-    double* x = B.data() + size_t(i) * n;
-    for (uint32_t k = i + 1; k < std::min(P, i + 4); ++k) {
-      const double l = N[size_t(k) * P + i];
-      const double* y = B.data() + size_t(k) * n;
-      for (size_t c = 0; c < n; ++c) x[c] -= l * y[c];
-    }
-    const double inv = 1 / N[size_t(i) * P + i];
-    for (size_t c = 0; c < n; ++c) x[c] *= inv;
-  }
-  return B;
-}
-
-std::vector<uint8_t> assemble(uint32_t V, uint32_t F, const Basis& basis, uint32_t modes,
-                              double cstep, const std::vector<int32_t>& q, uint32_t R, double rstep,
-                              const std::vector<int32_t>& Q, int level) {
-  const size_t n = size_t(V) * 3;
-  const uint32_t P = R == 0 ? 0 : uint32_t(Q.size() / n);
-  const size_t N = size_t(F) * modes + size_t(P) * n;
-  std::vector<uint8_t> raw(4 * N);
-  auto put = [&](size_t i, int32_t r) {
-    const uint32_t z = zigzag(uint32_t(r));
-    raw[i] = uint8_t(z);
-    raw[N + i] = uint8_t(z >> 8);
-    raw[2 * N + i] = uint8_t(z >> 16);
-    raw[3 * N + i] = uint8_t(z >> 24);
-  };
-  for (uint32_t f = 0; f < F; ++f)
-    for (uint32_t k = 0; k < modes; ++k) {
-      const size_t i = size_t(f) * modes + k;
-      const int32_t pred = f == 0 ? 0 : f == 1 ? q[i - modes] : 2 * q[i - modes] - q[i - 2 * modes];
-      put(i, q[i] - pred);
-    }
-  const size_t base = size_t(F) * modes;
-  // Control points by their difference from the previous one: measured smaller than the second
-  // difference on the whole-motion skirt (2.9:1 against 3.1:1 overall), where the residual the
-  // modes leave is noisy from frame to frame.
-  for (size_t i = 0; i < size_t(P) * n; ++i) put(base + i, i < n ? Q[i] : Q[i] - Q[i - n]);
-  std::vector<uint8_t> blob(kHeaderSize + ZSTD_compressBound(raw.size()));
-  const size_t csize = ZSTD_compress(blob.data() + kHeaderSize, blob.size() - kHeaderSize,
-                                     raw.data(), raw.size(), level);
-  if (ZSTD_isError(csize))
-    throw ClothdbError(Status::InvalidArgument,
-                       std::string("encode_v3: zstd failed: ") + ZSTD_getErrorName(csize));
-  blob.resize(kHeaderSize + csize);
-  uint8_t* h = blob.data();
-  std::memcpy(h, kMagic, 4);
-  put_u16(h + 4, uint16_t(kFormatVersionV3));
-  put_u16(h + 6, uint16_t(kHeaderSize));
-  put_u32(h + 8, V);
-  put_u32(h + 12, F);
-  put_u32(h + 16, modes);
-  put_u32(h + 20, R);
-  put_u64(h + 24, uint64_t(basis.id));
-  put_f64(h + 32, cstep);
-  put_f64(h + 40, R == 0 ? 0.0 : rstep);
-  put_u32(h + 48, P);
-  put_u32(h + 52, uint32_t(raw.size()));
-  put_u32(h + 56, uint32_t(csize));
-  put_u32(h + 60, 0);
-  v3::reseal(blob.data(), blob.size());
-  return blob;
-}
 
 int32_t quantise(double x, double step, const char* what) {
   const double q = std::nearbyint(x / step);
@@ -409,6 +372,132 @@ int32_t quantise(double x, double step, const char* what) {
     throw ClothdbError(Status::InvalidArgument,
                        std::string("encode_v3: ") + what + " does not fit its step");
   return int32_t(q);
+}
+
+// Appends `width` values of k frames (frame-major) as their prediction residuals (see integrate),
+// zigzagged, in 4 byte planes.
+void put_planes(const int32_t* v, uint32_t k, size_t width, size_t spatial,
+                std::vector<uint8_t>& raw) {
+  const size_t N = size_t(k) * width, at = raw.size();
+  raw.resize(at + 4 * N);
+  uint8_t* p = raw.data() + at;
+  auto in_time = [&](size_t i, uint32_t f) {
+    const int32_t pred = f == 0 ? 0 : f == 1 ? v[i - width] : 2 * v[i - width] - v[i - 2 * width];
+    return int32_t(uint32_t(v[i]) - uint32_t(pred));
+  };
+  for (uint32_t f = 0; f < k; ++f)
+    for (size_t c = 0; c < width; ++c) {
+      const size_t i = size_t(f) * width + c;
+      int32_t r = in_time(i, f);
+      if (spatial > 0 && c >= spatial) r = int32_t(uint32_t(r) - uint32_t(in_time(i - spatial, f)));
+      const uint32_t z = zigzag(uint32_t(r));
+      p[i] = uint8_t(z);
+      p[N + i] = uint8_t(z >> 8);
+      p[2 * N + i] = uint8_t(z >> 16);
+      p[3 * N + i] = uint8_t(z >> 24);
+    }
+}
+
+size_t zstd_into(const std::vector<uint8_t>& raw, int level, std::vector<uint8_t>& out) {
+  const size_t at = out.size();
+  out.resize(at + ZSTD_compressBound(raw.size()));
+  const size_t csize =
+      ZSTD_compress(out.data() + at, out.size() - at, raw.data(), raw.size(), level);
+  if (ZSTD_isError(csize))
+    throw ClothdbError(Status::InvalidArgument,
+                       std::string("encode_v3: zstd failed: ") + ZSTD_getErrorName(csize));
+  out.resize(at + csize);
+  return csize;
+}
+
+// q: F x M coefficient units; Q: F x 3V residual units (empty: no residual).
+std::vector<uint8_t> assemble(uint32_t V, uint32_t F, const Basis& basis, uint32_t M, uint32_t K,
+                              double cstep, const std::vector<int32_t>& q, double rstep,
+                              const std::vector<int32_t>& Q, int level, V3Stats* stats) {
+  const size_t n = size_t(V) * 3;
+  const uint32_t S = (F + K - 1) / K;
+  std::vector<uint8_t> blob(kHeaderSize + size_t(S) * kEntrySize), raw, scratch;
+  size_t coefficient_bytes = 0;
+  for (uint32_t s = 0; s < S; ++s) {
+    const uint32_t f0 = s * K, k = std::min(K, F - f0);
+    raw.clear();
+    put_planes(q.data() + size_t(f0) * M, k, M, 0, raw);
+    if (stats) {
+      scratch.clear();
+      coefficient_bytes += zstd_into(raw, level, scratch);
+    }
+    if (!Q.empty()) put_planes(Q.data() + size_t(f0) * n, k, n, 3, raw);
+    const size_t csize = zstd_into(raw, level, blob);
+    uint8_t* e = blob.data() + kHeaderSize + size_t(s) * kEntrySize;
+    put_u32(e + 8, uint32_t(csize));
+    put_u32(e + 12, uint32_t(raw.size()));
+  }
+  uint8_t* h = blob.data();
+  std::memcpy(h, kMagic, 4);
+  put_u16(h + 4, uint16_t(kFormatVersionV3));
+  put_u16(h + 6, uint16_t(kHeaderSize));
+  put_u32(h + 8, V);
+  put_u32(h + 12, F);
+  put_u32(h + 16, M);
+  put_u32(h + 20, K);
+  put_u64(h + 24, uint64_t(basis.id));
+  put_f64(h + 32, cstep);
+  put_f64(h + 40, Q.empty() ? 0.0 : rstep);
+  put_u32(h + 48, S);
+  put_u32(h + 52, 0);
+  v3::reseal(blob.data(), blob.size());
+  if (stats) {
+    stats->header_bytes = kHeaderSize + size_t(S) * kEntrySize;
+    stats->coefficient_bytes = coefficient_bytes;
+    stats->residual_bytes = blob.size() - stats->header_bytes - coefficient_bytes;
+  }
+  return blob;
+}
+
+// The residual's symbols (file comment), all coordinates frame by frame. t: the residual in units
+// of the step (F x n); Q: the decoded residual's integers (F x n). jmax: the jitter allowed per
+// coordinate in step units (>= 1, so at least two symbols are always allowed); band: how far the
+// error may drift (step units) before the controller steers it back. Among the allowed symbols the
+// one nearest the previous vertex's on the same axis is preferred: the payload codes each symbol
+// minus that one, and what the modes leave moves alike at neighbouring vertices.
+void steer(const double* t, size_t n, uint32_t F, double jmax, double band, int32_t* Q) {
+  // Frames 0 and 1 carry no jitter of their own (the first second difference is at frame 2): start
+  // with zero error where the band allows nothing at all.
+  for (size_t c = 0; c < n; ++c) {
+    const int32_t q0 = std::fabs(t[c]) <= 0.5 * band ? 0 : int32_t(std::nearbyint(t[c]));
+    Q[c] = q0;
+    if (F > 1)
+      Q[n + c] = std::fabs(q0 - t[n + c]) <= 0.5 * band ? q0 : int32_t(std::nearbyint(t[n + c]));
+  }
+  // The acceleration the controller can always choose in either direction (allowed symbols are
+  // spaced 1 apart over a window of 2 jmax around r''/s).
+  const double amin = std::max(0.25, jmax - 0.5);
+  for (uint32_t f = 2; f < F; ++f) {
+    const double *t0 = t + size_t(f) * n, *t1 = t0 - n, *t2 = t1 - n;
+    int32_t* q = Q + size_t(f) * n;
+    const int32_t *q1 = q - n, *q2 = q1 - n;
+    for (size_t c = 0; c < n; ++c) {
+      const double tpp = t0[c] - 2 * t1[c] + t2[c];
+      const double e1 = q1[c] - t1[c], v1 = e1 - (q2[c] - t2[c]);
+      const double lo = std::ceil(tpp - jmax), hi = std::floor(tpp + jmax);
+      // Where the error would come to rest with the strongest braking after this frame.
+      auto rest = [&](double sym) {
+        const double v = v1 + (sym - tpp), e = e1 + v;
+        return e + v * std::fabs(v) / (2 * amin);
+      };
+      const double neighbour = c >= 3 ? double(q[c - 3] - 2 * q1[c - 3] + q2[c - 3]) : 0.0;
+      double sym = std::clamp(neighbour, lo, hi);
+      if (std::fabs(rest(sym)) > band) {
+        double best = std::fabs(rest(sym));
+        for (double k = lo; k <= hi; k += 1)
+          if (std::fabs(rest(k)) < best) {
+            best = std::fabs(rest(k));
+            sym = k;
+          }
+      }
+      q[c] = int32_t(2 * q1[c] - q2[c] + int64_t(sym));
+    }
+  }
 }
 
 }  // namespace
@@ -428,17 +517,19 @@ std::vector<uint8_t> encode_v3(const float* frames, uint32_t F, uint32_t V, cons
                                                     " vertices for frames of " + std::to_string(V));
   if (settings.zstd_level < ZSTD_minCLevel() || settings.zstd_level > ZSTD_maxCLevel())
     throw ClothdbError(Status::InvalidArgument, "encode_v3: zstd level out of range");
+  if (settings.segment_frames == 0 || settings.segment_frames > kMaxSegmentFrames)
+    throw ClothdbError(Status::InvalidArgument, "encode_v3: segment frames out of range (1.." +
+                                                    std::to_string(kMaxSegmentFrames) + ")");
   for (size_t i = 0; i < size_t(F) * n; ++i)
     if (!std::isfinite(frames[i]))
       throw ClothdbError(Status::InvalidArgument, "encode_v3: non-finite coordinate");
   const uint32_t M =
       settings.modes == 0 ? basis.mode_count : std::min(settings.modes, basis.mode_count);
+  const uint32_t K = std::min(settings.segment_frames, F);
   // Coefficients: a coefficient's error e reaches a coordinate as e x (the mode's entry, about
   // 1 / sqrt(3V)); a step of half the jitter cap keeps their jitter far below it.
   const double cstep = settings.coefficient_step > 0 ? settings.coefficient_step : 0.5 * cap.jitter;
   std::vector<int32_t> q(size_t(F) * M);
-  std::vector<double> T(size_t(F) * n);  // what the (quantised) modes leave
-  std::vector<float> y(n);
   for (uint32_t f = 0; f < F; ++f) {
     const float* x = frames + size_t(f) * n;
     for (uint32_t k = 0; k < M; ++k) {
@@ -450,66 +541,87 @@ std::vector<uint8_t> encode_v3(const float* frames, uint32_t F, uint32_t V, cons
       }
       q[size_t(f) * M + k] = quantise(uu > 0 ? dot / uu : 0.0, cstep, "a coefficient");
     }
-    subspace_frame(basis, M, q.data() + size_t(f) * M, cstep, y.data(), n);
-    for (size_t i = 0; i < n; ++i) T[size_t(f) * n + i] = double(x[i]) - double(y[i]);
   }
-  // Attempts, cheapest first: no residual; then knots every R frames at a coarse step (R^2 J / 4:
-  // its quantisation then adds at most about J / 2 of jitter, see the file comment) and finer ones.
-  struct Attempt {
-    uint32_t R;
-    double rstep;
-  };
-  std::vector<Attempt> attempts = {{0, 0}};
-  for (uint32_t R : {16u, 8u, 4u, 2u, 1u}) {
-    if (R > 1 && R >= 2 * F) continue;
-    const double coarse = std::min(0.5 * cap.rms, 0.25 * double(R) * R * cap.jitter);
-    for (double k : {1.0, 2.0, 4.0, 8.0}) attempts.push_back({R, coarse / k});
-  }
-  DecodeScratch scratch;
+  // What the decoded modes leave, in metres.
   std::vector<float> decoded(size_t(F) * n);
-  std::vector<int32_t> Q;
-  std::vector<uint8_t> best;
+  for (uint32_t f0 = 0; f0 < F; f0 += K) {
+    const uint32_t k = std::min(K, F - f0);
+    reconstruct(basis, M, q.data() + size_t(f0) * M, cstep, nullptr, 0, k,
+                decoded.data() + size_t(f0) * n, n);
+  }
+  std::vector<double> T(size_t(F) * n);
+  for (size_t i = 0; i < T.size(); ++i) T[i] = double(frames[i]) - double(decoded[i]);
+  // Attempts, cheapest first: no residual; then the steered residual at the coarsest step the
+  // jitter cap allows (per coordinate J / sqrt(3), so the vertex's second difference stays under
+  // J) with the error's band at the RMS cap over sqrt(3) (a coordinate's share), then narrower
+  // bands and finer steps. Each is decoded and measured.
+  struct Attempt {
+    double step, band;  // m
+  };
+  const double j = cap.jitter / std::sqrt(3.0);
+  const double band0 = std::min(cap.rms, 0.5 * cap.max) / std::sqrt(3.0);
+  std::vector<Attempt> attempts = {{0, 0}};
+  for (double k : {1.0, 0.5, 0.25, 0.125}) attempts.push_back({0.98 * j, band0 * k});
+  for (double k : {0.5, 0.25}) attempts.push_back({0.98 * j * k, band0 * 0.125});
+  DecodeScratch scratch;
+  std::vector<int32_t> Q, none;
+  std::vector<double> t(T.size());
   int tried = 0;
   ContractFigures figures;
-  uint32_t fitted_R = 0;
-  std::vector<double> control;
   for (const Attempt& a : attempts) {
     ++tried;
     Q.clear();
-    if (a.R > 0) {
-      const uint32_t segments = std::max<uint32_t>(1, (F - 1 + a.R - 1) / a.R);
-      const uint32_t P = segments + 3;
-      if (fitted_R != a.R) {
-        control = fit_bspline(T, F, n, a.R, P);
-        fitted_R = a.R;
+    uint64_t nonzero = 0, symbols = 0;
+    if (a.step > 0) {
+      Q.resize(size_t(F) * n);
+      for (size_t i = 0; i < T.size(); ++i) t[i] = T[i] / a.step;
+      for (double v : t)
+        if (std::fabs(v) > double(kMaxInt) / 4)
+          throw ClothdbError(Status::InvalidArgument,
+                             "encode_v3: the residual does not fit its step");
+      steer(t.data(), n, F, 0.98 * j / a.step, a.band / a.step, Q.data());
+      for (uint32_t f = 0; f < F; ++f) {
+        if (f % K < 2) continue;
+        for (size_t c = 0; c < n; ++c) {
+          const size_t i = size_t(f) * n + c;
+          const int32_t sym = Q[i] - 2 * Q[i - n] + Q[i - 2 * n];
+          nonzero += c >= 3 ? sym != Q[i - 3] - 2 * Q[i - n - 3] + Q[i - 2 * n - 3] : sym != 0;
+        }
+        symbols += n;
       }
-      Q.resize(control.size());
-      for (size_t i = 0; i < control.size(); ++i)
-        Q[i] = quantise(control[i], a.rstep, "a residual control point");
+      for (int32_t v : Q)
+        if (v > kMaxInt / 2 || v < -kMaxInt / 2)
+          throw ClothdbError(Status::InvalidArgument,
+                             "encode_v3: the residual does not fit its step");
     }
-    std::vector<uint8_t> blob =
-        assemble(V, F, basis, M, cstep, q, a.R, a.rstep, Q, settings.zstd_level);
+    V3Stats parts;
+    std::vector<uint8_t> blob = assemble(V, F, basis, M, K, cstep, q, a.step, a.step > 0 ? Q : none,
+                                         settings.zstd_level, &parts);
     Error err;
-    if (decode_frames(blob.data(), blob.size(), 0, F, decoded.data(), decoded.size(), scratch, &err,
+    std::vector<float>& out = decoded;
+    if (decode_frames(blob.data(), blob.size(), 0, F, out.data(), out.size(), scratch, &err,
                       &basis) != Status::Ok)
       throw ClothdbError(Status::Corrupt,
                          std::string("encode_v3: own blob does not decode: ") + err.message);
-    figures = measure_contract(decoded.data(), frames, F, V);
+    figures = measure_contract(out.data(), frames, F, V);
     if (within(figures, cap)) {
-      best = std::move(blob);
       if (stats) {
+        *stats = parts;
         stats->figures = figures;
-        stats->residual_interval = a.R;
-        stats->residual_step = a.rstep;
+        stats->residual_interval = a.step > 0 ? 1 : 0;
+        stats->residual_step = a.step;
+        stats->residual_band = a.band;
         stats->attempts = tried;
         stats->modes = M;
+        stats->residual_symbols = symbols;
+        stats->residual_nonzero = nonzero;
       }
-      return best;
+      return blob;
     }
   }
   throw ClothdbError(
       Status::InvalidArgument,
-      "encode_v3: contract not met even with a residual every frame: " + describe(figures));
+      "encode_v3: contract not met even with the finest residual: " + describe(figures));
 }
 
 }  // namespace clothdb::codec

@@ -20,6 +20,12 @@ void store_clip_contract(Writer& writer, int64_t clip, const codec::ContractFigu
   t.commit();
 }
 
+void set_clip_error_bound(Writer& writer, int64_t clip, double error_bound) {
+  Stmt s(writer.handle(), "UPDATE cloth_clip SET error_bound = ? WHERE id = ?");
+  if (!s.ok() || s.bind(1, error_bound).bind(2, clip).step() != SQLITE_DONE)
+    writer.throw_sql("setting a clip's error bound");
+}
+
 void remove_clip_contract(Writer& writer, int64_t clip) {
   Stmt t(writer.handle(),
          "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'codec_contract'");

@@ -11,6 +11,7 @@
 #include "database/codec/codec.hpp"
 #include "database/format/checksum.hpp"
 #include "database/store/basis_store.hpp"
+#include "database/store/contract_store.hpp"
 #include "explore/codec_schedule.hpp"
 #include "explore/dead_ends.hpp"
 #include "explore/forecast.hpp"
@@ -63,6 +64,10 @@ void integrate_batch(SecondaryGraph& sg, db::Writer& writer, const ExploreGraph&
     clip.first_frame = 0;
     clip.run = run_id;
     const int64_t clip_id = writer.add_cloth_clip_blob(clip, r.clip_blob, r.clip_max_error);
+    if (r.has_contract) {
+      db::store_clip_contract(writer, clip_id, r.contract, options.subspace_contract);
+      db::set_clip_error_bound(writer, clip_id, options.subspace_contract.max);
+    }
     {
       codec::BlobInfo info;
       db::Error info_err;
@@ -70,6 +75,7 @@ void integrate_batch(SecondaryGraph& sg, db::Writer& writer, const ExploreGraph&
               db::Status::Ok &&
           info.version == codec::kFormatVersionV2)
         ++report.clips_v2;
+      report.clips_v3 += r.has_contract;
     }
     if (r.steer_target != 0) {
       writer.set_clip_steering(

@@ -28,6 +28,7 @@
 
 #include "character_scene/character_scene.hpp"
 #include "compress/body_frame.hpp"
+#include "database/codec/contract.hpp"
 #include "database/format/cloth_graph.hpp"
 #include "database/store/run_settings.hpp"
 #include "database/store/writer.hpp"
@@ -97,6 +98,9 @@ struct JobInput {
   std::shared_ptr<const codec::Basis> basis;
   std::shared_ptr<const BodyAnchors> body;  // with a basis: cloth relative to the body frame
   bool subspace_always = false;
+  // Codec version 3 instead of version 2 when its jitter cap is positive (the clip is encoded
+  // within this contract against the simulated frames; ExploreOptions::subspace_contract).
+  codec::Contract contract;
 };
 
 // What a job sends back: the clip already encoded (so the owner of the database only inserts it)
@@ -108,7 +112,11 @@ struct JobResult {
   uint32_t frame_count = 0, vertex_count = 0;
   std::vector<uint8_t> clip_blob;  // frame_count frames, codec.position_bound
   double clip_max_error = 0;       // m, the codec's largest error on the clip
-  std::vector<float> last;         // the clip's last frame as the runtime decodes it (the pop)
+  // A version 3 clip: its contract figures, measured against the simulated frames (in-process
+  // only: job_wire refuses subspace codecs).
+  bool has_contract = false;
+  codec::ContractFigures contract;
+  std::vector<float> last;  // the clip's last frame as the runtime decodes it (the pop)
   std::vector<uint8_t> end_x_blob, end_v_blob;  // one frame each, position / velocity bound
   ClipQuality quality;     // strain, penetration, jitter, halved steps, worst frame
   double cpu_seconds = 0;  // thread CPU time of the simulation (not measuring or encoding)
@@ -164,6 +172,11 @@ struct ExploreOptions {
   double subspace_growth = 2.0;
   uint32_t subspace_sample_frames = 3000;  // frames sampled evenly from the clips for the PCA
   bool subspace_always = false;            // keep version 2 even where it is larger (measuring)
+  // Codec version 3 on the same bases instead of version 2 (precompute --codec v3) when its
+  // jitter cap is positive: each clip is encoded within this contract against the simulated
+  // frames, the smaller of it and version 1 is kept (version 3 always, with subspace_always), and
+  // its figures are recorded in codec_contract in the batch's transaction.
+  codec::Contract subspace_contract;
   // Cloth relative to the body (compress/body_frame.hpp) for the bases and the version 2 blobs.
   bool subspace_body_frame = false;
   // The state store (explore/state_store.hpp): capacity of the LRU cache of exact states read back
@@ -233,12 +246,13 @@ struct ExploreReport {
   // some blob) or removed at its end, and this run's clips stored as version 2.
   int bases_built = 0, bases_removed = 0;
   int clips_v2 = 0;
+  int clips_v3 = 0;
   double integrate_seconds = 0;   // wall time spent integrating them into the database
   double cpu_seconds_before = 0;  // simulation CPU of the file's earlier runs (the run table)
   // What the --cpu-hours budget counted when the run stopped (all the run's CPU, the error floor
   // included), and the most one batch added to it: the budget's overshoot is at most that.
   double budget_cpu_seconds = 0, largest_batch_cpu_seconds = 0;
-  Forecast forecast;              // made at the end of this run (meta forecast)
+  Forecast forecast;  // made at the end of this run (meta forecast)
   // The state store (explore/state_store.hpp): bytes held per state besides the cache, the
   // cache's counts, and state distances measured (the pruning's effect).
   size_t bytes_per_state = 0;

@@ -16,12 +16,16 @@ static_assert(std::endian::native == std::endian::little, "the wire format is li
 // a new solver option needs nothing here.
 #if defined(__x86_64__) && defined(__GLIBCXX__)
 // (The settings inside JobInput travel as JSON: their own size does not matter here.)
-// (The codec v2 basis, body anchors and flag, 40 bytes, do not travel: encode_job refuses a job
-// with a basis.) The target source, 16 bytes, travels as `targets` (encode_job reads them).
-static_assert(sizeof(JobInput) - sizeof(SolverSettings) - sizeof(db::CodecSettings) == 96 + 40 + 16,
+// (The codec v2/v3 basis, body anchors and flag, 40 bytes, and the v3 contract, 24, do not travel:
+// encode_job refuses a job with a basis.) The target source, 16 bytes, travels as `targets`
+// (encode_job reads them).
+static_assert(sizeof(JobInput) - sizeof(SolverSettings) - sizeof(db::CodecSettings) ==
+                  96 + 40 + 16 + 24,
               "JobInput changed: update encode_job/decode_job");
 static_assert(sizeof(ClipQuality) == 56, "ClipQuality changed: update encode_result/decode_result");
-static_assert(sizeof(JobResult) == 248, "JobResult changed: update encode_result/decode_result");
+// (A version 3 clip's contract figures, 32 bytes, do not travel: they come only with a basis.)
+static_assert(sizeof(JobResult) == 248 + 32,
+              "JobResult changed: update encode_result/decode_result");
 static_assert(sizeof(WorkerHello) == 64, "WorkerHello changed: update encode_hello/decode_hello");
 #endif
 
@@ -175,8 +179,8 @@ std::vector<uint8_t> encode_job(uint64_t seq, const JobInput& job) {
   // A basis is a few MB; MPI workers would need it sent once per basis, not once per job.
   if (job.basis)
     throw std::invalid_argument(
-        "job_wire: codec v2 during precompute (--codec v2) runs in one process only; precompute "
-        "with MPI writes codec v1 (convert afterwards with `clothdb db recode --codec v2`)");
+        "job_wire: codec v2 or v3 during precompute (--codec v2, v3) runs in one process only; "
+        "precompute with MPI writes codec v1 (convert afterwards with `clothdb db recode`)");
   Out o("CDBJ");
   o.u64(seq);
   o.i32(job.edge);

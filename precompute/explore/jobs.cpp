@@ -21,15 +21,34 @@ namespace {
 constexpr double kSteerStrainAllowance = 0.02;
 
 // Encodes as the writer would store it (the file's key interval and zstd level). With a basis,
-// also as codec version 2 and keeps the smaller blob (version 2 whenever `always`).
+// also as codec version 2 (version 3 within `contract` when its jitter cap is positive, its
+// figures then in *figures) and keeps the smaller blob (the subspace one whenever `always`).
 std::vector<uint8_t> encode_with(const std::vector<float>& frames, uint32_t frame_count,
                                  uint32_t vertices, double bound, const db::CodecSettings& codec,
                                  double* max_error, const codec::Basis* basis = nullptr,
-                                 const BodyAnchors* body = nullptr, bool always = false) {
+                                 const BodyAnchors* body = nullptr, bool always = false,
+                                 const codec::Contract& contract = {},
+                                 codec::ContractFigures* figures = nullptr,
+                                 bool* has_contract = nullptr) {
   const codec::EncodeSettings settings = db::encode_settings(codec, bound);
   codec::EncodeStats stats;
   std::vector<uint8_t> blob = codec::encode(frames.data(), frame_count, vertices, settings, &stats);
-  if (basis) {
+  if (has_contract) *has_contract = false;
+  if (basis && contract.jitter > 0) {
+    codec::V3Settings v3;
+    v3.contract = contract;
+    v3.zstd_level = settings.zstd_level;
+    codec::V3Stats v3_stats;
+    std::vector<uint8_t> coded =
+        codec::encode_v3(frames.data(), frame_count, vertices, *basis, v3, &v3_stats);
+    if (always || coded.size() < blob.size()) {
+      blob.swap(coded);
+      // A coordinate's error is at most its vertex's distance.
+      stats.max_error = v3_stats.figures.max;
+      if (figures) *figures = v3_stats.figures;
+      if (has_contract) *has_contract = true;
+    }
+  } else if (basis) {
     codec::EncodeStats v2_stats;
     codec::SubspaceSettings subspace;
     std::vector<float> transforms;
@@ -252,9 +271,9 @@ JobResult run_job(const CharacterScene& scene, const ExploreGraph& graph, const 
   try {
     r.quality = measure_clip(scene, edge.poses, frames);
     r.quality.halved_steps = run.step_halvings;
-    r.clip_blob =
-        encode_with(frames, r.frame_count, r.vertex_count, input.codec.position_bound, input.codec,
-                    &r.clip_max_error, input.basis.get(), input.body.get(), input.subspace_always);
+    r.clip_blob = encode_with(frames, r.frame_count, r.vertex_count, input.codec.position_bound,
+                              input.codec, &r.clip_max_error, input.basis.get(), input.body.get(),
+                              input.subspace_always, input.contract, &r.contract, &r.has_contract);
     r.end_x_blob =
         encode_with(end_x, 1, r.vertex_count, input.codec.position_bound, input.codec, nullptr);
     r.end_v_blob =
@@ -327,6 +346,7 @@ std::vector<JobInput> job_inputs(const CharacterScene& scene, const ExploreGraph
     inputs[b].basis = basis;
     inputs[b].body = basis ? body : nullptr;
     inputs[b].subspace_always = options.subspace_always;
+    inputs[b].contract = options.subspace_contract;
     inputs[b].epsilon = options.epsilon;
     if (scene.file.steering.frames > 0) {
       const int end_node = graph.edges[static_cast<size_t>(batch[b].edge)].to_node;

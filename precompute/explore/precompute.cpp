@@ -264,8 +264,8 @@ PrecomputeOutcome run_precompute(const PrecomputeRequest& request, std::FILE* lo
   worker = mpi::size() > 1 && mpi::rank() != 0;
   if (mpi::size() > 1 && options.subspace_modes > 0)
     throw db::SettingsError(
-        "--codec v2: runs in one process only (MPI workers would each need the basis); "
-        "precompute with codec v1 and convert with `clothdb db recode --codec v2`");
+        "--codec v2, v3: runs in one process only (MPI workers would each need the basis); "
+        "precompute with codec v1 and convert with `clothdb db recode`");
 #endif
   // One writer per database (database/writer_lock.hpp): a second run is refused here, naming the
   // holder, before the graph set-up.

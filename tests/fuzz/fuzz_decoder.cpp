@@ -69,6 +69,7 @@ void decode_blob(const uint8_t* blob, size_t size) {
     const uint32_t qlimit = std::max({info.qmax[0], info.qmax[1], info.qmax[2]});
     for (size_t i = 0; i < n; ++i) {
       check(std::isfinite(frame[i]), "non-finite decoded value");
+      if (info.version >= codec::kFormatVersionV3) continue;  // a contract, no grid
       const double lo = info.origin[i % 3], hi = lo + double(qlimit) * info.step;
       check(frame[i] >= float(lo) - 1e-3f * float(1 + std::fabs(lo)) &&
                 frame[i] <= float(hi) + 1e-3f * float(1 + std::fabs(hi)),
@@ -188,6 +189,25 @@ std::vector<std::pair<std::string, std::vector<uint8_t>>> seed_inputs() {
         const auto& b = which < 2 ? blob : which < 4 ? blob2 : blob3;
         std::vector<uint8_t> input{mode};
         input.insert(input.end(), b.begin(), b.end());
+        out.emplace_back("seed_" + std::to_string(count++), std::move(input));
+      }
+    }
+  }
+  // Version 3 (segments of 3 frames, with and without a residual), as stored and resealed.
+  {
+    const uint32_t side = 5, frames = 8;
+    std::vector<float> x(size_t(frames) * side * side * 3);
+    for (size_t i = 0; i < x.size(); ++i)
+      x[i] = float(0.1 * std::sin(0.3 * double(i % 75) + 0.2 * double(i / 75)));
+    for (double rms : {0.5, 0.0005}) {
+      codec::V3Settings s;
+      s.contract = {rms, 3 * rms, 0.0001};
+      s.segment_frames = 3;
+      const auto blob =
+          codec::encode_v3(x.data(), frames, side * side, made_up_basis(1, side * side, 4), s);
+      for (uint8_t mode : {uint8_t(0), uint8_t(1)}) {
+        std::vector<uint8_t> input{mode};
+        input.insert(input.end(), blob.begin(), blob.end());
         out.emplace_back("seed_" + std::to_string(count++), std::move(input));
       }
     }
