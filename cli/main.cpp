@@ -33,6 +33,7 @@ int main(int argc, char** argv) {
   clothdb::cli::register_simulate(app);
   clothdb::cli::register_precompute(app);
   clothdb::cli::register_floor(app);
+  clothdb::cli::register_forecast(app);
   clothdb::cli::register_edit_commands(app);
   clothdb::cli::register_motion_commands(app);
   clothdb::cli::register_graph_commands(app);
