@@ -32,6 +32,8 @@ void register_edit_commands(CLI::App& app);
 // cmd_bench_character.cpp: `clothdb bench character`
 void register_bench_character(CLI::App& bench);
 void register_bench_played(CLI::App& bench);  // cmd_bench_played.cpp: `clothdb bench played`
+// cmd_bench_nearest.cpp: `clothdb bench nearest`
+void register_bench_nearest(CLI::App& bench);
 void register_view_command(CLI::App& app);  // cmd_view.cpp: `clothdb view`
 
 }  // namespace clothdb::cli
