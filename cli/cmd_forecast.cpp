@@ -66,9 +66,10 @@ void register_forecast(CLI::App& app) {
                              " dead ends left")
                                 .c_str());
     if (runs.front().front().frames != 0)
-      std::printf("note         %s starts with %ld frames stored: the curve of a resumed run, "
-                  "whose earlier runs' CPU time is not counted (give their curves first)\n",
-                  args->curves.front().c_str(), runs.front().front().frames);
+      std::printf(
+          "note         %s starts with %ld frames stored: the curve of a resumed run, "
+          "whose earlier runs' CPU time is not counted (give their curves first)\n",
+          args->curves.front().c_str(), runs.front().front().frames);
     for (double share : args->at) {
       // The point whose CPU time is nearest the share (ties: the earlier point).
       const ReplayedForecast* best = &replayed.front();
