@@ -15,6 +15,7 @@ void register_simulate(CLI::App& app);
 // cmd_precompute.cpp: `clothdb precompute`
 void register_precompute(CLI::App& app);
 void register_floor(CLI::App& app);            // cmd_floor.cpp: `clothdb floor`
+void register_forecast(CLI::App& app);         // cmd_forecast.cpp: `clothdb forecast`
 void register_motion_commands(CLI::App& app);  // cmd_motion.cpp: `clothdb motion info`
 void register_graph_commands(CLI::App& app);   // cmd_graph.cpp: `clothdb graph build|show`
 
@@ -31,6 +32,8 @@ void register_edit_commands(CLI::App& app);
 // cmd_bench_character.cpp: `clothdb bench character`
 void register_bench_character(CLI::App& bench);
 void register_bench_played(CLI::App& bench);  // cmd_bench_played.cpp: `clothdb bench played`
-void register_view_command(CLI::App& app);    // cmd_view.cpp: `clothdb view`
+// cmd_bench_nearest.cpp: `clothdb bench nearest`
+void register_bench_nearest(CLI::App& bench);
+void register_view_command(CLI::App& app);  // cmd_view.cpp: `clothdb view`
 
 }  // namespace clothdb::cli

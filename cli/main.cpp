@@ -26,6 +26,7 @@ int main(int argc, char** argv) {
   clothdb::cli::register_bench_codec(*bench);
   clothdb::cli::register_bench_runtime(*bench);
   clothdb::cli::register_bench_played(*bench);
+  clothdb::cli::register_bench_nearest(*bench);
   clothdb::cli::register_bench_character(*bench);
   clothdb::cli::register_scene_commands(app);
   clothdb::cli::register_db_commands(app);
@@ -33,6 +34,7 @@ int main(int argc, char** argv) {
   clothdb::cli::register_simulate(app);
   clothdb::cli::register_precompute(app);
   clothdb::cli::register_floor(app);
+  clothdb::cli::register_forecast(app);
   clothdb::cli::register_edit_commands(app);
   clothdb::cli::register_motion_commands(app);
   clothdb::cli::register_graph_commands(app);

@@ -32,9 +32,9 @@ if [ "${CLOTHDB_DEMO_FRESH:-0}" = 1 ]; then rm -f "$OUT"/skirt.db*; fi
 "$CLOTHDB" db check "$OUT/skirt.db"
 "$CLOTHDB" db info "$OUT/skirt.db"
 "$CLOTHDB" play "$OUT/skirt.db" --path random --seconds 6 --out "$OUT/play"
-# The forecast `precompute` made at half of its run against the CPU time the run took (a run that
-# started a new database and converged; a resumed run is not checked).
-scripts/forecast_check.sh "$OUT/error_curve.csv"
+# The forecasts `precompute` made at a quarter, half and three quarters of its run against the CPU
+# time the run took (docs/notebook/convergence.md, "The forecast").
+"$CLOTHDB" forecast "$OUT/error_curve.csv" --at 0.25,0.5,0.75
 echo
 echo "demo: database $OUT/skirt.db; error curve $OUT/error_curve.svg (.csv);"
 echo "      motion graph $OUT/graph.svg; playback $OUT/play (PC2 + OBJ for Blender, PNG previews)"

@@ -4,8 +4,11 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <random>
+#include <sstream>
 #include <string>
 
+#include "explore/explorer.hpp"
 #include "explore/forecast.hpp"
 
 using namespace clothdb;
@@ -26,6 +29,22 @@ std::vector<CurvePoint> curve(int points, double seconds, F dead_ends) {
 }
 
 }  // namespace
+
+// A branching process's curve: open ways out falling by `rate` per CPU-s from `start` with
+// independent Gaussian scatter of `sigma` per batch, rounded to whole dead ends; ends at 0.
+std::vector<CurvePoint> noisy_decline(double start, double rate, double sigma, double batch_s,
+                                      double until_s, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0, sigma);
+  std::vector<CurvePoint> out;
+  for (double t = 0; t <= until_s; t += batch_s) {
+    CurvePoint p;
+    p.cpu_seconds = t;
+    p.dead_ends = static_cast<int>(std::max(1.0, std::round(start - rate * t + noise(rng))));
+    out.push_back(p);
+  }
+  return out;
+}
 
 TEST(Forecast, RefusesARisingTrend) {
   const auto rising = curve(40, 600, [](double t) { return 10 + t / 5; });
@@ -57,7 +76,8 @@ TEST(Forecast, FallingTrendGivesTheTimeTheLineReachesZero) {
   EXPECT_NEAR(f.cpu_seconds, expected, 0.02 * expected);
   EXPECT_DOUBLE_EQ(f.made_at, made_at);
   const std::string text = forecast_text(f);
-  EXPECT_NE(text.find(" CPU-h to converge (model linear decline"), std::string::npos) << text;
+  EXPECT_NE(text.find(" CPU-h to converge (band "), std::string::npos) << text;
+  EXPECT_NE(text.find("; model linear decline"), std::string::npos) << text;
   EXPECT_NE(text.find(" fewer per CPU-h"), std::string::npos) << text;
   EXPECT_NE(text.find("made at 0.25 CPU-h)"), std::string::npos) << text;
 }
@@ -84,4 +104,93 @@ TEST(Forecast, TooFewBatchesIsNoForecast) {
   EXPECT_FALSE(f.converging);
   EXPECT_TRUE(f.too_few);
   EXPECT_EQ(forecast_text(f).rfind("none: too few batches to fit (", 0), 0u);
+}
+
+TEST(Forecast, KnownEndOfANoisyDeclineLiesWithinTheBand) {
+  // 200 ways out falling by 0.2 per CPU-s: the end is at 1000 CPU-s. Forecasts made at a quarter,
+  // half and three quarters of it, on 100 seeds of scatter (5 dead ends per batch of 10 CPU-s):
+  // the band (2 sigma of the fit's prediction, about 95 %) holds the end in at least 88 of 100
+  // each time, and is an interval around the forecast.
+  const double end = 1000;
+  for (double share : {0.25, 0.5, 0.75}) {
+    int covered = 0;
+    for (unsigned seed = 1; seed <= 100; ++seed) {
+      const auto c = noisy_decline(200, 0.2, 5, 10, share * end, seed);
+      const Forecast f = forecast_convergence(c, 0);
+      ASSERT_TRUE(f.converging) << f.why;
+      EXPECT_LE(f.low_cpu_seconds, f.cpu_seconds);
+      EXPECT_GE(f.high_cpu_seconds, f.cpu_seconds);
+      EXPECT_GE(f.low_cpu_seconds, f.made_at);
+      // Not vacuous: from half the run on, a band narrower than the run.
+      if (share >= 0.5) {
+        EXPECT_LT(f.high_cpu_seconds - f.low_cpu_seconds, end) << share << ", seed " << seed;
+      }
+      covered += f.low_cpu_seconds <= end && end <= f.high_cpu_seconds;
+    }
+    EXPECT_GE(covered, 88) << "at " << share;
+  }
+}
+
+TEST(Forecast, WideBandIsPrintedAsTheBandAndAnOpenOneAsALowerEnd) {
+  // Scatter as large as the fall: the band is wide (printed "L-H CPU-h to converge"), or open
+  // above ("at least L CPU-h") when the fall is not clear of it.
+  const Forecast wide = forecast_convergence(noisy_decline(100, 0.1, 8, 10, 400, 3), 0);
+  ASSERT_TRUE(wide.converging) << wide.why;
+  const std::string text = forecast_text(wide);
+  if (std::isinf(wide.high_cpu_seconds))
+    EXPECT_EQ(text.rfind("at least ", 0), 0u) << text;
+  else
+    EXPECT_NE(text.find("-"), std::string::npos) << text;
+  EXPECT_NE(text.find("CPU-h to converge ("), std::string::npos) << text;
+  // Linear but for the rounding to whole dead ends: a narrow band around the line's end.
+  const auto exact = curve(40, 400, [](double t) { return 200 - 0.25 * t; });
+  const Forecast line = forecast_convergence(exact, 0);
+  ASSERT_TRUE(line.converging);
+  EXPECT_NEAR(line.cpu_seconds, 800, 1);
+  EXPECT_NEAR(line.low_cpu_seconds, 800, 8);
+  EXPECT_NEAR(line.high_cpu_seconds, 800, 8);
+  EXPECT_NE(forecast_text(line).find(" CPU-h to converge (band "), std::string::npos);
+}
+
+TEST(Forecast, NoForecastFromFewerThanFourPointsInTheLastHalf) {
+  for (int points = 1; points <= 6; ++points) {
+    const auto c = curve(points, 100, [](double t) { return 100 - t / 2; });
+    size_t in_window = 0;
+    for (const CurvePoint& p : c) in_window += p.cpu_seconds >= c.back().cpu_seconds / 2;
+    const Forecast f = forecast_convergence(c, 0);
+    EXPECT_EQ(f.converging, in_window >= kForecastFewestPoints) << points << " batches";
+    EXPECT_EQ(f.too_few, in_window < kForecastFewestPoints) << points << " batches";
+  }
+}
+
+TEST(Forecast, ReplayFromTheCsvIsWhatTheRunMade) {
+  // A run and its resume, written as precompute writes them and read back: each point's replayed
+  // forecast is the one made from the curve up to it, with the first run's CPU before the resume.
+  auto first = curve(20, 200, [](double t) { return 300 - 0.5 * t; });
+  auto second = curve(20, 200, [](double t) { return 200 - 0.4 * t; });
+  for (size_t k = 0; k < first.size(); ++k) first[k].frames = 10 * static_cast<long>(k);
+  for (size_t k = 0; k < second.size(); ++k)
+    second[k].frames = first.back().frames + 10 * static_cast<long>(k);
+  std::istringstream a(curve_csv(first)), b(curve_csv(second));
+  const auto read_first = read_curve_csv(a, "a.csv"), read_second = read_curve_csv(b, "b.csv");
+  ASSERT_EQ(read_first.size(), first.size());
+  const auto replayed = replay_forecasts({read_first, read_second});
+  ASSERT_EQ(replayed.size(), first.size() + second.size());
+  std::vector<CurvePoint> so_far(second.begin(), second.begin() + 15);
+  const Forecast direct = forecast_convergence(so_far, 200);
+  const ReplayedForecast& r = replayed[first.size() + 14];
+  EXPECT_EQ(r.run, 1u);
+  EXPECT_DOUBLE_EQ(r.cpu_seconds, 200 + so_far.back().cpu_seconds);
+  EXPECT_DOUBLE_EQ(r.forecast.cpu_seconds, direct.cpu_seconds);
+  // Curves out of order are refused, naming the run.
+  EXPECT_THROW(replay_forecasts({read_second, read_first}), std::runtime_error);
+  // A bad cell names the file, line and column.
+  std::istringstream bad("cpu_seconds,frames,states,dead_ends,unexplored\n0,0,1,1,1\n5,x,2,1,1\n");
+  try {
+    read_curve_csv(bad, "bad.csv");
+    FAIL() << "no error";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("bad.csv: line 3, column 'frames'"), std::string::npos)
+        << e.what();
+  }
 }

@@ -21,6 +21,7 @@
 #pragma once
 
 #include <functional>
+#include <istream>
 #include <limits>
 #include <memory>
 #include <string>
@@ -208,6 +209,10 @@ struct CurvePoint {
   // The forecast made at this point from the curve so far (explore/forecast.hpp): CPU seconds of
   // the whole exploration (earlier runs included) at convergence; NaN when there is none.
   double forecast_cpu_seconds = std::numeric_limits<double>::quiet_NaN();
+  // Its band (explore/forecast.hpp): NaN when there is no forecast; the upper end is infinite
+  // when the band is open above.
+  double forecast_low_cpu_seconds = std::numeric_limits<double>::quiet_NaN();
+  double forecast_high_cpu_seconds = std::numeric_limits<double>::quiet_NaN();
 };
 
 // The forecast of the CPU time to converge (explore/forecast.hpp).
@@ -216,9 +221,12 @@ struct Forecast {
   bool converged = false;   // no dead end left: cpu_seconds is what it took
   bool too_few = false;     // none because too few curve points to fit
   double cpu_seconds = 0;   // the whole exploration's CPU seconds at convergence, when converging
-  double made_at = 0;       // the whole exploration's CPU seconds when it was made
-  std::string model;        // the model, stated for people
-  std::string why;          // why none
+  // The band around it, when converging: the earliest and latest convergence the fit's
+  // prediction band allows; high is infinite when the band never falls to 0.
+  double low_cpu_seconds = 0, high_cpu_seconds = 0;
+  double made_at = 0;  // the whole exploration's CPU seconds when it was made
+  std::string model;   // the model, stated for people
+  std::string why;     // why none
 };
 
 struct ExploreReport {
@@ -309,6 +317,11 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
                       const ExploreOptions& options, const BatchRunner& runner = {});
 
 std::string curve_csv(const std::vector<CurvePoint>& curve);
+// A curve as curve_csv writes it, read back (explore/progress.cpp): the counts the forecast is
+// made from (cpu_seconds, frames, states, dead_ends, unexplored, linked_percent), not the errors
+// nor the forecast columns. Throws std::runtime_error naming `path`, the line and the column when
+// a cell is not a number at least 0, or cpu_seconds goes back.
+std::vector<CurvePoint> read_curve_csv(std::istream& in, const std::string& path);
 // Three panels against this run's CPU time: the unresolved error (worst, worst x reach, mean, and
 // epsilon), the dead ends and the unexplored ways out, and the share of clip ends linked.
 std::string curve_svg(const std::vector<CurvePoint>& curve, double epsilon);

@@ -3,8 +3,12 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
+#include <istream>
 #include <limits>
+#include <map>
 #include <sstream>
+#include <stdexcept>
 
 #include "explore/forecast.hpp"
 #include "report/svg_plot.hpp"
@@ -72,33 +76,40 @@ CurvePoint curve_point(const SecondaryGraph& sg, const ExploreGraph& graph,
 void add_curve_point(ExploreReport& report, const CurvePoint& point) {
   report.curve.push_back(point);
   const Forecast f = forecast_convergence(report.curve, report.cpu_seconds_before);
-  if (f.converging) report.curve.back().forecast_cpu_seconds = f.cpu_seconds;
+  if (!f.converging) return;
+  CurvePoint& p = report.curve.back();
+  p.forecast_cpu_seconds = f.cpu_seconds;
+  p.forecast_low_cpu_seconds = f.low_cpu_seconds;
+  p.forecast_high_cpu_seconds = f.high_cpu_seconds;
 }
 
 void ProgressBar::update(const ExploreReport& report, size_t done, size_t dead_ends) const {
   if (!options_.progress) return;
   const CurvePoint& p = report.curve.back();
-  double fraction = 0, eta = 0;
+  double fraction = 0;
   const double wall =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
   if (options_.max_frames > 0)
     fraction = static_cast<double>(report.frames_this_run) / options_.max_frames;
   if (options_.cpu_hours > 0)
     fraction = std::max(fraction, report.cpu_seconds / (options_.cpu_hours * 3600));
+  // The time to convergence is the forecast's (explore/forecast.hpp), the one model every printed
+  // forecast comes from; the time left is the budget's when there is one.
+  const Forecast f = forecast_convergence(report.curve, report.cpu_seconds_before);
+  std::string left;
+  char text[64];
   if (fraction > 0) {
-    eta = wall / fraction * (1 - fraction);
+    std::snprintf(text, sizeof text, "budget ends in %.0f s", wall / fraction * (1 - fraction));
+    left = text;
   } else {
-    // No budget: at least the dead ends left at the current pace (new ones may appear).
-    const double per_job = wall / std::max<size_t>(1, done);
     fraction = static_cast<double>(done) / (done + dead_ends);
-    eta = per_job * dead_ends;
   }
   std::fprintf(stderr,
                "\r[%s] frames %ld  states %d  dead ends %d (%d unexplored)  worst %s  cpu %.0f s  "
-               "ETA %s%.0f s   ",
+               "converges %s%s%s   ",
                bar(fraction, 24).c_str(), report.frames, p.states, p.dead_ends, p.unexplored,
                millimetres(p.worst_error).c_str(), report.cpu_seconds,
-               options_.max_frames > 0 || options_.cpu_hours > 0 ? "" : ">=", eta);
+               forecast_short_text(f).c_str(), left.empty() ? "" : "  ", left.c_str());
 }
 
 void ProgressBar::end() const {
@@ -125,14 +136,67 @@ std::string run_notes(const ExploreReport& report, size_t dead_ends_left) {
 std::string curve_csv(const std::vector<CurvePoint>& curve) {
   std::ostringstream o;
   // Empty error cells: every dead end unexplored (unknown). Empty forecast: none.
+  // The band's upper end is "inf" when it is open above.
   o << "cpu_seconds,frames,states,dead_ends,unexplored,worst_error_mm,weighted_worst_error_mm,"
-       "mean_error_mm,linked_percent,forecast_cpu_hours\n";
+       "mean_error_mm,linked_percent,forecast_cpu_hours,forecast_low_cpu_hours,"
+       "forecast_high_cpu_hours\n";
   for (const auto& p : curve)
     o << p.cpu_seconds << ',' << p.frames << ',' << p.states << ',' << p.dead_ends << ','
       << p.unexplored << ',' << cell(1e3 * p.worst_error) << ','
       << cell(1e3 * p.weighted_worst_error) << ',' << cell(1e3 * p.mean_error) << ','
-      << 100 * p.linked_fraction << ',' << cell(p.forecast_cpu_seconds / 3600) << '\n';
+      << 100 * p.linked_fraction << ',' << cell(p.forecast_cpu_seconds / 3600) << ','
+      << cell(p.forecast_low_cpu_seconds / 3600) << ','
+      << (std::isinf(p.forecast_high_cpu_seconds) ? "inf"
+                                                  : cell(p.forecast_high_cpu_seconds / 3600))
+      << '\n';
   return o.str();
+}
+
+std::vector<CurvePoint> read_curve_csv(std::istream& in, const std::string& path) {
+  std::string line;
+  if (!std::getline(in, line)) throw std::runtime_error(path + ": empty, no header line");
+  // Columns by name: older curves lack the band's columns, and only the counts are needed.
+  std::map<std::string, size_t> column;
+  {
+    std::istringstream header(line);
+    std::string name;
+    for (size_t k = 0; std::getline(header, name, ','); ++k) column[name] = k;
+  }
+  for (const char* needed : {"cpu_seconds", "frames", "states", "dead_ends", "unexplored"})
+    if (!column.count(needed))
+      throw std::runtime_error(path + ": no column '" + needed +
+                               "' in the header (a curve written by precompute --curve)");
+  std::vector<CurvePoint> curve;
+  for (long row = 2; std::getline(in, line); ++row) {
+    if (line.empty()) continue;
+    std::vector<std::string> cells;
+    std::istringstream fields(line);
+    std::string c;
+    while (std::getline(fields, c, ',')) cells.push_back(c);
+    auto number = [&](const char* name) {
+      const size_t k = column.at(name);
+      char* end = nullptr;
+      const double v = k < cells.size() ? std::strtod(cells[k].c_str(), &end) : 0;
+      if (k >= cells.size() || cells[k].empty() || end != cells[k].c_str() + cells[k].size() ||
+          !std::isfinite(v) || v < 0)
+        throw std::runtime_error(path + ": line " + std::to_string(row) + ", column '" + name +
+                                 "': not a number at least 0");
+      return v;
+    };
+    CurvePoint p;
+    p.cpu_seconds = number("cpu_seconds");
+    p.frames = static_cast<long>(number("frames"));
+    p.states = static_cast<int>(number("states"));
+    p.dead_ends = static_cast<int>(number("dead_ends"));
+    p.unexplored = static_cast<int>(number("unexplored"));
+    if (column.count("linked_percent")) p.linked_fraction = number("linked_percent") / 100;
+    if (!curve.empty() && p.cpu_seconds < curve.back().cpu_seconds)
+      throw std::runtime_error(path + ": line " + std::to_string(row) +
+                               ": cpu_seconds goes back in time");
+    curve.push_back(p);
+  }
+  if (curve.empty()) throw std::runtime_error(path + ": no rows after the header");
+  return curve;
 }
 
 namespace {

@@ -1,6 +1,7 @@
 #include "explore/secondary_graph.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
@@ -19,6 +20,7 @@ SecondaryGraph empty_secondary_graph(const ExploreGraph& graph, uint32_t vertice
   for (size_t e = 0; e < graph.edges.size(); ++e)
     sg.out_edges[static_cast<size_t>(graph.edges[e].from_node)].push_back(static_cast<int>(e));
   sg.states_at_node.assign(static_cast<size_t>(graph.node_count), {});
+  sg.pivots_at_node.assign(static_cast<size_t>(graph.node_count), {});
   sg.reducer = make_reducer(vertices, sg.tau);
   db::Reader* from = &reader;
   // One scratch for every read (the cache calls this under its lock): a decoder context is
@@ -40,7 +42,8 @@ SecondaryGraph empty_secondary_graph(const ExploreGraph& graph, uint32_t vertice
 }
 
 size_t bytes_per_state(const SecondaryGraph& sg) {
-  return sizeof(StateRec) + sg.reducer.size() * sizeof(double) + sizeof(int);
+  return sizeof(StateRec) + sg.reducer.size() * sizeof(double) + sizeof(int) +
+         sg.max_pivots * sizeof(double);
 }
 
 SecondaryGraph load_secondary_graph(db::Reader& reader, const std::string& path,
@@ -106,27 +109,134 @@ SecondaryGraph load_secondary_graph(db::Reader& reader, const std::string& path,
   return sg;
 }
 
+namespace {
+
+// The pivot table's lower bound of d(q, s) from both states' distances to the same pivots (the
+// triangle inequality), less a margin for the rounding of the distances (each a sum of 6 x
+// vertices squares: a relative error far below 1e-9), so pruning never changes the answer.
+// The coarse form: the projection of the reduced form onto fields constant over the whole garment
+// (6 doubles: mean position and tau x mean velocity, in the distance's normalisation). A
+// projection of a projection, so its distance is at most the reduced distance.
+std::array<double, 6> coarse_form(const StateReducer& reducer, const std::vector<double>& reduced) {
+  std::array<double, 6> c{};
+  for (size_t b = 0; b + 1 < reducer.block_start.size(); ++b) {
+    const double w =
+        std::sqrt(double(reducer.block_start[b + 1] - reducer.block_start[b]) / reducer.vertices);
+    for (size_t i = 0; i < 6; ++i) c[i] += w * reduced[6 * b + i];
+  }
+  return c;
+}
+
+double coarse_distance(const std::array<double, 6>& a, const std::array<double, 6>& b) {
+  return reduced_distance(a.data(), b.data(), 6);
+}
+
+double pivot_bound(const std::vector<double>& q, const std::vector<double>& s) {
+  double bound = 0;
+  const size_t n = std::min(q.size(), s.size());
+  for (size_t i = 0; i < n; ++i)
+    bound = std::max(bound, std::fabs(q[i] - s[i]) - 1e-9 * (q[i] + s[i]));
+  return bound;
+}
+
+// db::state_distance (database/format/cloth_graph.cpp: the same sum in the same order, so the same
+// double), or +infinity as soon as the partial sum proves the distance exceeds `limit`: the terms
+// are not negative, so a partial sum above limit^2 x vertices (with a 1e-9 relative margin for
+// the rounding of the division and the root) only grows. Checked every 32 vertices.
+double distance_within(const std::vector<float>& xa, const std::vector<float>& va,
+                       const std::vector<float>& xb, const std::vector<float>& vb, double tau,
+                       double limit) {
+  if (!std::isfinite(limit) || xa.size() != xb.size() || va.size() != xa.size() ||
+      vb.size() != xa.size() || xa.size() % 3 != 0)
+    return db::state_distance(xa, va, xb, vb, tau);
+  const size_t vertices = xa.size() / 3, n = 3 * vertices;
+  const double cap = limit * limit * double(vertices) * (1 + 1e-9);
+  double sum = 0;
+  for (size_t i = 0; i < n; ++i) {
+    const double dx = double(xa[i]) - double(xb[i]), dv = double(va[i]) - double(vb[i]);
+    sum += dx * dx + tau * tau * dv * dv;
+    if (i % 96 == 95 && sum > cap) return std::numeric_limits<double>::infinity();
+  }
+  return vertices ? std::sqrt(sum / double(vertices)) : 0.0;
+}
+
+// The state distance from (x, v) to states[index]; +infinity when it exceeds `limit` (finite
+// limits only when sg.early_exit).
+double exact_distance(SecondaryGraph& sg, const std::vector<float>& x, const std::vector<float>& v,
+                      int index, double limit = std::numeric_limits<double>::infinity()) {
+  const ExactStatePtr other = sg.state(index);
+  ++sg.exact_evaluations;
+  if (!sg.early_exit) limit = std::numeric_limits<double>::infinity();
+  return distance_within(x, v, other->x, other->v, sg.tau, limit);
+}
+
+}  // namespace
+
 Nearest nearest_state(SecondaryGraph& sg, int node, const std::vector<float>& x,
                       const std::vector<float>& v) {
   Nearest out;
   out.reduced = reduce(sg.reducer, x.data(), v.data());
   const std::vector<int>& here = sg.states_at_node[static_cast<size_t>(node)];
+  const std::vector<int>& pivots = sg.pivots_at_node[static_cast<size_t>(node)];
   const size_t n = sg.reducer.size();
   out.distances.assign(here.size(), std::numeric_limits<double>::quiet_NaN());
-  const PrunedNearest found = nearest_pruned(
-      here.size(),
-      [&](size_t k) {
-        return reduced_distance(out.reduced.data(),
-                                sg.states[static_cast<size_t>(here[k])].reduced.data(), n);
-      },
-      [&](size_t k) {
-        const ExactStatePtr other = sg.state(here[k]);
-        return out.distances[k] = db::state_distance(x, v, other->x, other->v, sg.tau);
-      });
-  sg.exact_evaluations += found.exact_evaluations;
-  if (found.k >= 0) {
-    out.state = here[static_cast<size_t>(found.k)];
-    out.distance = found.distance;
+  out.above.assign(here.size(), 0.0);
+  // The pivots first: their distances are exact, and bound every other state.
+  double best = std::numeric_limits<double>::infinity();
+  for (int k : pivots) {
+    out.distances[size_t(k)] = exact_distance(sg, x, v, here[size_t(k)]);
+    out.pivot_distances.push_back(out.distances[size_t(k)]);
+    best = std::min(best, out.distances[size_t(k)]);
+  }
+  // Coarse to fine: candidates come in order of the coarse bound (a heap, popped only as far as
+  // needed); one whose coarse bound exceeds the best distance measured so far (pivots included)
+  // ends the search (every later one's does too), one whose fine bound (reduced form, pivots)
+  // exceeds it is skipped, the rest are measured, stopping early beyond the best and their own
+  // priority. A candidate is left out
+  // only when its distance provably exceeds the best so far, so the answer (ties to the lower
+  // position, the older state) is the exhaustive search's.
+  out.coarse = coarse_form(sg.reducer, out.reduced);
+  std::vector<std::pair<double, size_t>> order(here.size());
+  const auto fine = [&](size_t k) {
+    const StateRec& s = sg.states[static_cast<size_t>(here[k])];
+    return std::max(reduced_distance(out.reduced.data(), s.reduced.data(), n),
+                    pivot_bound(out.pivot_distances, s.pivot_distance));
+  };
+  for (size_t k = 0; k < here.size(); ++k)
+    order[k] = {
+        sg.coarse_first ? coarse_distance(out.coarse, sg.states[size_t(here[k])].coarse) : fine(k),
+        k};
+  const auto later = [](const std::pair<double, size_t>& a, const std::pair<double, size_t>& b) {
+    return a > b;  // a min-heap: the smallest bound, then the lowest position, first
+  };
+  std::make_heap(order.begin(), order.end(), later);
+  int best_k = -1;
+  double best_d = std::numeric_limits<double>::infinity();
+  for (auto end = order.end(); end != order.begin(); --end) {
+    std::pop_heap(order.begin(), end, later);
+    const auto [bound, k] = *(end - 1);
+    if (bound_exceeds(bound, best)) break;
+    double d = out.distances[k];  // a pivot: measured
+    if (std::isnan(d)) {
+      const StateRec& s = sg.states[static_cast<size_t>(here[k])];
+      if (sg.coarse_first && bound_exceeds(fine(k), best)) continue;
+      // Farther than the best so far cannot be the answer (nor tie it), and farther than the
+      // state's priority cannot lower it when the query becomes a state (add_state): stopped
+      // early beyond both, and add_state knows it is beyond them.
+      const double limit = std::max(best, s.priority);
+      d = exact_distance(sg, x, v, here[k], limit);
+      if (std::isinf(d)) {
+        out.above[k] = limit;
+        continue;
+      }
+      out.distances[k] = d;
+      best = std::min(best, d);
+    }
+    if (best_k < 0 || d < best_d || (d == best_d && int(k) < best_k)) best_d = d, best_k = int(k);
+  }
+  if (best_k >= 0) {
+    out.state = here[static_cast<size_t>(best_k)];
+    out.distance = best_d;
   }
   return out;
 }
@@ -135,7 +245,12 @@ int add_state(SecondaryGraph& sg, StateRec rec, ExactState exact, const Nearest&
   rec.priority = nearest.state >= 0 ? nearest.distance : kNoNeighbour;
   rec.reduced = nearest.reduced.empty() ? reduce(sg.reducer, exact.x.data(), exact.v.data())
                                         : nearest.reduced;
+  rec.coarse = coarse_form(sg.reducer, rec.reduced);
   std::vector<int>& here = sg.states_at_node[static_cast<size_t>(rec.node)];
+  std::vector<int>& pivots = sg.pivots_at_node[static_cast<size_t>(rec.node)];
+  rec.pivot_distance = nearest.pivot_distances;
+  for (size_t i = rec.pivot_distance.size(); i < pivots.size(); ++i)  // a query made elsewhere
+    rec.pivot_distance.push_back(exact_distance(sg, exact.x, exact.v, here[size_t(pivots[i])]));
   const size_t n = sg.reducer.size();
   for (size_t j = 0; j < here.size(); ++j) {
     StateRec& other = sg.states[static_cast<size_t>(here[j])];
@@ -143,20 +258,34 @@ int add_state(SecondaryGraph& sg, StateRec rec, ExactState exact, const Nearest&
       other.priority = std::min(other.priority, nearest.distances[j]);  // measured by the query
       continue;
     }
-    // Its priority can only fall to the new distance, which is at least the bound: skipped when
-    // the bound already exceeds it.
-    if (bound_exceeds(reduced_distance(rec.reduced.data(), other.reduced.data(), n),
+    // Its priority can only fall to the new distance, which is at least the bounds: skipped when
+    // they already exceed it.
+    // Stopped early by the query beyond its priority: the distance cannot lower it.
+    if (j < nearest.above.size() && nearest.above[j] > 0 && nearest.above[j] >= other.priority)
+      continue;
+    if (sg.coarse_first && bound_exceeds(coarse_distance(rec.coarse, other.coarse), other.priority))
+      continue;
+    if (bound_exceeds(std::max(reduced_distance(rec.reduced.data(), other.reduced.data(), n),
+                               pivot_bound(rec.pivot_distance, other.pivot_distance)),
                       other.priority))
       continue;
-    const ExactStatePtr o = sg.state(here[j]);
-    ++sg.exact_evaluations;
+    // Only a distance below its priority changes it: stopped early above that.
     other.priority =
-        std::min(other.priority, db::state_distance(exact.x, exact.v, o->x, o->v, sg.tau));
+        std::min(other.priority, exact_distance(sg, exact.x, exact.v, here[j], other.priority));
   }
   const int index = static_cast<int>(sg.states.size());
   here.push_back(index);
-  sg.exact->put(rec.id, std::move(exact));
+  const ExactStatePtr added = sg.exact->put(rec.id, std::move(exact));
   sg.states.push_back(std::move(rec));
+  // The state that brings the node to kPivotsFrom x 2^i states becomes its i-th pivot: every
+  // state there gets its distance to it (measured once each).
+  if (pivots.size() < sg.max_pivots && here.size() == (kPivotsFrom << pivots.size())) {
+    for (size_t j = 0; j + 1 < here.size(); ++j)
+      sg.states[size_t(here[j])].pivot_distance.push_back(
+          exact_distance(sg, added->x, added->v, here[j]));
+    sg.states[size_t(index)].pivot_distance.push_back(0);
+    pivots.push_back(static_cast<int>(here.size() - 1));
+  }
   return index;
 }
 
