@@ -122,9 +122,11 @@ TEST(SelfCollision, FoldingSheetHasNoCrossingsWithItAndSomeWithout) {
 
 // The twisted skirt is wrung against the body into pleats tighter than its edges (4 cm edges,
 // 5 mm thickness): there self-collision does not yet remove every crossing (a known gap,
-// docs/notebook/self_collision.md#known-gaps-not-done), but it must remove most of them. Fails if
-// the contacts do nothing, or if the scene stops crossing itself without them.
-TEST(SelfCollision, TwistedSkirtCrossesFarLessWithIt) {
+// docs/notebook/self_collision.md#known-gaps-not-done), but it must remove nearly all of them:
+// summed over frames, 246 with it against 51,572 without when written; one contact pass per
+// sub-step instead of up to three left 7,716 (docs/notebook/self_collision.md, "Third round").
+// Fails if the contacts do little, or if the scene stops crossing itself without them.
+TEST(SelfCollision, TwistedSkirtCrossesHardlyAtAllWithIt) {
   const ClothScene scene = make_hard_case("twisted-skirt");
   auto off = make_solver(SolverKind::Xpbd, scene.model, xpbd(0.0));
   auto on = make_solver(SolverKind::Xpbd, scene.model, xpbd(5.0));
@@ -135,8 +137,8 @@ TEST(SelfCollision, TwistedSkirtCrossesFarLessWithIt) {
   for (const FrameMetrics& m : run_off.metrics) sum_off += m.self_intersections;
   for (const FrameMetrics& m : run_on.metrics) sum_on += m.self_intersections;
   EXPECT_GT(sum_off, 100);
-  EXPECT_LT(3 * sum_on, sum_off) << "crossings summed over frames: " << sum_on << " with, "
-                                 << sum_off << " without";
+  EXPECT_LT(100 * sum_on, sum_off)
+      << "crossings summed over frames: " << sum_on << " with, " << sum_off << " without";
 }
 
 TEST(SelfCollision, SameResultForOneAndTwoThreads) {

@@ -694,7 +694,11 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
 #pragma omp single
         {
           refresh_self_collision(self_, model_, state.x);
-          project_self_collision(self_, model_, state.x, x_prev);
+          // Up to three Gauss-Seidel passes, until one projects no contact: a single pass left
+          // crossings that the next sub-steps then kept (each pair's side is taken at the
+          // sub-step's start), docs/notebook/self_collision.md, "Third round".
+          for (int pass = 0; pass < 3; ++pass)
+            if (project_self_collision(self_, model_, state.x, x_prev) == 0) break;
         }
       }
       // Contact rounds (docs/notebook/BENCHMARKS.md, "Contact rounds"): the collision pass above
