@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "database/codec/contract.hpp"
 #include "database/store/writer.hpp"
 #include "solvers/solver.hpp"
 
@@ -152,6 +153,34 @@ struct SolverOptions {
     SolverSettings s = settings;
     s.linear_solver = parse_linear_solver_kind(linear_solver);
     return s;
+  }
+};
+
+// Codec version 3's error contract as options in mm (db recode, precompute --codec v3): one
+// wording and one check for every command that codes clips within it.
+struct ContractOptions {
+  double rms_mm = 0, max_mm = 0, jitter_mm = codec::kDefaultJitterCap * 1e3;
+  void add_to(CLI::App& cmd) {
+    cmd.add_option("--rms-mm", rms_mm, "--codec v3: cap on each frame's RMS vertex distance (mm)")
+        ->check(number_in(0, 1e3, true));
+    cmd.add_option("--max-mm", max_mm, "--codec v3: cap on any vertex's distance (mm)")
+        ->check(number_in(0, 1e3, true));
+    cmd.add_option("--jitter-mm", jitter_mm,
+                   "--codec v3: cap on the second difference in time of any vertex's error (mm)")
+        ->capture_default_str()
+        ->check(number_in(0, 1e3, true));
+  }
+  // The contract in metres with --codec v3 (which needs --rms-mm and --max-mm); without it, none
+  // (and the caps must not be given).
+  codec::Contract resolved(bool v3) const {
+    if (!v3) {
+      if (rms_mm > 0 || max_mm > 0)
+        throw CLI::ValidationError("--rms-mm/--max-mm", "only with --codec v3");
+      return {};
+    }
+    if (!(rms_mm > 0) || !(max_mm > 0))
+      throw CLI::ValidationError("--codec v3", "needs --rms-mm and --max-mm");
+    return {1e-3 * rms_mm, 1e-3 * max_mm, 1e-3 * jitter_mm};
   }
 };
 

@@ -167,7 +167,7 @@ void register_db_commands(CLI::App& app) {
   struct RecodeArgs {
     std::string file, codec = "v2";
     double bound_mm = 0, velocity_bound_mm_s = 0;
-    double rms_mm = 0, max_mm = 0, jitter_mm = codec::kDefaultJitterCap * 1e3;
+    ContractOptions contract;
     RecodeOptions options;
   };
   auto rargs = std::make_shared<RecodeArgs>();
@@ -189,15 +189,7 @@ void register_db_commands(CLI::App& app) {
   recode->add_option("--codec", rargs->codec, "Frame format to write: v3, v2 or v1")
       ->capture_default_str()
       ->check(CLI::IsMember({"v1", "v2", "v3"}));
-  recode->add_option("--rms-mm", rargs->rms_mm, "v3: cap on each frame's RMS vertex distance (mm)")
-      ->check(CLI::PositiveNumber);
-  recode->add_option("--max-mm", rargs->max_mm, "v3: cap on any vertex's distance (mm)")
-      ->check(CLI::PositiveNumber);
-  recode
-      ->add_option("--jitter-mm", rargs->jitter_mm,
-                   "v3: cap on the second difference in time of any vertex's error (mm)")
-      ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+  rargs->contract.add_to(*recode);
   recode
       ->add_option("--bound-mm", rargs->bound_mm,
                    "Position bound in mm per coordinate, against the stored frames (default: "
@@ -233,17 +225,11 @@ void register_db_commands(CLI::App& app) {
   recode->callback([rargs] {
     RecodeOptions o = rargs->options;
     o.codec = rargs->codec == "v1" ? 1 : rargs->codec == "v2" ? 2 : 3;
-    if (o.codec == 3) {
-      if (rargs->bound_mm > 0)
-        throw CLI::ValidationError("--bound-mm",
-                                   "v3 keeps an error contract, not a per-coordinate bound: "
-                                   "give --rms-mm, --max-mm and --jitter-mm");
-      if (rargs->rms_mm <= 0 || rargs->max_mm <= 0)
-        throw CLI::ValidationError("--codec v3", "needs --rms-mm and --max-mm");
-      o.contract = {rargs->rms_mm * 1e-3, rargs->max_mm * 1e-3, rargs->jitter_mm * 1e-3};
-    } else if (rargs->rms_mm > 0 || rargs->max_mm > 0) {
-      throw CLI::ValidationError("--rms-mm/--max-mm", "only with --codec v3");
-    }
+    if (o.codec == 3 && rargs->bound_mm > 0)
+      throw CLI::ValidationError("--bound-mm",
+                                 "v3 keeps an error contract, not a per-coordinate bound: "
+                                 "give --rms-mm, --max-mm and --jitter-mm");
+    o.contract = rargs->contract.resolved(o.codec == 3);
     o.bound = rargs->bound_mm * 1e-3;
     o.velocity_bound = rargs->velocity_bound_mm_s * 1e-3;
     o.progress = [](const std::string& line) { std::fprintf(stderr, "%s\n", line.c_str()); };

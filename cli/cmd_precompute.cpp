@@ -66,9 +66,7 @@ void register_precompute(CLI::App& app) {
                   "fixed when it is made: an existing file with another bound is refused)")
       ->check(number_in(1e-6, 1e3));
   auto codec_name = std::make_shared<std::string>("v1");
-  // Codec version 3's contract in mm (0: not given).
-  auto contract_mm =
-      std::make_shared<codec::Contract>(codec::Contract{0, 0, codec::kDefaultJitterCap * 1e3});
+  auto contract = std::make_shared<ContractOptions>();
   cmd->add_option("--codec", *codec_name,
                   "Frame codec of the clips this run stores: v1, v2 (a garment subspace built "
                   "from the clips stored so far, from --basis-first-frames on and again each time "
@@ -78,15 +76,7 @@ void register_precompute(CLI::App& app) {
                   "kept where smaller than v1)")
       ->check(CLI::IsMember({"v1", "v2", "v3"}))
       ->capture_default_str();
-  cmd->add_option("--rms-mm", contract_mm->rms,
-                  "--codec v3: cap on each frame's RMS vertex distance (mm)")
-      ->check(number_in(1e-6, 1e3));
-  cmd->add_option("--max-mm", contract_mm->max, "--codec v3: cap on any vertex's distance (mm)")
-      ->check(number_in(1e-6, 1e3));
-  cmd->add_option("--jitter-mm", contract_mm->jitter,
-                  "--codec v3: cap on the coding error's second difference over frames (mm)")
-      ->capture_default_str()
-      ->check(number_in(1e-6, 1e3));
+  contract->add_to(*cmd);
   cmd->add_option("--modes", args->explore.subspace_modes, "--codec v2, v3: modes of each basis")
       ->check(number_in(1, 1024));
   cmd->add_flag("--body-frame", args->explore.subspace_body_frame,
@@ -154,8 +144,10 @@ void register_precompute(CLI::App& app) {
       "sub-steps and iterations, every other field kept) and with a reference (the scene's setting "
       "at 8x the sub-steps); compare over the frames where the reference's own chaos floor stays "
       "within a quarter of the bound; take the cheapest (CPU time) whose error is within "
-      "--auto-fraction x epsilon. Prints the table; the database records the choice and a resumed "
-      "run reuses it");
+      "--auto-fraction x epsilon, or, when none is, the cheapest whose error is at most the "
+      "scene's "
+      "own setting's. Prints the table; the database records the choice and a resumed run reuses "
+      "it");
   cmd->add_option("--auto-solvers", args->auto_solvers,
                   "--auto: comma-separated solvers to try (default: the scene's), e.g. xpbd,pbd");
   cmd->add_option("--auto-fraction", args->auto_fraction,
@@ -181,24 +173,16 @@ void register_precompute(CLI::App& app) {
   cmd->add_flag("--mpi-verbose", args->mpi_verbose,
                 "Under mpirun: one line per job handed out, lost or late");
 #endif
-  cmd->callback([args, epsilon_mm, position_bound_mm, quiet, floor_seconds, codec_name,
-                 contract_mm] {
+  cmd->callback([args, epsilon_mm, position_bound_mm, quiet, floor_seconds, codec_name, contract] {
     PrecomputeRequest request = *args;
     if (*codec_name == "v2" || *codec_name == "v3") {
       if (request.explore.subspace_modes == 0) request.explore.subspace_modes = 64;
     } else if (request.explore.subspace_modes != 0 || request.explore.subspace_body_frame) {
       throw std::runtime_error("--modes, --body-frame: only with --codec v2 or v3");
     }
-    if (*codec_name == "v3") {
-      if (!(contract_mm->rms > 0) || !(contract_mm->max > 0))
-        throw std::runtime_error("--codec v3: needs --rms-mm and --max-mm");
-      if (request.explore.subspace_body_frame)
-        throw std::runtime_error("--body-frame: only with --codec v2");
-      request.explore.subspace_contract = {1e-3 * contract_mm->rms, 1e-3 * contract_mm->max,
-                                           1e-3 * contract_mm->jitter};
-    } else if (contract_mm->rms > 0 || contract_mm->max > 0) {
-      throw std::runtime_error("--rms-mm, --max-mm: only with --codec v3");
-    }
+    if (*codec_name == "v3" && request.explore.subspace_body_frame)
+      throw std::runtime_error("--body-frame: only with --codec v2");
+    request.explore.subspace_contract = contract->resolved(*codec_name == "v3");
     request.explore.epsilon = 1e-3 * *epsilon_mm;
     request.position_bound = 1e-3 * *position_bound_mm;
     request.floor.continuation_seconds = request.floor.hold_seconds = *floor_seconds;

@@ -840,8 +840,8 @@ CLOTHRT_MULTIVERSION void normalise_planes(float* __restrict x, float* __restric
   }
 }
 
-// Planes turned by the upper 3x3 of the column-major m (a root transform's linear part) and
-// renormalised (a zero vector stays zero), into planes ox, oy, oz.
+// Planes turned by the upper 3x3 of the column-major m (a root transform's linear part) into
+// planes ox, oy, oz; normalise_planes makes them unit again.
 CLOTHRT_MULTIVERSION void turn_planes(const float* __restrict x, const float* __restrict y,
                                       const float* __restrict z, size_t n,
                                       const float* __restrict m, float* __restrict ox,
@@ -850,15 +850,9 @@ CLOTHRT_MULTIVERSION void turn_planes(const float* __restrict x, const float* __
               m9 = m[9], m10 = m[10];
   for (size_t v = 0; v < n; ++v) {
     const float a = x[v], b = y[v], c = z[v];
-    const float p = m0 * a + m4 * b + m8 * c, q = m1 * a + m5 * b + m9 * c,
-                r = m2 * a + m6 * b + m10 * c;
-    const float l2 = p * p + q * q + r * r;
-    const bool ok = l2 > 0;
-    const float s = 1.0f / std::sqrt(ok ? l2 : 1.0f);
-    const float ps = p * s, qs = q * s, rs = r * s;
-    ox[v] = ok ? ps : p;
-    oy[v] = ok ? qs : q;
-    oz[v] = ok ? rs : r;
+    ox[v] = m0 * a + m4 * b + m8 * c;
+    oy[v] = m1 * a + m5 * b + m9 * c;
+    oz[v] = m2 * a + m6 * b + m10 * c;
   }
 }
 
@@ -1101,6 +1095,7 @@ int Player::render(const clothrt_render_output& out, const float* m) {
                    rn);
     if (m) {  // into the normal's planes, done with
       turn_planes(u, u + rn, u + 2 * rn, rn, m, pl, pl + rn, pl + 2 * rn);
+      normalise_planes(pl, pl + rn, pl + 2 * rn, rn);
       u = pl;
     }
     const size_t s = out.tangent_stride / sizeof(float);

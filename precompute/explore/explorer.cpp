@@ -426,8 +426,8 @@ ExploreReport explore(const CharacterScene& scene, const ExploreGraph& graph, db
     // This project's: codec version 2 bases built from the clips stored so far.
     maybe_build_basis(bases, reader, writer, options, vertex_count, report);
     queue = dead_ends(sg, graph, options.min_state_id);
-    add_curve_point(report, curve_point(sg, graph, queue, report));
-    progress.update(report, sg.done.size(), queue.size());
+    const Forecast forecast = add_curve_point(report, curve_point(sg, graph, queue, report));
+    progress.update(report, forecast, sg.done.size(), queue.size());
   }
   progress.end();
 

@@ -73,17 +73,19 @@ CurvePoint curve_point(const SecondaryGraph& sg, const ExploreGraph& graph,
   return p;
 }
 
-void add_curve_point(ExploreReport& report, const CurvePoint& point) {
+Forecast add_curve_point(ExploreReport& report, const CurvePoint& point) {
   report.curve.push_back(point);
   const Forecast f = forecast_convergence(report.curve, report.cpu_seconds_before);
-  if (!f.converging) return;
+  if (!f.converging) return f;
   CurvePoint& p = report.curve.back();
   p.forecast_cpu_seconds = f.cpu_seconds;
   p.forecast_low_cpu_seconds = f.low_cpu_seconds;
   p.forecast_high_cpu_seconds = f.high_cpu_seconds;
+  return f;
 }
 
-void ProgressBar::update(const ExploreReport& report, size_t done, size_t dead_ends) const {
+void ProgressBar::update(const ExploreReport& report, const Forecast& f, size_t done,
+                         size_t dead_ends) const {
   if (!options_.progress) return;
   const CurvePoint& p = report.curve.back();
   double fraction = 0;
@@ -95,7 +97,6 @@ void ProgressBar::update(const ExploreReport& report, size_t done, size_t dead_e
     fraction = std::max(fraction, report.cpu_seconds / (options_.cpu_hours * 3600));
   // The time to convergence is the forecast's (explore/forecast.hpp), the one model every printed
   // forecast comes from; the time left is the budget's when there is one.
-  const Forecast f = forecast_convergence(report.curve, report.cpu_seconds_before);
   std::string left;
   char text[64];
   if (fraction > 0) {

@@ -17,14 +17,17 @@ CurvePoint curve_point(const SecondaryGraph& sg, const ExploreGraph& graph,
                        const std::vector<Job>& queue, const ExploreReport& report);
 
 // Appends a curve point with the forecast made from the curve so far (explore/forecast.hpp).
-void add_curve_point(ExploreReport& report, const CurvePoint& point);
+// Returns that forecast (the progress line prints it).
+Forecast add_curve_point(ExploreReport& report, const CurvePoint& point);
 
 // The progress bar on stderr (when options.progress): frames, states, dead ends, worst error, CPU
 // time and the time left, from the budget or, without one, from the dead ends at the current pace.
 class ProgressBar {
  public:
   explicit ProgressBar(const ExploreOptions& options) : options_(options) {}
-  void update(const ExploreReport& report, size_t clips_done, size_t dead_ends) const;
+  // `forecast`: the one add_curve_point made from the curve's last point.
+  void update(const ExploreReport& report, const Forecast& forecast, size_t clips_done,
+              size_t dead_ends) const;
   void end() const;
 
  private:

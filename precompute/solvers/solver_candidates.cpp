@@ -14,21 +14,7 @@ SolverCandidate candidate(SolverKind kind, int substeps, int iterations, double 
       std::max(1, iterations);  // unused by mass-spring and Newton; the record needs >= 1
   c.settings.newton_tolerance = tolerance;
   c.settings.linear_solver = linear;
-  char buf[96] = "";
-  switch (kind) {
-    case SolverKind::MassSpring:
-      std::snprintf(buf, sizeof buf, "substeps=%d", substeps);
-      break;
-    case SolverKind::Pbd:
-    case SolverKind::Xpbd:
-      std::snprintf(buf, sizeof buf, "substeps=%d iterations=%d", substeps, iterations);
-      break;
-    case SolverKind::Newton:
-      std::snprintf(buf, sizeof buf, "%s substeps=%d tol=%.0e", linear_solver_name(linear),
-                    substeps, tolerance);
-      break;
-  }
-  c.label = buf;
+  c.label = variation_label(kind, c.settings);
   return c;
 }
 
