@@ -195,6 +195,10 @@ struct CurvePoint {
   double cpu_seconds = 0;  // this run's
   long frames = 0;
   int states = 0;
+  // Clips made so far (each closed one way out); the forecast's axis (explore/forecast.hpp).
+  // Curves written before the column existed: (states - 1) / (1 - linked share), every clip that
+  // did not link having made a state.
+  long clips = 0;
   int dead_ends = 0;
   // Dead ends whose state is still alone at its node: no other state to measure their unresolved
   // error against, so it is unknown (Kim et al.'s error is a distance to another state). They are

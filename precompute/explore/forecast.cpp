@@ -10,14 +10,112 @@ namespace clothdb {
 
 namespace {
 
-// Standard deviations of the prediction band (about 95 % for Gaussian residuals).
-constexpr double kBandSigmas = 2;
+// Half-width of the prediction band in standard deviations: the two-sided 95 % quantile of
+// Student's t with `dof` degrees of freedom (residuals less the fitted coefficients), so that a fit
+// through 4 or 5 batches (the demo's) does not claim a band it cannot know; about 2 from 30 on.
+double band_sigmas(size_t dof) {
+  static constexpr double kT975[] = {12.71, 4.30, 3.18, 2.78, 2.57, 2.45, 2.36, 2.31, 2.26, 2.23};
+  if (dof == 0) return std::numeric_limits<double>::infinity();
+  return dof <= 10 ? kT975[dof - 1] : 1.96 + 2.4 / static_cast<double>(dof);
+}
+// The curve counts whole ways out: a fit cannot know them better than their rounding, whose
+// variance is 1/12 (uniform over one), however well it passes through a few points.
+constexpr double kRoundingVariance = 1.0 / 12;
+// The fit bends (a parabola) only when its bend is at least this many standard errors clear of
+// zero: on a straight decline a free bend would only widen the band.
+constexpr double kBendStandardErrors = 2;
 // A band within this share of the forecast is printed as a figure with its band; a wider one as
 // the band itself.
 constexpr double kNarrowBand = 0.1;
+// How far past the last point the band's edges are looked for, in window spans (clips of the
+// fitted window): an edge not reached by then leaves the band open above.
+constexpr double kBandReachSpans = 50;
+constexpr int kBandStepsPerSpan = 200;
 
 double open_ways_out(const CurvePoint& p) {
   return p.dead_ends + p.unexplored;
+}
+
+// A least-squares fit of y = sum_j beta_j v^j (j < terms, terms 2 or 3) with the inverse of its
+// normal matrix, for the prediction band.
+struct Fit {
+  int terms = 0;
+  double beta[3] = {0, 0, 0};
+  double inverse[3][3] = {};  // (X^T X)^-1
+  double residual_variance = 0;
+  double at(double v) const { return beta[0] + beta[1] * v + (terms == 3 ? beta[2] * v * v : 0); }
+  double slope(double v) const { return beta[1] + (terms == 3 ? 2 * beta[2] * v : 0); }
+  // Standard deviation of a new point at v (ordinary least-squares prediction interval).
+  double sigma(double v) const {
+    const double g[3] = {1, v, v * v};
+    double q = 0;
+    for (int i = 0; i < terms; ++i)
+      for (int j = 0; j < terms; ++j) q += g[i] * inverse[i][j] * g[j];
+    return std::sqrt(residual_variance * (1 + q));
+  }
+};
+
+// Inverts the symmetric terms x terms matrix m; false when it is singular.
+bool invert(const double m[3][3], int terms, double out[3][3]) {
+  if (terms == 2) {
+    const double det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
+    if (!(std::fabs(det) > 1e-12 * std::fabs(m[0][0] * m[1][1]))) return false;
+    out[0][0] = m[1][1] / det, out[0][1] = -m[0][1] / det;
+    out[1][0] = -m[1][0] / det, out[1][1] = m[0][0] / det;
+    return true;
+  }
+  const double c00 = m[1][1] * m[2][2] - m[1][2] * m[2][1],
+               c01 = m[1][2] * m[2][0] - m[1][0] * m[2][2],
+               c02 = m[1][0] * m[2][1] - m[1][1] * m[2][0];
+  const double det = m[0][0] * c00 + m[0][1] * c01 + m[0][2] * c02;
+  if (!(std::fabs(det) > 1e-12)) return false;
+  out[0][0] = c00 / det, out[1][0] = c01 / det, out[2][0] = c02 / det;
+  out[0][1] = (m[0][2] * m[2][1] - m[0][1] * m[2][2]) / det;
+  out[1][1] = (m[0][0] * m[2][2] - m[0][2] * m[2][0]) / det;
+  out[2][1] = (m[0][1] * m[2][0] - m[0][0] * m[2][1]) / det;
+  out[0][2] = (m[0][1] * m[1][2] - m[0][2] * m[1][1]) / det;
+  out[1][2] = (m[0][2] * m[1][0] - m[0][0] * m[1][2]) / det;
+  out[2][2] = (m[0][0] * m[1][1] - m[0][1] * m[1][0]) / det;
+  return true;
+}
+
+bool fit(const std::vector<std::pair<double, double>>& points, int terms, Fit& f) {
+  double m[3][3] = {}, r[3] = {};
+  for (const auto& [v, y] : points) {
+    const double g[3] = {1, v, v * v};
+    for (int i = 0; i < terms; ++i) {
+      r[i] += g[i] * y;
+      for (int j = 0; j < terms; ++j) m[i][j] += g[i] * g[j];
+    }
+  }
+  f.terms = terms;
+  if (!invert(m, terms, f.inverse)) return false;
+  for (int i = 0; i < terms; ++i) {
+    f.beta[i] = 0;
+    for (int j = 0; j < terms; ++j) f.beta[i] += f.inverse[i][j] * r[j];
+  }
+  double ssr = 0;
+  for (const auto& [v, y] : points) ssr += (y - f.at(v)) * (y - f.at(v));
+  f.residual_variance = std::max(
+      kRoundingVariance, ssr / static_cast<double>(points.size() - static_cast<size_t>(terms)));
+  return true;
+}
+
+// The first v in [from, to] where edge(v) <= 0 (to the step, then bisected), or NaN.
+template <typename Edge>
+double first_zero(Edge edge, double from, double to, double step) {
+  if (edge(from) <= 0) return from;
+  for (double lo = from; lo < to; lo += step) {
+    double hi = std::min(lo + step, to);
+    if (edge(hi) > 0) continue;
+    double a = lo;
+    for (int k = 0; k < 40; ++k) {
+      const double mid = (a + hi) / 2;
+      (edge(mid) > 0 ? a : hi) = mid;
+    }
+    return hi;
+  }
+  return std::numeric_limits<double>::quiet_NaN();
 }
 
 }  // namespace
@@ -36,67 +134,81 @@ Forecast forecast_convergence(const std::vector<CurvePoint>& curve, double cpu_b
     f.model = "converged: no dead end left";
     return f;
   }
-  // Least squares of y = a + b t over the last half of this run's curve, centred on the means
-  // (t in the whole exploration's CPU seconds).
-  std::vector<std::pair<double, double>> window;
+  // The window: the points of the last half of this run's clips. v: clips made, relative to the
+  // window's mean, in window spans (so that the normal matrix stays well conditioned).
+  const double first_clips = static_cast<double>(curve.front().clips),
+               half = (static_cast<double>(last.clips) - first_clips) / 2;
+  std::vector<const CurvePoint*> window;
   for (const CurvePoint& p : curve)
-    if (p.cpu_seconds >= last.cpu_seconds / 2)
-      window.emplace_back(cpu_before + p.cpu_seconds, open_ways_out(p));
-  const double n = static_cast<double>(window.size());
-  double mean_t = 0, mean_y = 0;
-  for (const auto& [t, y] : window) mean_t += t / n, mean_y += y / n;
-  double stt = 0, sty = 0;
-  for (const auto& [t, y] : window)
-    stt += (t - mean_t) * (t - mean_t), sty += (t - mean_t) * (y - mean_y);
-  char text[256];
-  if (window.size() < kForecastFewestPoints || !(stt > 0)) {
-    std::snprintf(text, sizeof text, "%zu batches in the last half of the run", window.size());
+    if (static_cast<double>(p.clips) - first_clips >= half) window.push_back(&p);
+  const double span = static_cast<double>(last.clips - window.front()->clips);
+  char text[320];
+  if (window.size() < kForecastFewestPoints || !(span > 0)) {
+    std::snprintf(text, sizeof text, "%zu batches in the last half of the run's clips",
+                  window.size());
     f.why = text;
     f.too_few = true;
     return f;
   }
-  const double b = sty / stt, a = mean_y - b * mean_t;
-  if (!(b < 0)) {
+  double mean_clips = 0;
+  for (const CurvePoint* p : window)
+    mean_clips += static_cast<double>(p->clips) / static_cast<double>(window.size());
+  std::vector<std::pair<double, double>> points;
+  for (const CurvePoint* p : window)
+    points.emplace_back((static_cast<double>(p->clips) - mean_clips) / span, open_ways_out(*p));
+  const double v_last = (static_cast<double>(last.clips) - mean_clips) / span;
+  // The parabola when it bends down clearly (kBendStandardErrors); else the line (a bend up is
+  // scatter: the change per clip does not grow, see the header).
+  Fit trend;
+  if (!fit(points, 3, trend) ||
+      !(trend.beta[2] < 0 &&
+        -trend.beta[2] >=
+            kBendStandardErrors * std::sqrt(trend.residual_variance * trend.inverse[2][2])))
+    fit(points, 2, trend);
+  // The trend's zero past the last point: no way out left.
+  double v_end = v_last;
+  if (trend.slope(v_last) < 0 && trend.at(v_last) > 0) {
+    const double a = trend.beta[0], b = trend.beta[1];
+    if (trend.terms == 2) {
+      v_end = -a / b;
+    } else {
+      const double c = trend.beta[2];  // < 0, with a falling slope and a positive value at v_last
+      v_end = (-b - std::sqrt(b * b - 4 * a * c)) / (2 * c);
+    }
+  }
+  if (!(trend.slope(v_last) < 0) || !(v_end <= v_last + kBandReachSpans)) {
     std::snprintf(text, sizeof text,
                   "dead ends + unexplored ways out went from %.0f to %.0f over the last half of "
-                  "the run (%.2f to %.2f CPU-h); the fitted trend does not fall",
-                  window.front().second, open_ways_out(last), window.front().first / 3600,
-                  f.made_at / 3600);
+                  "the run's clips (%ld to %ld clips); %s",
+                  points.front().second, open_ways_out(last), window.front()->clips, last.clips,
+                  trend.slope(v_last) < 0
+                      ? "the fitted trend falls too slowly to reach 0 within 50 times that window"
+                      : "the fitted trend does not fall at the last batch");
     f.why = text;
     return f;
   }
   f.converging = true;
-  // y = 0: no way out left.
-  f.cpu_seconds = std::max(f.made_at, -a / b);
-  // The band: t where (a + b t)^2 = k (1 + 1/n + (t - mean_t)^2 / stt), k = (z s)^2 with s^2 the
-  // residual variance (n - 2 degrees of freedom): the ordinary least-squares prediction interval
-  // of a new point at t, inverted for y = 0. A quadratic in t, A t^2 + B t + C = 0.
-  double ssr = 0;
-  for (const auto& [t, y] : window) ssr += (y - a - b * t) * (y - a - b * t);
-  const double k = kBandSigmas * kBandSigmas * ssr / (n - 2);
-  const double qa = b * b - k / stt, qb = 2 * a * b + 2 * k * mean_t / stt,
-               qc = a * a - k * (1 + 1 / n) - k * mean_t * mean_t / stt;
-  const double disc = qb * qb - 4 * qa * qc;
-  if (qa > 0 && disc >= 0) {
-    const double r1 = (-qb - std::sqrt(disc)) / (2 * qa), r2 = (-qb + std::sqrt(disc)) / (2 * qa);
-    f.low_cpu_seconds = std::max(f.made_at, std::min(r1, r2));
-    f.high_cpu_seconds = std::max(f.cpu_seconds, std::max(r1, r2));
-  } else {
-    // The slope is not clear of the scatter: the band's upper edge never reaches 0.
-    f.low_cpu_seconds = f.made_at;
-    if (qa < 0 && disc >= 0) {
-      // The band clears 0 only between the roots: its lower edge reaches 0 at the later one.
-      const double r =
-          std::max((-qb - std::sqrt(disc)) / (2 * qa), (-qb + std::sqrt(disc)) / (2 * qa));
-      if (std::isfinite(r)) f.low_cpu_seconds = std::clamp(r, f.made_at, f.cpu_seconds);
-    }
-    f.high_cpu_seconds = std::numeric_limits<double>::infinity();
-  }
-  f.low_cpu_seconds = std::min(f.low_cpu_seconds, f.cpu_seconds);
-  std::snprintf(text, sizeof text,
-                "linear decline of dead ends + unexplored ways out fitted on the last half of the "
-                "run, %.0f fewer per CPU-h, band +-%.0f sigma of its %zu batches",
-                -b * 3600, kBandSigmas, window.size());
+  // CPU seconds per window span of clips, measured over the window.
+  const double cpu_per_span = last.cpu_seconds - window.front()->cpu_seconds;
+  auto cpu_at = [&](double v) { return f.made_at + (v - v_last) * cpu_per_span; };
+  f.cpu_seconds = cpu_at(std::max(v_end, v_last));
+  // The band: where the prediction band's lower edge, and its upper edge, first reach 0.
+  const double sigmas = band_sigmas(window.size() - static_cast<size_t>(trend.terms));
+  const double reach = v_last + kBandReachSpans, step = 1.0 / kBandStepsPerSpan;
+  const double low = first_zero([&](double v) { return trend.at(v) - sigmas * trend.sigma(v); },
+                                v_last, reach, step);
+  const double high = first_zero([&](double v) { return trend.at(v) + sigmas * trend.sigma(v); },
+                                 v_last, reach, step);
+  f.low_cpu_seconds = std::isnan(low) ? f.made_at : std::min(cpu_at(low), f.cpu_seconds);
+  f.high_cpu_seconds = std::isnan(high) ? std::numeric_limits<double>::infinity()
+                                        : std::max(cpu_at(high), f.cpu_seconds);
+  std::snprintf(
+      text, sizeof text,
+      "dead ends + unexplored ways out against clips made, a %s fitted on the last half "
+      "of the run's clips, %.0f fewer per CPU-h at the last batch, band +-%.2g sigma (95 %%) "
+      "of its %zu batches",
+      trend.terms == 3 ? "parabola bending down" : "line",
+      -trend.slope(v_last) / cpu_per_span * 3600, sigmas, window.size());
   f.model = text;
   return f;
 }

@@ -6,19 +6,30 @@
 //
 // Model: the number of open ways out, y = dead ends + unexplored ways out (an unexplored one
 // counts twice: it is a dead end, and its node has yet to gain the states that will resolve its
-// neighbours), falls linearly with CPU time, y = a + b t, fitted by least squares over the last
-// half of the run's curve (by CPU time); convergence is where the line reaches 0. Linear because
-// Kim et al.'s exploration is a branching process run at a fixed rate: a fixed batch of jobs per
-// unit of CPU, each closing one way out and opening as many as its end node has when its end does
-// not link, so y changes by about (share not linked x ways out per state - 1) per job, a constant
-// while the share linked changes slowly. The last half, because the first half holds the rise
-// while new nodes are reached.
+// neighbours), against the clips made, C. Kim et al.'s exploration is a branching process: each
+// clip closes one way out and, when its end does not link to a state within epsilon, makes a
+// state that opens w ways out (w: ways out of its node), so y changes by w (1 - p) - 1 per clip,
+// p the share of clip ends that link. p does not fall as the run goes on (each node gains states
+// to link to), so this change per clip does not grow: y against C bends down or runs straight.
+// The model lets it change linearly with C: y = a + b C + c C^2 with c < 0 when the fitted bend is
+// at least 2 standard errors clear of zero, else a line (a bend up is scatter; a free bend on a
+// straight decline only widens the band), fitted by least squares over the last half of the
+// run's clips;
+// convergence is where it reaches 0, turned into CPU time by the CPU per clip over that window.
+// The last half, because the first half holds the rise while new nodes are reached. No forecast
+// when the fitted trend does not fall at the last point (y still rising or flat: the process is
+// not yet subcritical). Against clips rather than CPU time, because a batch's CPU time varies
+// with its clips' lengths while the branching rule is per clip; and bending, because on a small
+// run (the demo) the share linked climbs from about 10 % to 40 % within the run, so a line
+// through the last half sees no fall at half the run. Measured on the committed curves and
+// further runs in docs/notebook/convergence.md ("The forecast").
 //
-// Band: the times where the fit's prediction band, the line +- 2 standard deviations of a new
-// point (the residuals' spread, widened by the slope's and the level's uncertainty: the ordinary
-// least-squares prediction interval), reaches 0. It is open above (no end) when the band's upper
-// edge never falls to 0, i.e. when the fall is not clear of the batches' scatter. Measured on the
-// committed curves in docs/notebook/convergence.md ("The forecast").
+// Band: the clips (then CPU times) where the fit's 95 % prediction band, the trend +- t standard
+// deviations of a new point (Student's t for the fit's degrees of freedom; the residuals' spread,
+// at least the rounding of whole ways out, widened by the coefficients' uncertainty: the ordinary
+// least-squares prediction interval), first reaches 0. It is open above (no end) when the band's
+// upper edge does not reach 0 within 50 window spans, i.e. when the fall is not clear of the
+// batches' scatter (as on the demo's 4-batch windows).
 #pragma once
 
 #include <string>
@@ -28,12 +39,13 @@
 
 namespace clothdb {
 
-// Fewest curve points in the last half of the run that a forecast is fitted on.
+// Fewest curve points in the last half of the run's clips that a forecast is fitted on.
 inline constexpr size_t kForecastFewestPoints = 4;
 
 // cpu_before: CPU seconds of the file's earlier runs (the curve's cpu_seconds are this run's).
-// None (converging false, with why) when the fitted trend does not fall, or (too_few) when fewer
-// than kForecastFewestPoints curve points lie in the last half.
+// None (converging false, with why) when the fitted trend does not fall at the last point, or
+// (too_few) when fewer than kForecastFewestPoints curve points lie in the last half of the run's
+// clips.
 Forecast forecast_convergence(const std::vector<CurvePoint>& curve, double cpu_before);
 
 // What `precompute` prints and `db info` shows after "forecast  ": "N CPU-h to converge (band

@@ -47,6 +47,7 @@ CurvePoint curve_point(const SecondaryGraph& sg, const ExploreGraph& graph,
   p.cpu_seconds = report.cpu_seconds;
   p.frames = report.frames;
   p.states = static_cast<int>(sg.states.size());
+  p.clips = sg.clips;
   p.dead_ends = static_cast<int>(queue.size());
   double sum = 0;
   int measured = 0;
@@ -140,7 +141,7 @@ std::string curve_csv(const std::vector<CurvePoint>& curve) {
   // The band's upper end is "inf" when it is open above.
   o << "cpu_seconds,frames,states,dead_ends,unexplored,worst_error_mm,weighted_worst_error_mm,"
        "mean_error_mm,linked_percent,forecast_cpu_hours,forecast_low_cpu_hours,"
-       "forecast_high_cpu_hours\n";
+       "forecast_high_cpu_hours,clips\n";
   for (const auto& p : curve)
     o << p.cpu_seconds << ',' << p.frames << ',' << p.states << ',' << p.dead_ends << ','
       << p.unexplored << ',' << cell(1e3 * p.worst_error) << ','
@@ -149,7 +150,7 @@ std::string curve_csv(const std::vector<CurvePoint>& curve) {
       << cell(p.forecast_low_cpu_seconds / 3600) << ','
       << (std::isinf(p.forecast_high_cpu_seconds) ? "inf"
                                                   : cell(p.forecast_high_cpu_seconds / 3600))
-      << '\n';
+      << ',' << p.clips << '\n';
   return o.str();
 }
 
@@ -191,6 +192,11 @@ std::vector<CurvePoint> read_curve_csv(std::istream& in, const std::string& path
     p.dead_ends = static_cast<int>(number("dead_ends"));
     p.unexplored = static_cast<int>(number("unexplored"));
     if (column.count("linked_percent")) p.linked_fraction = number("linked_percent") / 100;
+    if (column.count("clips"))
+      p.clips = static_cast<long>(number("clips"));
+    else if (p.states > 0 && p.linked_fraction < 1)
+      // An older curve: every clip that did not link made a state (the first state is the start).
+      p.clips = std::lround((p.states - 1) / (1 - p.linked_fraction));
     if (!curve.empty() && p.cpu_seconds < curve.back().cpu_seconds)
       throw std::runtime_error(path + ": line " + std::to_string(row) +
                                ": cpu_seconds goes back in time");
