@@ -8,6 +8,7 @@
 
 #include "bench/solver_accuracy.hpp"
 #include "bench/solver_bench.hpp"
+#include "bench/strain_study.hpp"
 #include "cli_util.hpp"
 #include "commands.hpp"
 #include "report/output.hpp"
@@ -18,6 +19,10 @@ void register_bench_solvers(CLI::App& bench) {
   struct Args {
     std::string scenes, solvers, targets = "1,10", out = "out/bench-solvers";
     AccuracyOptions options;
+    std::vector<std::string> settings;
+    bool strain_study = false, no_references = false;
+    std::string strain_targets = "1";
+    int vertices = 10000;
   };
   auto args = std::make_shared<Args>();
   CLI::App* cmd = bench.add_subcommand(
@@ -85,9 +90,82 @@ void register_bench_solvers(CLI::App& bench) {
       ->capture_default_str()
       ->check(CLI::Range(1, 100000000));
   cmd->add_option("--seed", args->options.seed, "Seed of the perturbations")->capture_default_str();
+  cmd->add_option("--setting", args->settings,
+                  "A solver block as in a scene file, e.g. '{\"name\": \"xpbd\", \"substeps\": "
+                  "40, \"stretch_iterations\": 4, \"strain_limit\": 0.01, "
+                  "\"strain_limit_relaxation\": 1.8, \"chebyshev_rho\": 0.8}'; repeat it for "
+                  "several. Fields left out keep their defaults (tethers on). Run after the sweep, "
+                  "or alone with --strain-study (docs/guide/resolution.md)")
+      ->take_all();
+  cmd->add_flag("--strain-study", args->strain_study,
+                "Instead of the accuracy benchmark: every --setting on every scene, one "
+                "continuous run of --frames frames each: CPU ms per frame, p99 and largest edge "
+                "strain, distance to the same setting at 8x the sub-steps, and per "
+                "--strain-targets the cheapest setting within it. Writes strain.json and "
+                "strain.md");
+  cmd->add_option("--strain-targets", args->strain_targets,
+                  "Comma-separated largest-strain targets in percent (--strain-study)")
+      ->capture_default_str();
+  cmd->add_flag("--no-references", args->no_references,
+                "--strain-study without the 8x-sub-step reference runs (no distance column)");
+  cmd->add_option(
+         "--vertices", args->vertices,
+         "Vertex count of large-sheet in --strain-study (the accuracy benchmark's is 10,000)")
+      ->capture_default_str()
+      ->check(CLI::Range(16, 1000000));
   cmd->add_option("--out", args->out, "Output directory")->capture_default_str();
   cmd->callback([args] {
+    std::vector<SolverCandidate> settings;
+    for (const std::string& text : args->settings) {
+      SolverKind kind = SolverKind::Xpbd;
+      SolverSettings s;
+      parse_solver_settings_json(text, "--setting", &kind, &s);
+      settings.push_back({kind, s, text});
+    }
+    if (args->strain_study) {
+      if (settings.empty())
+        throw std::invalid_argument("--strain-study: give at least one --setting");
+      StrainStudyOptions study;
+      study.settings = settings;
+      study.frames = args->options.frames;
+      study.references = !args->no_references;
+      study.targets.clear();
+      for (const auto& t : split_list(args->strain_targets)) {
+        double v = NAN;
+        try {
+          v = std::stod(t);
+        } catch (const std::exception&) {
+        }
+        if (!(v > 0 && v < 1000))
+          throw std::invalid_argument("--strain-targets: " + t + " is not in (0, 1000) %");
+        study.targets.push_back(v / 100);
+      }
+      SolverBenchOptions scene_options;
+      scene_options.resolution = args->options.resolution;
+      scene_options.large_vertices = args->vertices;
+      std::vector<std::string> names = split_list(args->scenes);
+      if (names.empty()) names = {"large-sheet"};
+      std::vector<ClothScene> scenes;
+      for (const auto& name : names) scenes.push_back(make_bench_scene(name, scene_options));
+      make_directories(args->out);
+      const auto start = std::chrono::steady_clock::now();
+      std::vector<StrainStudy> studies;
+      std::string md;
+      for (const ClothScene& scene : scenes) {
+        studies.push_back(run_strain_study(scene, study, [&](const std::string& line) {
+          const double s =
+              std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+          std::fprintf(stderr, "[%6.1fs] %s\n", s, line.c_str());
+        }));
+        md += strain_study_markdown(studies.back()) + "\n";
+      }
+      write_file_atomic(args->out + "/strain.json", strain_study_json(studies));
+      write_file_atomic(args->out + "/strain.md", md);
+      std::printf("%s\nwrote %s/strain.{json,md}\n", md.c_str(), args->out.c_str());
+      return;
+    }
     AccuracyOptions options = args->options;
+    options.extra = settings;
     options.scenes = split_list(args->scenes);
     options.solvers = split_list(args->solvers);
     for (const auto& s : options.solvers) parse_solver_kind(s);  // fail before any work

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "bender_sheet.hpp"
+#include "database/store/run_settings.hpp"
 #include "hard_cases/hard_cases.hpp"
 #include "solvers/solver.hpp"
 
@@ -43,12 +44,39 @@ int main(int argc, char** argv) {
       ->delimiter(',')
       ->capture_default_str()
       ->check(CLI::Range(1, 1000000));
+  std::vector<std::string> setting_texts;
+  app.add_option("--setting", setting_texts,
+                 "Also our XPBD with this solver block (as in a scene file, e.g. '{\"name\": "
+                 "\"xpbd\", \"stretch_iterations\": 4, \"strain_limit\": 0.01, "
+                 "\"strain_limit_iterations\": 64, \"strain_limit_relaxation\": 1.8, "
+                 "\"chebyshev_rho\": 0.8}'; iterations default 1) at each --substeps count; "
+                 "repeat for several. Bender's CPU is then also given as a ratio to each")
+      ->take_all();
   CLI11_PARSE(app, argc, argv);
+  std::vector<SolverSettings> settings_list;
+  for (const std::string& text : setting_texts) {
+    SolverKind kind = SolverKind::Xpbd;
+    SolverSettings s;
+    s.iterations = 1;
+    try {
+      parse_solver_settings_json(text, "--setting", &kind, &s);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "clothdb_bench_bender: %s\n", e.what());
+      return 2;
+    }
+    if (kind != SolverKind::Xpbd) {
+      std::fprintf(stderr, "clothdb_bench_bender: --setting: name must be xpbd\n");
+      return 2;
+    }
+    s.threads = 1;
+    settings_list.push_back(s);
+  }
   const ClothScene scene = make_large_sheet(vertices);
   std::printf("scene: %s, %d frames at 30 fps, one thread\n\n", scene.description.c_str(), frames);
   std::printf(
       "| solver | sub-steps | CPU ms/frame | CPU vs ours (tethers off) | max strain over the run | "
       "at the last frame |\n|---|---:|---:|---:|---:|---:|\n");
+  std::string ratios;  // printed after the table
   for (int substeps : substep_list) {
     double ours_cpu = 0;
     for (bool tethers : {false, true}) {
@@ -67,12 +95,34 @@ int main(int argc, char** argv) {
                 run.cpu_seconds, frames, max_strain, run.metrics.back().max_strain, run.stable,
                 ours_cpu);
     }
+    std::vector<std::pair<std::string, double>> ours;  // each --setting's label and CPU seconds
+    for (SolverSettings settings : settings_list) {
+      settings.substeps = substeps;
+      auto solver = make_solver(SolverKind::Xpbd, scene.model, settings);
+      const RunResult run = run_scene(scene, *solver, frames, false);
+      double max_strain = 0;
+      for (std::size_t f = 1; f < run.metrics.size(); ++f)
+        max_strain = std::max(max_strain, run.metrics[f].max_strain);
+      const std::string label = "clothdb " + solver->describe();
+      print_row(label.c_str(), substeps, run.cpu_seconds, frames, max_strain,
+                run.metrics.back().max_strain, run.stable, ours_cpu);
+      ours.push_back({label, run.cpu_seconds});
+    }
     const BenderSheetRun single = bender_sheet_float(scene, frames, substeps);
     print_row("Bender PBD, float (as shipped)", substeps, single.cpu_seconds, single.frames,
               single.max_strain, single.last_strain, single.finite, ours_cpu);
     const BenderSheetRun twice = bender_sheet_double(scene, frames, substeps);
     print_row("Bender PBD, double (USE_DOUBLE)", substeps, twice.cpu_seconds, twice.frames,
               twice.max_strain, twice.last_strain, twice.finite, ours_cpu);
+    for (const auto& [label, cpu] : ours) {
+      if (!(cpu > 0)) continue;
+      char line[512];
+      std::snprintf(line, sizeof line,
+                    "- %d sub-steps: Bender's CPU / %s: %.2fx (float), %.2fx (double)\n", substeps,
+                    label.c_str(), single.cpu_seconds / cpu, twice.cpu_seconds / cpu);
+      ratios += line;
+    }
   }
+  if (!ratios.empty()) std::printf("\n%s", ratios.c_str());
   return 0;
 }

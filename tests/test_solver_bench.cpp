@@ -4,6 +4,7 @@
 // cost at a fixed error).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -13,6 +14,7 @@
 
 #include "bench/solver_accuracy.hpp"
 #include "bench/solver_bench.hpp"
+#include "bench/strain_study.hpp"
 #include "hard_cases/hard_cases.hpp"
 #include "solvers/solver.hpp"
 #include "support/cli.hpp"
@@ -246,5 +248,79 @@ TEST(SolverAccuracy, CommandWritesItsTablesAndPlots) {
   EXPECT_EQ(scene["cost_at_target"].size(), 2u);  // xpbd at 1 and 10 mm
   // Every static case, each XPBD setting with and without tethers.
   EXPECT_EQ(j["statics"].size(), static_case_names().size() * 4);
+  std::filesystem::remove_all(out);
+}
+
+// The strain study (`bench solvers --strain-study`, docs/guide/resolution.md) on a small sheet:
+// one row per --setting, p99 at most the largest strain, a distance to the 8x-sub-step run of the
+// same setting, and per target exactly the cheapest setting within it marked (or none).
+TEST(StrainStudy, MarksTheCheapestSettingWithinEachTarget) {
+  const ClothScene scene = make_large_sheet(200);
+  StrainStudyOptions options;
+  options.frames = 3;
+  options.targets = {0.01, 1.0};
+  SolverSettings plain;
+  plain.substeps = 4;
+  plain.iterations = 1;
+  SolverSettings limited = plain;
+  limited.stretch_iterations = 4;
+  limited.strain_limit = 0.01;
+  limited.strain_limit_iterations = 1000;
+  limited.strain_limit_relaxation = 1.8;
+  limited.chebyshev_rho = 0.8;
+  options.settings = {{SolverKind::Xpbd, plain, "plain"}, {SolverKind::Xpbd, limited, "limited"}};
+  const StrainStudy study = run_strain_study(scene, options, nullptr);
+  ASSERT_EQ(study.rows.size(), 2u);
+  for (const StrainStudyRow& r : study.rows) {
+    ASSERT_TRUE(r.stable) << r.message;
+    EXPECT_EQ(r.frames, 3);
+    EXPECT_LE(r.p99_strain, r.max_strain);
+    EXPECT_LE(r.last_strain, r.max_strain);
+    EXPECT_TRUE(std::isfinite(r.reference_rms_mm) && r.reference_rms_mm >= 0) << r.settings;
+    EXPECT_LE(r.reference_rms_mm, r.reference_max_mm);
+    EXPECT_GT(r.reference_cpu_ms_per_frame, r.cpu_ms_per_frame) << r.settings;
+  }
+  // The strain limit (converged: no pass cap reached) holds 1 %; both settings are within 100 %.
+  EXPECT_TRUE(meets_strain_target(study.rows[1].max_strain, 0.01)) << study.rows[1].max_strain;
+  for (double target : options.targets) {
+    int marked = 0;
+    const StrainStudyRow* cheapest = nullptr;
+    for (const StrainStudyRow& r : study.rows) {
+      if (std::count(r.cheapest_for.begin(), r.cheapest_for.end(), target) > 0) ++marked;
+      if (meets_strain_target(r.max_strain, target) &&
+          (!cheapest || r.cpu_ms_per_frame < cheapest->cpu_ms_per_frame))
+        cheapest = &r;
+    }
+    ASSERT_NE(cheapest, nullptr) << target;
+    EXPECT_EQ(marked, 1) << target;
+    EXPECT_EQ(std::count(cheapest->cheapest_for.begin(), cheapest->cheapest_for.end(), target), 1);
+  }
+  EXPECT_NE(strain_study_markdown(study).find("| **1.00 %** |"), std::string::npos);
+}
+
+// The command: --setting blocks parsed as in a scene file (a bad field named), the tables written.
+TEST(StrainStudy, CommandTakesSolverBlocksAndWritesItsTables) {
+  const std::string out = std::string(CLOTHDB_BINARY_DIR) + "/test_bench_strain_out";
+  std::filesystem::remove_all(out);
+  const test::CliResult run = test::run_clothdb(
+      {"bench", "solvers", "--strain-study", "--scenes", "large-sheet", "--vertices", "100",
+       "--frames", "2", "--no-references", "--strain-targets", "5", "--setting",
+       R"({"name": "xpbd", "substeps": 2, "iterations": 1, "tethers": false})", "--out", out},
+      out + ".log");
+  ASSERT_EQ(run.code, 0) << run.output;
+  std::ifstream in(out + "/strain.json");
+  const nlohmann::json j = nlohmann::json::parse(in);
+  ASSERT_EQ(j.size(), 1u);
+  ASSERT_EQ(j[0]["rows"].size(), 1u);
+  EXPECT_NE(j[0]["rows"][0]["settings"].get<std::string>().find("tethers=off"), std::string::npos);
+  EXPECT_TRUE(j[0]["rows"][0]["reference_rms_mm"].is_null());
+  EXPECT_TRUE(std::filesystem::exists(out + "/strain.md"));
+  const test::CliResult bad =
+      test::run_clothdb({"bench", "solvers", "--strain-study", "--setting",
+                         R"({"name": "xpbd", "chebyshev_rho": 2})", "--out", out},
+                        out + ".log");
+  EXPECT_NE(bad.code, 0);
+  EXPECT_NE(bad.output.find("--setting"), std::string::npos) << bad.output;
+  EXPECT_NE(bad.output.find("chebyshev_rho"), std::string::npos) << bad.output;
   std::filesystem::remove_all(out);
 }

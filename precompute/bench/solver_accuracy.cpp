@@ -515,6 +515,10 @@ std::vector<SolverCandidate> accuracy_candidates(const AccuracyOptions& options)
       c.settings.threads = 1;
       out.push_back(c);
     }
+  for (SolverCandidate c : options.extra) {
+    c.settings.threads = 1;
+    out.push_back(c);
+  }
   return out;
 }
 

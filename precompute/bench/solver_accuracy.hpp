@@ -34,12 +34,15 @@ struct AccuracyOptions {
   std::vector<std::string> scenes;   // bench scene names (make_bench_scene); empty: the default set
   std::vector<std::string> solvers;  // empty: all four
   bool quick = false;                // the candidates' quick sweep (two settings per solver)
-  int frames = 30;                   // length of the reference and of every continuous run
-  int resolution = 0;                // nodes per side of the hard cases (0: scene default)
-  int restart_every = 5;             // k: a short-horizon window starts every k frames
-  int horizon = 2;                   // frames run in each window (1-3)
-  int refine = 4;                    // self-convergence: sub-steps x refine
-  int reference_substeps = 16;       // the reference's uniform sub-steps per frame
+  // Settings run after the sweep (e.g. XPBD with a strain limit, Chebyshev-accelerated sweeps or
+  // tethers off: fields the sweep leaves at their defaults), each with its own label.
+  std::vector<SolverCandidate> extra;
+  int frames = 30;                    // length of the reference and of every continuous run
+  int resolution = 0;                 // nodes per side of the hard cases (0: scene default)
+  int restart_every = 5;              // k: a short-horizon window starts every k frames
+  int horizon = 2;                    // frames run in each window (1-3)
+  int refine = 4;                     // self-convergence: sub-steps x refine
+  int reference_substeps = 16;        // the reference's uniform sub-steps per frame
   double reference_tolerance = 1e-7;  // Newton force tolerance (x max vertex weight)
   double perturbation = 1e-6;         // m, the chaos floor's start perturbation
   int ensemble = 4;                   // members of the perturbed reference ensemble (>= 2)
