@@ -90,6 +90,19 @@ Vec3 unit_normal(const Eigen::Matrix3Xd& x, const std::array<int, 3>& t) {
   return len > 0.0 ? Vec3(n / len) : Vec3::Zero();
 }
 
+// Largest float not above d, and smallest not below it (gaps and boxes must not overstate a
+// distance).
+float float_below(double d) {
+  float f = static_cast<float>(d);
+  if (static_cast<double>(f) > d) f = std::nextafter(f, -INFINITY);
+  return f;
+}
+float float_above(double d) {
+  float f = static_cast<float>(d);
+  if (static_cast<double>(f) < d) f = std::nextafter(f, INFINITY);
+  return f;
+}
+
 // Boxes of mesh parts (vertices or edges) in a uniform grid of cubic cells hashed into a table of
 // 2^k buckets (Teschner et al. 2003, with a multiplicative hash so the table index is a shift, not
 // a division). Each entry keeps its cell's key and its box next to each other, so a query reads a
@@ -99,10 +112,12 @@ Vec3 unit_normal(const Eigen::Matrix3Xd& x, const std::array<int, 3>& t) {
 // bucket are in index order (a stable counting sort): the same pairs in the same order for any
 // thread count.
 struct BoxGrid {
+  // Boxes in float, rounded outwards (a superset of the double boxes: the exact tests decide): 40
+  // bytes an entry instead of 64, and a query reads ~150 of them per edge.
   struct Entry {
     std::uint64_t key;
     int index;
-    double lo[3], hi[3];
+    float lo[3], hi[3];
   };
   double inv_cell = 1.0;
   int shift = 63;
@@ -141,8 +156,8 @@ struct BoxGrid {
       box(i, lo, hi);
       extent = extent.cwiseMax(hi - lo);
       for (int k = 0; k < 3; ++k) {
-        e.lo[k] = lo[k];
-        e.hi[k] = hi[k];
+        e.lo[k] = float_below(lo[k]);
+        e.hi[k] = float_above(hi[k]);
       }
       e.index = i;
       e.key = key_of(cell_of(lo[0], inv_cell), cell_of(lo[1], inv_cell), cell_of(lo[2], inv_cell));
@@ -189,12 +204,15 @@ bool listed(const std::vector<int>& begin, const std::vector<int>& items, int ow
 // skip_rest_neighbours). Pairs in (triangle, vertex) and (first edge, second edge) order.
 void find_pairs(const SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
                 double reach, bool skip_rest_neighbours, std::vector<std::array<int, 2>>& vt,
-                std::vector<std::array<int, 2>>& ee) {
+                std::vector<std::array<int, 2>>& ee, std::vector<float>* vt_dist = nullptr,
+                std::vector<float>* ee_dist = nullptr) {
   const ClothMesh& mesh = model.mesh;
   const double* w = model.inv_mass.data();
   const double reach_sq = reach * reach;
   vt.clear();
   ee.clear();
+  if (vt_dist) vt_dist->clear();
+  if (ee_dist) ee_dist->clear();
   if (!x.allFinite() || mesh.edges.empty()) return;  // the solver's sanity check reports it
   // Cells about as large as a query's box (a mean edge grown by the reach on both sides): each
   // query reads a few cells of a few parts.
@@ -215,8 +233,10 @@ void find_pairs(const SelfCollision& sc, const ClothModel& model, const Eigen::M
       if (!triangle_free && w[v] <= 0.0) return;
       if (skip_rest_neighbours && listed(sc.rest_vt_begin, sc.rest_vt, tri, v)) return;
       const Vec3 p = x.col(v);
-      if ((closest_on_triangle(p, a, b, c) - p).squaredNorm() >= reach_sq) return;
+      const double d_sq = (closest_on_triangle(p, a, b, c) - p).squaredNorm();
+      if (d_sq >= reach_sq) return;
       vt.push_back({tri, v});
+      if (vt_dist) vt_dist->push_back(float_below(std::sqrt(d_sq) - sc.thickness));
     });
   }
 
@@ -228,20 +248,41 @@ void find_pairs(const SelfCollision& sc, const ClothModel& model, const Eigen::M
     lo = p.cwiseMin(q);
     hi = p.cwiseMax(q);
   });
-  for (size_t ei = 0; ei < edge_count; ++ei) {
-    const std::array<int, 2>& e1 = mesh.edges[ei];
-    const int first = static_cast<int>(ei);
-    const Vec3 p1 = x.col(e1[0]), q1 = x.col(e1[1]);
-    const bool first_free = w[e1[0]] + w[e1[1]] > 0.0;
-    grid.query(p1.cwiseMin(q1) - grow, p1.cwiseMax(q1) + grow, [&](int e) {
-      if (e <= first) return;
+  // Queried per run of edges that share their first vertex (a vertex's star, about three edges in
+  // the mesh's order): one query of the run's box instead of one per edge, so each entry read is
+  // tested against the run's edges while in cache (docs/notebook/self_collision.md, "Fourth
+  // round").
+  for (size_t run = 0; run < edge_count;) {
+    size_t run_end = run + 1;
+    while (run_end < edge_count && mesh.edges[run_end][0] == mesh.edges[run][0]) ++run_end;
+    Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
+    for (size_t ei = run; ei < run_end; ++ei) {
+      const Vec3 p = x.col(mesh.edges[ei][0]), q = x.col(mesh.edges[ei][1]);
+      lo = lo.cwiseMin(p.cwiseMin(q));
+      hi = hi.cwiseMax(p.cwiseMax(q));
+    }
+    grid.query(lo - grow, hi + grow, [&](int e) {
       const std::array<int, 2>& e2 = mesh.edges[static_cast<size_t>(e)];
-      if (e2[0] == e1[0] || e2[0] == e1[1] || e2[1] == e1[0] || e2[1] == e1[1]) return;
-      if (!first_free && w[e2[0]] + w[e2[1]] <= 0.0) return;
-      if (skip_rest_neighbours && listed(sc.rest_ee_begin, sc.rest_ee, first, e)) return;
-      if (segment_distance_sq(p1, q1, x.col(e2[0]), x.col(e2[1])) >= reach_sq) return;
-      ee.push_back({first, e});
+      const Vec3 p2 = x.col(e2[0]), q2 = x.col(e2[1]);
+      const Vec3 lo2 = p2.cwiseMin(q2) - grow, hi2 = p2.cwiseMax(q2) + grow;
+      const bool second_free = w[e2[0]] + w[e2[1]] > 0.0;
+      for (size_t ei = run; ei < run_end && static_cast<int>(ei) < e; ++ei) {
+        const std::array<int, 2>& e1 = mesh.edges[ei];
+        const int first = static_cast<int>(ei);
+        const Vec3 p1 = x.col(e1[0]), q1 = x.col(e1[1]);
+        if ((p1.cwiseMin(q1).array() > hi2.array()).any() ||
+            (p1.cwiseMax(q1).array() < lo2.array()).any())
+          continue;
+        if (e2[0] == e1[0] || e2[0] == e1[1] || e2[1] == e1[0] || e2[1] == e1[1]) continue;
+        if (!second_free && w[e1[0]] + w[e1[1]] <= 0.0) continue;
+        if (skip_rest_neighbours && listed(sc.rest_ee_begin, sc.rest_ee, first, e)) continue;
+        const double d_sq = segment_distance_sq(p1, q1, p2, q2);
+        if (d_sq >= reach_sq) continue;
+        ee.push_back({first, e});
+        if (ee_dist) ee_dist->push_back(float_below(std::sqrt(d_sq) - sc.thickness));
+      }
     });
+    run = run_end;
   }
 }
 
@@ -258,8 +299,49 @@ void to_rows(const std::vector<std::array<int, 2>>& pairs, int owners, std::vect
     items[static_cast<std::size_t>(fill[static_cast<std::size_t>(p[0])]++)] = p[1];
 }
 
+// Sorts pairs (and their gaps) by (first, second): a counting sort by the first index (owners of
+// them), then insertion sort within each owner's few pairs. The Gauss-Seidel order of the contacts
+// is then the pairs' own order, whatever order the grid found them in (the crossings left depend on
+// that order: docs/notebook/self_collision.md, "Fourth round").
+void sort_pairs(std::vector<std::array<int, 2>>& pairs, std::vector<float>& gaps, int owners,
+                std::vector<int>& begin, std::vector<std::array<int, 2>>& pairs_out,
+                std::vector<float>& gaps_out) {
+  begin.assign(static_cast<std::size_t>(owners) + 1, 0);
+  for (const auto& p : pairs) ++begin[static_cast<std::size_t>(p[0]) + 1];
+  for (int o = 0; o < owners; ++o)
+    begin[static_cast<std::size_t>(o) + 1] += begin[static_cast<std::size_t>(o)];
+  pairs_out.resize(pairs.size());
+  gaps_out.resize(gaps.size());
+  for (std::size_t k = 0; k < pairs.size(); ++k) {
+    const auto slot = static_cast<std::size_t>(begin[static_cast<std::size_t>(pairs[k][0])]++);
+    pairs_out[slot] = pairs[k];
+    gaps_out[slot] = gaps[k];
+  }
+  // begin[o] now holds the end of owner o's run, which is the start of o + 1's; sort each run.
+  std::size_t start = 0;
+  for (int o = 0; o < owners; ++o) {
+    const auto end = static_cast<std::size_t>(begin[static_cast<std::size_t>(o)]);
+    for (std::size_t a = start + 1; a < end; ++a)
+      for (std::size_t b = a; b > start && pairs_out[b][1] < pairs_out[b - 1][1]; --b) {
+        std::swap(pairs_out[b], pairs_out[b - 1]);
+        std::swap(gaps_out[b], gaps_out[b - 1]);
+      }
+    start = end;
+  }
+  pairs.swap(pairs_out);
+  gaps.swap(gaps_out);
+}
+
 void build_candidates(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x) {
-  find_pairs(sc, model, x, sc.thickness + sc.skin, true, sc.vertex_triangle, sc.edge_edge);
+  find_pairs(sc, model, x, sc.thickness + sc.skin, true, sc.vertex_triangle, sc.edge_edge,
+             &sc.vertex_triangle_gap, &sc.edge_edge_gap);
+  std::vector<int> begin;
+  std::vector<std::array<int, 2>> pairs_out;
+  std::vector<float> gaps_out;
+  sort_pairs(sc.vertex_triangle, sc.vertex_triangle_gap,
+             static_cast<int>(model.mesh.triangles.size()), begin, pairs_out, gaps_out);
+  sort_pairs(sc.edge_edge, sc.edge_edge_gap, static_cast<int>(model.mesh.edges.size()), begin,
+             pairs_out, gaps_out);
   sc.built_at = x;
   ++sc.builds;
 }
@@ -290,28 +372,55 @@ SelfCollision make_self_collision(const ClothModel& model, double thickness) {
   return sc;
 }
 
-bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x) {
-  bool stale = sc.built_at.cols() != x.cols();
+namespace {
+
+// The centre of the box of the displacements x - built: the common motion m the bounds are taken
+// relative to (any common vector keeps |d_i - d_j| <= |d_i - m| + |d_j - m|).
+Vec3 common_motion(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& built) {
+  Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
+  for (Eigen::Index i = 0; i < x.cols(); ++i) {
+    const Vec3 d = x.col(i) - built.col(i);
+    lo = lo.cwiseMin(d);
+    hi = hi.cwiseMax(d);
+  }
+  return 0.5 * (lo + hi);
+}
+
+// moved[i] = max(moved[i], |x_i - built_i - m|) for m the common motion of x.
+void raise_moved(std::vector<double>& moved, const Eigen::Matrix3Xd& x,
+                 const Eigen::Matrix3Xd& built) {
+  const Vec3 m = common_motion(x, built);
+  for (Eigen::Index i = 0; i < x.cols(); ++i)
+    moved[static_cast<std::size_t>(i)] =
+        std::max(moved[static_cast<std::size_t>(i)], (x.col(i) - built.col(i) - m).norm());
+}
+
+}  // namespace
+
+bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
+                            const Eigen::Matrix3Xd& x_start) {
+  bool stale = sc.built_at.cols() != x.cols() || sc.moved.size() != std::size_t(x.cols());
   if (!stale && x.cols() > 0) {
     // A pair's distance changes by at most |d_i - d_j| <= |d_i - m| + |d_j - m| for the vertex
     // displacements d since the build and any common m: measured from the centre of the
     // displacements' box, a garment carried along by the body (a walk, a jump) keeps its lists
-    // for as long as its shape changes by less than skin / 2.
-    // Two passes over the positions, no scratch matrix: this runs every sub-step.
-    Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
-    for (Eigen::Index i = 0; i < x.cols(); ++i) {
-      const Vec3 d = x.col(i) - sc.built_at.col(i);
-      lo = lo.cwiseMin(d);
-      hi = hi.cwiseMax(d);
-    }
-    const Vec3 m = 0.5 * (lo + hi);
+    // for as long as its shape changes by less than skin / 2. No scratch matrix: this runs every
+    // sub-step.
+    const Vec3 m = common_motion(x, sc.built_at);
     const double limit = 0.25 * sc.skin * sc.skin;
     double worst = 0.0;
     for (Eigen::Index i = 0; i < x.cols(); ++i)
       worst = std::max(worst, (x.col(i) - sc.built_at.col(i) - m).squaredNorm());
     stale = !(worst <= limit);  // NaN positions rebuild (and the solver's check reports them)
   }
-  if (stale) build_candidates(sc, model, x);
+  if (stale) {
+    build_candidates(sc, model, x);
+    sc.moved.assign(static_cast<std::size_t>(x.cols()), 0.0);
+  }
+  // The bounds cover the sub-step's start too (its side decides a contact), and the positions left
+  // by the constraints after the last pass.
+  raise_moved(sc.moved, x, sc.built_at);
+  raise_moved(sc.moved, x_start, sc.built_at);
   return stale;
 }
 
@@ -325,9 +434,22 @@ int project_self_collision(SelfCollision& sc, const ClothModel& model, Eigen::Ma
   // the triangle's plane, sigma the side p was on at the sub-step's start. Gradients sigma n for p
   // and -sigma b_k n for the corners (the normal's own derivative is left out, as usual for
   // contacts); the PBD step moves each by -C w grad / sum w |grad|^2 (Mueller 2007 eq. 4-5).
-  for (const std::array<int, 2>& pair : sc.vertex_triangle) {
+  double* moved = sc.moved.data();
+  // A vertex moved by `step` moves its pairs' distances by at most |step|.
+  auto move = [&](int i, const Vec3& step) {
+    x.col(i) += step;
+    moved[i] += step.norm();
+  };
+  for (std::size_t k = 0; k < sc.vertex_triangle.size(); ++k) {
+    const std::array<int, 2>& pair = sc.vertex_triangle[k];
     const int v = pair[1];
     const std::array<int, 3>& t = mesh.triangles[static_cast<size_t>(pair[0])];
+    // Farther than the thickness now and at the sub-step's start (the distance to a triangle moves
+    // by at most its farthest-moved corner's motion): no contact, and no crossing within the
+    // sub-step by less than the thickness.
+    if (double(sc.vertex_triangle_gap[k]) >
+        moved[v] + std::max({moved[t[0]], moved[t[1]], moved[t[2]]}))
+      continue;
     // Normals per pair, not cached per triangle: on the 12k skirt about twice as many normals
     // (51k listed pairs, 24k triangles); not measured apart.
     const Vec3 n = unit_normal(x, t), n0 = unit_normal(x_start, t);
@@ -352,19 +474,23 @@ int project_self_collision(SelfCollision& sc, const ClothModel& model, Eigen::Ma
     const double denom = wv + w0 * b0 * b0 + w1 * b1 * b1 + w2 * b2 * b2;
     if (!(denom > 0.0)) continue;
     const Vec3 step = (-c / denom * sigma) * n;
-    x.col(v) += wv * step;
-    x.col(t[0]) -= (w0 * b0) * step;
-    x.col(t[1]) -= (w1 * b1) * step;
-    x.col(t[2]) -= (w2 * b2) * step;
+    move(v, wv * step);
+    move(t[0], -(w0 * b0) * step);
+    move(t[1], -(w1 * b1) * step);
+    move(t[2], -(w2 * b2) * step);
     ++contacts;
   }
   // Edge-edge: C = (P - Q) . n - h >= 0 with P, Q the closest points, n their unit direction, or,
   // when the interior closest points have swapped sides since the sub-step's start (the edges
   // went through each other), the direction they had then. Gradients (1 - s) n, s n, -(1 - t) n,
   // -t n.
-  for (const std::array<int, 2>& pair : sc.edge_edge) {
+  for (std::size_t k = 0; k < sc.edge_edge.size(); ++k) {
+    const std::array<int, 2>& pair = sc.edge_edge[k];
     const std::array<int, 2>& e1 = mesh.edges[static_cast<size_t>(pair[0])];
     const std::array<int, 2>& e2 = mesh.edges[static_cast<size_t>(pair[1])];
+    if (double(sc.edge_edge_gap[k]) >
+        std::max(moved[e1[0]], moved[e1[1]]) + std::max(moved[e2[0]], moved[e2[1]]))
+      continue;
     const Vec3 p1 = x.col(e1[0]), q1 = x.col(e1[1]), p2 = x.col(e2[0]), q2 = x.col(e2[1]);
     // Most listed pairs are farther apart than the thickness both now and at the sub-step's
     // start: skip them before the closest points (a pair that went through each other and on by
@@ -396,10 +522,10 @@ int project_self_collision(SelfCollision& sc, const ClothModel& model, Eigen::Ma
     const double denom = w0 * (1 - s) * (1 - s) + w1 * s * s + w2 * (1 - t) * (1 - t) + w3 * t * t;
     if (!(denom > 0.0)) continue;
     const Vec3 step = (-c / denom) * n;
-    x.col(e1[0]) += (w0 * (1 - s)) * step;
-    x.col(e1[1]) += (w1 * s) * step;
-    x.col(e2[0]) -= (w2 * (1 - t)) * step;
-    x.col(e2[1]) -= (w3 * t) * step;
+    move(e1[0], (w0 * (1 - s)) * step);
+    move(e1[1], (w1 * s) * step);
+    move(e2[0], -(w2 * (1 - t)) * step);
+    move(e2[1], -(w3 * t) * step);
     ++contacts;
   }
   return contacts;

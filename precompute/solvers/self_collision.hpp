@@ -10,10 +10,14 @@
 // garment's common motion (a pair's distance changes by at most the sum of two vertex
 // displacements relative to any common vector), which is checked every sub-step in O(vertices). So
 // a slowly moving garment is hashed once every few frames, a fast one a few times per frame, and
-// every sub-step tests only the listed pairs. Pairs nearer than the thickness in the rest shape
-// (neighbours on the mesh) are found once, in make_self_collision, and skipped by a scan of a short
-// row instead of a closest-point test at every build (docs/notebook/self_collision.md, "Cost,
-// second round", also for why pairs up to thickness + skin apart at rest must stay listed).
+// every sub-step tests only the listed pairs, and of those only the ones whose distance at the
+// build (less the thickness) is not more than their parts have moved since (`moved`): most listed
+// pairs are flat-sheet neighbours that never come within the thickness. A build's lists are sorted
+// by (first, second), so the contacts' Gauss-Seidel order does not depend on how the grid found
+// them. Pairs nearer than the thickness in the rest shape (neighbours on the mesh) are found once,
+// in make_self_collision, and skipped by a scan of a short row instead of a closest-point test at
+// every build (docs/notebook/self_collision.md, "Cost, second round", also for why pairs up to
+// thickness + skin apart at rest must stay listed).
 //
 // Side: each contact is pushed to the side its pair was on at the start of the sub-step, so a
 // pair that went through within one sub-step is put back, not pushed further through.
@@ -46,8 +50,16 @@ struct SelfCollision {
   // mesh.edges, the first less than the second.
   std::vector<std::array<int, 2>> vertex_triangle;
   std::vector<std::array<int, 2>> edge_edge;
+  // Per listed pair, its distance at the build minus the thickness (m, rounded down to float): how
+  // far its parts must still move towards each other before it can be in contact.
+  std::vector<float> vertex_triangle_gap, edge_edge_gap;
   Eigen::Matrix3Xd built_at;  // positions at the last build (empty: never built)
-  long builds = 0;            // how many builds so far (reported by describe / benchmarks)
+  // Per vertex, a bound (m) on how far it has moved since the build relative to the garment's
+  // common motion, over every position a pass may see (the sub-step's start and now, and each move
+  // of the passes): a pair whose gap exceeds the sum of its parts' bounds cannot be in contact and
+  // is skipped (docs/notebook/self_collision.md, "Fourth round").
+  std::vector<double> moved;
+  long builds = 0;  // how many builds so far (reported by describe / benchmarks)
 };
 
 // A SelfCollision for `model` with thickness (m) > 0. The skin is half the mean rest edge length,
@@ -55,9 +67,11 @@ struct SelfCollision {
 // lists hold a few pairs per vertex.
 SelfCollision make_self_collision(const ClothModel& model, double thickness);
 
-// Rebuilds the candidate lists if they may be incomplete for positions x (or were never built).
-// Returns whether it rebuilt.
-bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x);
+// Rebuilds the candidate lists if they may be incomplete for positions x (or were never built), and
+// brings the per-vertex motion bounds up to x and x_start (the sub-step's start). Returns whether
+// it rebuilt.
+bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
+                            const Eigen::Matrix3Xd& x_start);
 
 // One Gauss-Seidel pass over the listed pairs at positions x (moved in place), with x_start the
 // positions at the start of the sub-step (which side each pair was on). Returns the number of

@@ -693,7 +693,7 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
       if (self_.thickness > 0.0) {
 #pragma omp single
         {
-          refresh_self_collision(self_, model_, state.x);
+          refresh_self_collision(self_, model_, state.x, x_prev);
           // Up to three Gauss-Seidel passes, until one projects no contact: a single pass left
           // crossings that the next sub-steps then kept (each pair's side is taken at the
           // sub-step's start), docs/notebook/self_collision.md, "Third round".
