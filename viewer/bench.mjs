@@ -27,6 +27,9 @@ const viewer = await startViewer(clothdb, db);
 if (args.includes('--no-browser')) {
   const n = Number(batch || 4), wait = Number(opt('wait', 0)), frames = Number(opt('frames', 1200));
   const stats = async () => (await fetch(viewer.url + 'api/stats')).json();
+  // Not while the server decodes every clip into its cache at start (cli/cmd_view.cpp,
+  // warm_cache): a page takes longer than that to load.
+  while ((await stats()).warming) await new Promise((r) => setTimeout(r, 50));
   const s0 = await stats();
   for (let i = 0; i < frames / n; ++i)
     await (await fetch(viewer.url + `api/frames?dt=0.016667&n=${n}&wait=${wait}`)).arrayBuffer();
