@@ -3,16 +3,16 @@
 // and the clip table of `clothdb clips list` (docs/guide/viewer.md).
 //
 // How frames reach the page: cpp-httplib 0.11 (Debian) has no WebSocket, so the page pulls, over
-// a keep-alive connection: `GET /api/frames?dt=SECONDS&n=4&wait=MS` advances the server's one
-// player four times by dt and answers with the four frames' cloth on the render mesh (the artist's
-// vertices, seam copies split: positions, then normals, character space, float32, from
-// clothrt_player_get_render_mesh) and body capsules as the body and the player's state at each as a
-// JSON header. The page shows one per animation frame and always has the next request in flight,
-// held by the server for `wait` ms (until the page's queue runs low), so a request's fixed cost is
-// shared by four frames, its latency is hidden, and the connection never idles in cpp-httplib's
-// polling keep-alive loop (the body's capsules come with each frame for the same reason: no other
-// connection is kept busy). The render mesh's triangles and the clip table are fetched once. Nobody
-// asking (a paused page) costs nothing.
+// a keep-alive connection: `GET /api/frames?dt=SECONDS&n=8&wait=MS` advances the server's one
+// player eight times by dt and answers with the eight frames' cloth on the render mesh (the
+// artist's vertices, seam copies split: positions and normals in character space from
+// clothrt_player_get_render_mesh, quantised: wire_frame_bytes) and body capsules as the body and
+// the player's state at each as a JSON header. The page shows one per animation frame and always
+// has the next request in flight, held by the server for `wait` ms (until the page's queue runs
+// low), so a request's fixed cost is shared by eight frames, its latency is hidden, and the
+// connection never idles in cpp-httplib's polling keep-alive loop (the body's capsules come with
+// each frame for the same reason: no other connection is kept busy). The render mesh's triangles
+// and the clip table are fetched once. Nobody asking (a paused page) costs nothing.
 #include <pthread.h>
 #include <signal.h>
 #include <sys/resource.h>

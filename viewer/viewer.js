@@ -12,7 +12,7 @@ import {OrbitControls} from 'three/addons/controls/OrbitControls.js';
 const SLOW = 0.25;       // slow-motion factor
 const MAX_STEP = 0.1;    // s: a longer gap (a hidden tab, a stall) plays as this
 // Frames per request (cli/cmd_view.cpp: how frames reach the page); ?batch=N overrides it.
-const BATCH = Math.max(1, Math.min(16, Number(new URLSearchParams(location.search).get('batch')) || 4));
+const BATCH = Math.max(1, Math.min(16, Number(new URLSearchParams(location.search).get('batch')) || 8));
 const BACKGROUND = 0xdfe4ea;
 
 // Everything the page measures and shows; also read by the browser test and the benchmark
