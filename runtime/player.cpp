@@ -894,14 +894,21 @@ CLOTHRT_MULTIVERSION void tangent_frames(const float* __restrict nx, const float
 void copy_rows(const float* __restrict p, float* __restrict po, size_t ps,
                const float* __restrict q, size_t n, float* __restrict qo, size_t qs,
                const uint32_t* __restrict sim, size_t rn) {
-  if (po)
-    for (size_t r = 0; r < rn; ++r) std::memcpy(po + r * ps, p + 3 * size_t(sim[3 * r]), 12);
-  if (qo)
+  auto normal = [&](size_t r, size_t v) {
+    float* o = qo + r * qs;
+    o[0] = q[v], o[1] = q[n + v], o[2] = q[2 * n + v];
+  };
+  if (po && qo) {  // one pass over the caller's buffer (interleaved: each line touched once)
     for (size_t r = 0; r < rn; ++r) {
       const size_t v = sim[3 * r];
-      float* o = qo + r * qs;
-      o[0] = q[v], o[1] = q[n + v], o[2] = q[2 * n + v];
+      std::memcpy(po + r * ps, p + 3 * v, 12);
+      normal(r, v);
     }
+  } else if (po) {
+    for (size_t r = 0; r < rn; ++r) std::memcpy(po + r * ps, p + 3 * size_t(sim[3 * r]), 12);
+  } else if (qo) {
+    for (size_t r = 0; r < rn; ++r) normal(r, sim[3 * r]);
+  }
 }
 
 // A vector of a render vertex from per-simulation-vertex values in planes (plane stride n): the
