@@ -3,19 +3,25 @@
 // and the clip table of `clothdb clips list` (docs/guide/viewer.md).
 //
 // How frames reach the page: cpp-httplib 0.11 (Debian) has no WebSocket, so the page pulls, over
-// a keep-alive connection: `GET /api/frames?dt=SECONDS&n=4&wait=MS` advances the server's one
-// player four times by dt and answers with the four frames' cloth on the render mesh (the artist's
-// vertices, seam copies split: positions, then normals, character space, float32, from
-// clothrt_player_get_render_mesh) and body capsules as the body and the player's state at each as a
-// JSON header. The page shows one per animation frame and always has the next request in flight,
-// held by the server for `wait` ms (until the page's queue runs low), so a request's fixed cost is
-// shared by four frames, its latency is hidden, and the connection never idles in cpp-httplib's
-// polling keep-alive loop (the body's capsules come with each frame for the same reason: no other
-// connection is kept busy). The render mesh's triangles and the clip table are fetched once. Nobody
-// asking (a paused page) costs nothing.
+// a keep-alive connection: `GET /api/frames?dt=SECONDS&n=8&wait=MS` advances the server's one
+// player eight times by dt and answers with the eight frames' cloth on the render mesh (the
+// artist's vertices, seam copies split: positions and normals in character space from
+// clothrt_player_get_render_mesh, quantised: wire_frame_bytes) and body capsules as the body and
+// the player's state at each as a JSON header. The page shows one per animation frame and always
+// has the next request in flight, held by the server for `wait` ms (until the page's queue runs
+// low), so a request's fixed cost is shared by eight frames, its latency is hidden, and the
+// connection never idles in cpp-httplib's polling keep-alive loop (the body's capsules come with
+// each frame for the same reason: no other connection is kept busy). The render mesh's triangles
+// and the clip table are fetched once. Nobody asking (a paused page) costs nothing.
 #include <pthread.h>
 #include <signal.h>
 #include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include <algorithm>
 #include <atomic>
@@ -101,13 +107,45 @@ struct Viewer {
 
   std::mutex mu;
   uint64_t frames_served = 0;
-  double last_us = 0;  // advance + positions of the last frame, µs
+  double last_us = 0;          // advance + positions of the last frame, µs
+  std::vector<float> scratch;  // one frame's positions and normals as floats (under mu)
+
+  // Answer bodies of /api/frames, handed back when cpp-httplib is done with them: a batch is
+  // about 100 KB, and a fresh one per request cost page faults and zero-filling every time.
+  std::mutex pool_mu;
+  std::vector<std::string> pool;
+
+  // Decodes every cloth clip once at start (warm_cache), so that frames served later never wait
+  // for, nor pay for, decoding.
+  std::thread warm;
+  std::atomic<bool> stopping{false}, warming{false};
 
   ~Viewer() {
+    stopping = true;
+    if (warm.joinable()) warm.join();
     clothrt_player_destroy(player);
     clothrt_db_close(db);
   }
 };
+
+// One frame of /api/frames on the wire (viewer.js reads it; docs/guide/viewer.md, "How frames
+// reach the page"), native byte order (little-endian on every machine a browser runs on):
+//   4 float32      origin x, y, z and step: position = origin + step * q
+//   7 c float32    the body's capsules (ax, ay, az, bx, by, bz, radius)
+//   3 n int16      positions q, character space, over the frame's bounding box
+//   3 n int8       unit normals times 127
+//   0..3 bytes     padding to a multiple of 4
+// Quantised because sending was a sixth of the server's CPU with 71 KB a frame as float32 (the TCP
+// writes and the loopback delivery; docs/notebook/viewer.md): 9 bytes a vertex instead of 24, and
+// less for the page to take in. The step
+// is the box's largest half-extent / 32767 (a 1 m skirt: 15 µm, so at most 8 µm off), and normals
+// are within 0.5 degrees: both below what the picture shows.
+constexpr size_t kFrameHeadFloats = 4;
+
+size_t wire_frame_bytes(size_t vertices, size_t capsules) {
+  const size_t b = (kFrameHeadFloats + 7 * capsules) * sizeof(float) + 9 * vertices;
+  return (b + 3) / 4 * 4;
+}
 
 void check(Viewer& v, int rc, const std::string& what) {
   if (rc != CLOTHRT_OK)
@@ -205,27 +243,76 @@ void load_body(Viewer& v, const std::string& scene_file) {
   }
 }
 
+// Bytes of every cloth clip decoded, at most (float32 coordinates; the cache may hold them as
+// 16-bit).
+size_t decoded_bytes(const std::vector<db::ClothClip>& clips, uint32_t vertices) {
+  size_t frames = 0;
+  for (const auto& c : clips) frames += size_t(std::max(c.frame_count, 0));
+  return frames * vertices * 3 * sizeof(float);
+}
+
+// The largest decoded database the viewer holds in memory whole (a workstation's viewer; larger
+// files play with the runtime's default cache and its prefetching).
+constexpr size_t kWholeCacheBytes = size_t(1) << 30;
+
+// On a thread of its own, a second player starts every cloth clip once: the clips are decoded
+// into the shared cache while the page loads, instead of while frames are served (where decoding
+// the clips the random walk reached was about a sixth of the server's CPU).
+void warm_cache(Viewer& v) {
+  v.warming = true;
+  v.warm = std::thread([&v] {
+    // At a lower priority (Linux: per thread), so the page's own loading comes first on a small
+    // machine.
+    setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 10);
+    const auto t0 = Clock::now();
+    clothrt_player* p = nullptr;
+    if (clothrt_player_create(v.db, &p) != CLOTHRT_OK) return;
+    size_t done = 0;
+    for (const int64_t id : v.cloth_clip_ids) {
+      if (v.stopping) break;
+      if (clothrt_player_start_cloth_clip(p, id) == CLOTHRT_OK) ++done;
+    }
+    clothrt_player_destroy(p);
+    v.warming = false;
+    std::fprintf(stderr, "view: %zu cloth clips decoded into the cache in %.2f s\n", done,
+                 std::chrono::duration<double>(Clock::now() - t0).count());
+  });
+}
+
 void open_viewer(Viewer& v, const ViewArgs& a) {
   v.file = a.file;
   clothrt_db_options options;
   clothrt_db_options_init(&options);
-  const int rc = clothrt_db_open(a.file.c_str(), &options, &v.db);
+  int rc = clothrt_db_open(a.file.c_str(), &options, &v.db);
   if (rc != CLOTHRT_OK)
     throw std::runtime_error(std::string(clothrt_last_open_errmsg()) + " (" +
                              clothrt_status_name(rc) + ")");
+  std::vector<db::ClothClip> cloth_clips;
+  {
+    db::Reader reader = open_reader(a.file);
+    db::Error err;
+    if (reader.cloth_clips(&cloth_clips, &err) != db::Status::Ok)
+      throw std::runtime_error(err.message);
+  }
+  // Room for every clip decoded, when that is at most kWholeCacheBytes (warm_cache fills it).
+  const size_t whole = decoded_bytes(cloth_clips, clothrt_db_vertex_count(v.db));
+  const bool keep_all = whole > 0 && whole <= kWholeCacheBytes;
+  if (keep_all && whole + whole / 4 > options.cache_bytes) {
+    clothrt_db_close(v.db);
+    v.db = nullptr;
+    options.cache_bytes = whole + whole / 4;
+    rc = clothrt_db_open(a.file.c_str(), &options, &v.db);
+    if (rc != CLOTHRT_OK)
+      throw std::runtime_error(std::string(clothrt_last_open_errmsg()) + " (" +
+                               clothrt_status_name(rc) + ")");
+  }
   // The render mesh (clothrt.h): what a game draws, with normals from the runtime.
   v.vertices = clothrt_db_render_vertex_count(v.db);
   v.triangles.resize(size_t(clothrt_db_render_triangle_count(v.db)) * 3);
   if (clothrt_db_render_triangles(v.db, v.triangles.data(), v.triangles.size()) != CLOTHRT_OK)
     throw std::runtime_error(a.file + ": triangles: " + clothrt_db_errmsg(v.db));
-  {
-    db::Reader reader = open_reader(a.file);
-    std::vector<db::ClothClip> clips;
-    db::Error err;
-    if (reader.cloth_clips(&clips, &err) != db::Status::Ok) throw std::runtime_error(err.message);
-    for (const auto& c : clips) v.cloth_clip_ids.push_back(c.id);
-    std::sort(v.cloth_clip_ids.begin(), v.cloth_clip_ids.end());
-  }
+  for (const auto& c : cloth_clips) v.cloth_clip_ids.push_back(c.id);
+  std::sort(v.cloth_clip_ids.begin(), v.cloth_clip_ids.end());
   json clips = json::array();
   for (size_t i = 0; i < clothrt_db_clip_count(v.db); ++i) {
     clothrt_clip_info ci;
@@ -250,6 +337,7 @@ void open_viewer(Viewer& v, const ViewArgs& a) {
                                         nullptr,      0};
   check(v, clothrt_player_get_render_mesh(v.player, &first_out, nullptr), a.file + ": positions");
   load_body(v, a.scene);
+  if (keep_all) warm_cache(v);
 
   json metrics = json::array();
   for (const ClipMetricName& m : clip_metrics())
@@ -262,6 +350,7 @@ void open_viewer(Viewer& v, const ViewArgs& a) {
             {"metrics", metrics},
             {"body", v.body_note.empty()},
             {"capsules", v.capsule_count},
+            {"frame_bytes", wire_frame_bytes(v.vertices, v.capsule_count)},
             {"body_note", v.body_note}};
 }
 
@@ -376,6 +465,97 @@ void reply(httplib::Response& res, std::string body, const char* type) {
                            });
 }
 
+// Writes one frame (positions p, normals nr: 3 n floats each; capsules already at their place
+// after the head) at `out`.
+void quantise_frame(const float* p, const float* nr, size_t n, size_t capsules, char* out) {
+  // The box: NaN fails every comparison and is left out (branch-free, so the loops vectorise).
+  float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  for (size_t v = 0; v < n; ++v)
+    for (int k = 0; k < 3; ++k) {
+      const float x = p[3 * v + size_t(k)];
+      lo[k] = x < lo[k] ? x : lo[k];
+      hi[k] = x > hi[k] ? x : hi[k];
+    }
+  float head[kFrameHeadFloats];
+  float half = 0;
+  for (int k = 0; k < 3; ++k) {
+    const bool ok = lo[k] <= hi[k] && std::isfinite(hi[k] - lo[k]);
+    head[k] = ok ? 0.5f * (lo[k] + hi[k]) : 0.0f;
+    half = std::max(half, ok ? 0.5f * (hi[k] - lo[k]) : 0.0f);
+  }
+  const float step = half > 0 ? half / 32767.0f : 1.0f;
+  head[3] = step;
+  std::memcpy(out, head, sizeof head);
+  const float inv = 1.0f / step;
+  int16_t* q = reinterpret_cast<int16_t*>(out + (kFrameHeadFloats + 7 * capsules) * sizeof(float));
+  int8_t* qn = reinterpret_cast<int8_t*>(q + 3 * n);
+  size_t i = 0;
+#if defined(__SSE2__)
+  // Four vertices (12 floats) at a time: rounded to nearest by the conversion, clamped by the
+  // saturating packs (NaN, never expected, becomes the most negative value). The scalar code with
+  // std::lrint (a libm call per value) or branches took longer than the socket writes it saved.
+  const __m128 o0 = _mm_setr_ps(head[0], head[1], head[2], head[0]);
+  const __m128 o1 = _mm_setr_ps(head[1], head[2], head[0], head[1]);
+  const __m128 o2 = _mm_setr_ps(head[2], head[0], head[1], head[2]);
+  const __m128 s = _mm_set1_ps(inv), s8 = _mm_set1_ps(127.0f);
+  for (; i + 12 <= 3 * n; i += 12) {
+    const __m128i a = _mm_cvtps_epi32(_mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(p + i), o0), s));
+    const __m128i b = _mm_cvtps_epi32(_mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(p + i + 4), o1), s));
+    const __m128i c = _mm_cvtps_epi32(_mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(p + i + 8), o2), s));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(q + i), _mm_packs_epi32(a, b));
+    _mm_storel_epi64(reinterpret_cast<__m128i*>(q + i + 8), _mm_packs_epi32(c, c));
+    const __m128i na = _mm_cvtps_epi32(_mm_mul_ps(_mm_loadu_ps(nr + i), s8));
+    const __m128i nb = _mm_cvtps_epi32(_mm_mul_ps(_mm_loadu_ps(nr + i + 4), s8));
+    const __m128i nc = _mm_cvtps_epi32(_mm_mul_ps(_mm_loadu_ps(nr + i + 8), s8));
+    const __m128i n8 = _mm_packs_epi16(_mm_packs_epi32(na, nb), _mm_packs_epi32(nc, nc));
+    _mm_storel_epi64(reinterpret_cast<__m128i*>(qn + i), n8);
+    const int last = _mm_cvtsi128_si32(_mm_srli_si128(n8, 8));
+    std::memcpy(qn + i + 8, &last, 4);
+  }
+#endif
+  auto round_to = [](float t, float lim) {
+    t = std::min(lim, std::max(-lim, t));
+    return int(std::nearbyint(t));
+  };
+  for (; i < 3 * n; ++i) {
+    q[i] = int16_t(round_to((p[i] - head[i % 3]) * inv, 32767.0f));
+    qn[i] = int8_t(round_to(nr[i] * 127.0f, 127.0f));
+  }
+  std::memset(
+      qn + 3 * n, 0,
+      wire_frame_bytes(n, capsules) - (kFrameHeadFloats + 7 * capsules) * sizeof(float) - 9 * n);
+}
+
+// A pooled body for /api/frames with `bytes` bytes (contents left as they were).
+std::string take_body(Viewer& v, size_t bytes) {
+  std::string body;
+  {
+    std::lock_guard<std::mutex> lock(v.pool_mu);
+    if (!v.pool.empty()) {
+      body = std::move(v.pool.back());
+      v.pool.pop_back();
+    }
+  }
+  body.resize(bytes);
+  return body;
+}
+
+// As reply(), and the body goes back to the pool once sent (cpp-httplib's releaser runs when the
+// response is destroyed).
+void reply_pooled(httplib::Response& res, Viewer& v, std::string body, const char* type) {
+  auto data = std::make_shared<std::string>(std::move(body));
+  const size_t size = data->size();
+  res.set_content_provider(
+      size, type,
+      [data](size_t offset, size_t length, httplib::DataSink& sink) {
+        return sink.write(data->data() + offset, length);
+      },
+      [data, &v](bool) {
+        std::lock_guard<std::mutex> lock(v.pool_mu);
+        if (v.pool.size() < 8) v.pool.push_back(std::move(*data));
+      });
+}
+
 // A file below `root` named by the request's (decoded) path `rel`, or a 4xx: nothing outside
 // `root` is ever served, whatever "..", symbolic links or encodings the path uses.
 void serve_file(const fs::path& root, const std::string& rel, httplib::Response& res) {
@@ -471,26 +651,30 @@ void add_routes(httplib::Server& svr, Viewer& v) {
                                     ? parse_int("wait", req.get_param_value("wait"), 0, kMaxWaitMs)
                                     : 0;
         if (wait_ms > 0) std::this_thread::sleep_for(std::chrono::milliseconds(wait_ms));
-        // One frame's: positions, normals, capsules.
-        const size_t floats = size_t(v.vertices) * 6 + v.capsule_count * 7;
-        std::string body(size_t(n) * floats * sizeof(float), '\0');
+        // Each frame as wire_frame_bytes says.
+        const size_t nv = v.vertices, frame_bytes = wire_frame_bytes(nv, v.capsule_count);
+        std::string body = take_body(v, size_t(n) * frame_bytes);
         json states = json::array();
         std::lock_guard<std::mutex> lock(v.mu);
+        v.scratch.resize(nv * 6);
+        float* p = v.scratch.data();
         for (int64_t k = 0; k < n; ++k) {
           const auto t0 = Clock::now();
           const int rc = clothrt_player_advance(v.player, dt);
-          float* out = reinterpret_cast<float*>(body.data()) + size_t(k) * floats;
-          const clothrt_render_output ro{out, 12, out + size_t(v.vertices) * 3, 12, nullptr, 0};
+          const clothrt_render_output ro{p, 12, p + nv * 3, 12, nullptr, 0};
           clothrt_player_get_render_mesh(v.player, &ro, nullptr);
-          body_at(v, out + size_t(v.vertices) * 6);
           v.last_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
+          char* out = body.data() + size_t(k) * frame_bytes;
+          // (Aligned: the body is malloc'ed and frame_bytes a multiple of 4.)
+          body_at(v, reinterpret_cast<float*>(out) + kFrameHeadFloats);
+          quantise_frame(p, p + nv * 3, nv, v.capsule_count, out);
           ++v.frames_served;
           json state = frame_state(v);
           if (rc != CLOTHRT_OK) state["error"] = clothrt_player_errmsg(v.player);
           states.push_back(std::move(state));
         }
         res.set_header("X-Clothdb-Frames", text_of(states));
-        reply(res, std::move(body), "application/octet-stream");
+        reply_pooled(res, v, std::move(body), "application/octet-stream");
       }));
   svr.Post("/api/control", guarded([&v](const httplib::Request& req, httplib::Response& res) {
              reply(res, text_of(control(v, req.body)), "application/json");
@@ -502,7 +686,10 @@ void add_routes(httplib::Server& svr, Viewer& v) {
             const double cpu = double(ru.ru_utime.tv_sec + ru.ru_stime.tv_sec) +
                                1e-6 * double(ru.ru_utime.tv_usec + ru.ru_stime.tv_usec);
             std::lock_guard<std::mutex> lock(v.mu);
-            reply(res, text_of(json{{"cpu_seconds", cpu}, {"frames", v.frames_served}}),
+            reply(res,
+                  text_of(json{{"cpu_seconds", cpu},
+                               {"frames", v.frames_served},
+                               {"warming", v.warming.load()}}),
                   "application/json");
           }));
 }

@@ -142,7 +142,7 @@ Player::Player(Db* d) : db(d) {
   normals_.assign(n, 0.0f);
   face_normals_.assign((db->triangles.size() / 3 + 1) * 4, 0.0f);
   if (db->all_indexed) {
-    world_normals_.assign(n + 1, 0.0f);  // + 1: vertex_normals writes 4 floats at a time
+    world_normals_.assign(n, 0.0f);  // 3 planes
     world_.assign(n, 0.0f);
   }
   if (!db->render_uvs.empty()) {
@@ -691,8 +691,8 @@ void face_normals(const float* __restrict x, const uint32_t* __restrict tri, siz
 // Per vertex, sums the listed rows of `rows` (rows of kVectors 3-vectors, each padded to 4 floats;
 // the lists hold row offsets, two at a time: Db::vertex_faces) into planes: lane k of vector q into
 // out[(3 q + k) * vertices + v]: the tangent pass's sums (kVectors 2: the u and v directions; the
-// vertex normals have their own pass, vertex_normals). The sums start at +0 and add in the listed
-// order, as the scatter did.
+// vertex normals' sums, kVectors 1, made unit by unit_normals). The sums start at +0 and add in
+// the listed order, as the scatter did.
 template <int kVectors>
 CLOTHRT_MULTIVERSION void gather_rows(const float* __restrict rows,
                                       const uint32_t* __restrict begin,
@@ -736,92 +736,6 @@ CLOTHRT_MULTIVERSION void gather_rows(const float* __restrict rows,
   }
 }
 
-// The vertex normals in one pass: per vertex the sum of its triangles' rows (as gather_rows), made
-// unit (a zero or NaN sum becomes +y) into planes nv; when wn is not null also interleaved there (3
-// floats per vertex, and the float after the last is written too), turned by m's upper 3x3 and
-// renormalised first when m is not null (a zero vector stays zero). Four vertices at a time in SSE
-// registers, each lane doing the scalar code's operations (the tail's loop).
-void vertex_normals(const float* __restrict rows, const uint32_t* __restrict begin,
-                    const uint32_t* __restrict faces, size_t n, float* __restrict nv,
-                    const float* __restrict m, float* __restrict wn) {
-  auto unit = [](float a, float b, float c, float fy, float* o) {
-    const float l2 = a * a + b * b + c * c;
-    const bool ok = l2 > 0;
-    const float s = 1.0f / std::sqrt(ok ? l2 : 1.0f);
-    o[0] = ok ? a * s : fy == 0 ? a : 0.0f;
-    o[1] = ok ? b * s : fy == 0 ? b : fy;
-    o[2] = ok ? c * s : fy == 0 ? c : 0.0f;
-  };
-  size_t v = 0;
-#if CLOTHRT_SSE
-  const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.0f);
-  auto select = [](__m128 mask, __m128 a, __m128 b) {
-    return _mm_or_ps(_mm_and_ps(mask, a), _mm_andnot_ps(mask, b));
-  };
-  for (; v + 4 <= n; v += 4) {
-    __m128 sum[4];
-    for (int i = 0; i < 4; ++i) {
-      sum[i] = zero;
-      for (uint32_t j = begin[v + size_t(i)]; j < begin[v + size_t(i) + 1]; j += 2)
-        sum[i] = _mm_add_ps(_mm_add_ps(sum[i], _mm_loadu_ps(rows + faces[j])),
-                            _mm_loadu_ps(rows + faces[j + 1]));
-    }
-    __m128 a = sum[0], b = sum[1], c = sum[2], d = sum[3];
-    _MM_TRANSPOSE4_PS(a, b, c, d);
-    __m128 l2 = _mm_add_ps(_mm_add_ps(_mm_mul_ps(a, a), _mm_mul_ps(b, b)), _mm_mul_ps(c, c));
-    __m128 ok = _mm_cmpgt_ps(l2, zero);
-    __m128 sc = _mm_div_ps(one, _mm_sqrt_ps(select(ok, l2, one)));
-    a = select(ok, _mm_mul_ps(a, sc), zero);
-    b = select(ok, _mm_mul_ps(b, sc), one);
-    c = select(ok, _mm_mul_ps(c, sc), zero);
-    _mm_storeu_ps(nv + v, a);
-    _mm_storeu_ps(nv + n + v, b);
-    _mm_storeu_ps(nv + 2 * n + v, c);
-    if (!wn) continue;
-    if (m) {
-      const __m128 p =
-          _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_set1_ps(m[0]), a), _mm_mul_ps(_mm_set1_ps(m[4]), b)),
-                     _mm_mul_ps(_mm_set1_ps(m[8]), c));
-      const __m128 q =
-          _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_set1_ps(m[1]), a), _mm_mul_ps(_mm_set1_ps(m[5]), b)),
-                     _mm_mul_ps(_mm_set1_ps(m[9]), c));
-      const __m128 r =
-          _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_set1_ps(m[2]), a), _mm_mul_ps(_mm_set1_ps(m[6]), b)),
-                     _mm_mul_ps(_mm_set1_ps(m[10]), c));
-      l2 = _mm_add_ps(_mm_add_ps(_mm_mul_ps(p, p), _mm_mul_ps(q, q)), _mm_mul_ps(r, r));
-      ok = _mm_cmpgt_ps(l2, zero);
-      sc = _mm_div_ps(one, _mm_sqrt_ps(select(ok, l2, one)));
-      a = select(ok, _mm_mul_ps(p, sc), p);
-      b = select(ok, _mm_mul_ps(q, sc), q);
-      c = select(ok, _mm_mul_ps(r, sc), r);
-    }
-    d = zero;
-    _MM_TRANSPOSE4_PS(a, b, c, d);
-    // Each store's 4th float is the next vertex's x, written again by the next store.
-    _mm_storeu_ps(wn + 3 * v, a);
-    _mm_storeu_ps(wn + 3 * v + 3, b);
-    _mm_storeu_ps(wn + 3 * v + 6, c);
-    _mm_storeu_ps(wn + 3 * v + 9, d);
-  }
-#endif
-  for (; v < n; ++v) {
-    float acc[4] = {0, 0, 0, 0};
-    for (uint32_t j = begin[v]; j < begin[v + 1]; ++j)
-      for (size_t k = 0; k < 4; ++k) acc[k] += rows[faces[j] + k];
-    float o[3];
-    unit(acc[0], acc[1], acc[2], 1.0f, o);
-    nv[v] = o[0], nv[n + v] = o[1], nv[2 * n + v] = o[2];
-    if (!wn) continue;
-    if (m) {
-      const float a = o[0], b = o[1], c = o[2];
-      unit(m[0] * a + m[4] * b + m[8] * c, m[1] * a + m[5] * b + m[9] * c,
-           m[2] * a + m[6] * b + m[10] * c, 0.0f, wn + 3 * v);
-    } else {
-      std::memcpy(wn + 3 * v, o, 12);
-    }
-  }
-}
-
 // Unit vectors in place over planes x, y, z; a zero (or NaN) vector is kept (the tangent pass's
 // normals, already unit, renormalised as the scalar code did).
 CLOTHRT_MULTIVERSION void normalise_planes(float* __restrict x, float* __restrict y,
@@ -853,6 +767,54 @@ CLOTHRT_MULTIVERSION void turn_planes(const float* __restrict x, const float* __
     ox[v] = m0 * a + m4 * b + m8 * c;
     oy[v] = m1 * a + m5 * b + m9 * c;
     oz[v] = m2 * a + m6 * b + m10 * c;
+  }
+}
+
+// The vertex normals from their sums (gather_rows<1> of the face rows, in planes x, y, z of n
+// floats), in place: made unit, a zero or NaN sum becoming +y; with m (not null) also turned by its
+// upper 3x3 and made unit again into planes wx, wy, wz (a zero vector stays zero). A pass of its
+// own after the gather: the gather's loops have per-vertex trip counts, and with the square roots
+// and divisions in the same loop (as it was) the processor waited on their latency chain every
+// four vertices; here the iterations are independent and branch-free, the loop vectorises (eight
+// lanes with AVX2) and the divider stays busy. Each lane does the scalar operations, bit for bit.
+CLOTHRT_MULTIVERSION void unit_normals(float* __restrict x, float* __restrict y,
+                                       float* __restrict z, size_t n, const float* __restrict m,
+                                       float* __restrict wx, float* __restrict wy,
+                                       float* __restrict wz) {
+  auto unit = [](float a, float b, float c, float* o) {
+    const float l2 = a * a + b * b + c * c;
+    const bool ok = l2 > 0;
+    const float s = 1.0f / std::sqrt(ok ? l2 : 1.0f);
+    const float as = a * s, bs = b * s, cs = c * s;
+    o[0] = ok ? as : 0.0f;
+    o[1] = ok ? bs : 1.0f;
+    o[2] = ok ? cs : 0.0f;
+  };
+  if (!m) {
+    for (size_t v = 0; v < n; ++v) {
+      float o[3];
+      unit(x[v], y[v], z[v], o);
+      x[v] = o[0], y[v] = o[1], z[v] = o[2];
+    }
+    return;
+  }
+  const float m0 = m[0], m1 = m[1], m2 = m[2], m4 = m[4], m5 = m[5], m6 = m[6], m8 = m[8],
+              m9 = m[9], m10 = m[10];
+  for (size_t v = 0; v < n; ++v) {
+    float o[3];
+    unit(x[v], y[v], z[v], o);
+    const float a = o[0], b = o[1], c = o[2];
+    x[v] = a, y[v] = b, z[v] = c;
+    // As turn_planes, then normalise_planes.
+    const float p = m0 * a + m4 * b + m8 * c, q = m1 * a + m5 * b + m9 * c,
+                r = m2 * a + m6 * b + m10 * c;
+    const float l2 = p * p + q * q + r * r;
+    const bool ok = l2 > 0;
+    const float s = 1.0f / std::sqrt(ok ? l2 : 1.0f);
+    const float ps = p * s, qs = q * s, rs = r * s;
+    wx[v] = ok ? ps : p;
+    wy[v] = ok ? qs : q;
+    wz[v] = ok ? rs : r;
   }
 }
 
@@ -926,22 +888,26 @@ CLOTHRT_MULTIVERSION void tangent_frames(const float* __restrict nx, const float
   }
 }
 
-// Per render vertex r, the 3 floats of its simulation vertex (sim[3 r]: an indexed map) from p
-// and from q into the caller's strided buffers (a null buffer is skipped).
+// Per render vertex r of an indexed map (its simulation vertex sim[3 r]), the 3 floats of that
+// vertex from the rows p (3 floats per vertex) into po, and from the planes q (plane stride n)
+// into qo: the caller's strided buffers (a null buffer is skipped).
 void copy_rows(const float* __restrict p, float* __restrict po, size_t ps,
-               const float* __restrict q, float* __restrict qo, size_t qs,
+               const float* __restrict q, size_t n, float* __restrict qo, size_t qs,
                const uint32_t* __restrict sim, size_t rn) {
-  if (po && qo) {
+  auto normal = [&](size_t r, size_t v) {
+    float* o = qo + r * qs;
+    o[0] = q[v], o[1] = q[n + v], o[2] = q[2 * n + v];
+  };
+  if (po && qo) {  // one pass over the caller's buffer (interleaved: each line touched once)
     for (size_t r = 0; r < rn; ++r) {
-      const size_t v = 3 * size_t(sim[3 * r]);
-      std::memcpy(po + r * ps, p + v, 12);
-      std::memcpy(qo + r * qs, q + v, 12);
+      const size_t v = sim[3 * r];
+      std::memcpy(po + r * ps, p + 3 * v, 12);
+      normal(r, v);
     }
-  } else if (po || qo) {
-    const float* src = po ? p : q;
-    float* dst = po ? po : qo;
-    const size_t s = po ? ps : qs;
-    for (size_t r = 0; r < rn; ++r) std::memcpy(dst + r * s, src + 3 * size_t(sim[3 * r]), 12);
+  } else if (po) {
+    for (size_t r = 0; r < rn; ++r) std::memcpy(po + r * ps, p + 3 * size_t(sim[3 * r]), 12);
+  } else if (qo) {
+    for (size_t r = 0; r < rn; ++r) normal(r, sim[3 * r]);
   }
 }
 
@@ -996,11 +962,15 @@ int Player::render(const clothrt_render_output& out, const float* m) {
   // Simulation-vertex normals in planes; with a root transform, their turn too.
   // (Planes where the loops vectorise; interleaved where render vertices copy them.)
   float* nv = normals_.data();
-  const float* wn = world_normals_.data();  // indexed only: 3 floats per vertex
+  // Indexed with a root transform: the turned normals (planes), else nv's.
+  const bool turned = indexed && m && out.normals;
+  const float* wn = turned ? world_normals_.data() : nv;
   if (out.normals || out.tangents) {
     face_normals(x, db->triangles.data(), db->triangles.size() / 3, face_normals_.data());
-    vertex_normals(face_normals_.data(), db->vertex_faces_begin.data(), db->vertex_faces.data(), n,
-                   nv, m, indexed ? world_normals_.data() : nullptr);
+    gather_rows<1>(face_normals_.data(), db->vertex_faces_begin.data(), db->vertex_faces.data(), n,
+                   nv);
+    float* w = turned ? world_normals_.data() : nv;  // (not written without m)
+    unit_normals(nv, nv + n, nv + 2 * n, n, turned ? m : nullptr, w, w + n, w + 2 * n);
   }
   // The root transform's linear part turns normals and tangents (renormalised after).
   auto turn = [m](const float* v, float* o) {
@@ -1017,7 +987,7 @@ int Player::render(const clothrt_render_output& out, const float* m) {
       transform(x, n, m, world_.data(), 3);
       src = world_.data();
     }
-    copy_rows(src, out.positions, out.position_stride / sizeof(float), wn, out.normals,
+    copy_rows(src, out.positions, out.position_stride / sizeof(float), wn, n, out.normals,
               out.normal_stride / sizeof(float), sim, rn);
   } else {
     if (out.positions) {

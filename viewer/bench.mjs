@@ -6,7 +6,7 @@
 // screenshot.
 //
 //   node viewer/bench.mjs CLOTHDB DB [--seconds 10] [--width 1280] [--height 720] [--png FILE]
-//                         [--batch N (frames per request; the page's default 4)] [--paused]
+//                         [--batch N (frames per request; the page's default 8)] [--paused]
 //   node viewer/bench.mjs CLOTHDB DB --no-browser [--batch N] [--wait MS] [--frames 1200]
 // The second form measures the server alone: one keep-alive connection asking for the frames the
 // way the page does (N per request, each held MS ms), server CPU per frame served.
@@ -25,8 +25,11 @@ const batch = opt('batch', '');
 
 const viewer = await startViewer(clothdb, db);
 if (args.includes('--no-browser')) {
-  const n = Number(batch || 4), wait = Number(opt('wait', 0)), frames = Number(opt('frames', 1200));
+  const n = Number(batch || 8), wait = Number(opt('wait', 0)), frames = Number(opt('frames', 1200));
   const stats = async () => (await fetch(viewer.url + 'api/stats')).json();
+  // Not while the server decodes every clip into its cache at start (cli/cmd_view.cpp,
+  // warm_cache): a page takes longer than that to load.
+  while ((await stats()).warming) await new Promise((r) => setTimeout(r, 50));
   const s0 = await stats();
   for (let i = 0; i < frames / n; ++i)
     await (await fetch(viewer.url + `api/frames?dt=0.016667&n=${n}&wait=${wait}`)).arrayBuffer();
@@ -60,7 +63,7 @@ try {
   const state = await page.evaluate(() => ({errors: window.viewer.errors,
     runtimeUs: window.viewer.runtimeUs, drawn: window.viewer.framesDrawn}));
   if (png) await page.screenshot({path: png});
-  console.log(JSON.stringify({db, width, height, seconds, batch: batch || 4, median_fps: median(samples),
+  console.log(JSON.stringify({db, width, height, seconds, batch: batch || 8, median_fps: median(samples),
     fps_samples: samples, median_cloth_fps: median(cloth), cloth_fps_samples: cloth,
     frames_served: frames,
     server_cpu_ms_per_frame: frames ? 1e3 * (s1.cpu_seconds - s0.cpu_seconds) / frames : null,

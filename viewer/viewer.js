@@ -1,17 +1,18 @@
 // The page of `clothdb view` (cli/cmd_view.cpp): draws the frames the server's runtime player
 // produces, with the character's body capsules, and sends the controls back.
 //
-// Frames: one `GET /api/frame?dt=...` in flight at a time, started at an animation frame when
-// none is in flight; dt is the wall time since the previous request (times the slow-motion
-// factor), so the cloth plays in real time whatever the frame rate. The cloth is the render mesh
-// (the artist's vertices, seam copies split) with the normals the runtime computed.
+// Frames: batches of `GET /api/frames?dt=...&n=...&wait=...`, one request in flight at a time
+// (cli/cmd_view.cpp: how frames reach the page); dt is the page's frame interval (times the
+// slow-motion factor), so the cloth plays in real time whatever the frame rate. The cloth is the
+// render mesh (the artist's vertices, seam copies split) with the normals the runtime computed,
+// quantised on the wire (int16 positions, int8 normals) and turned back into floats here.
 import * as THREE from 'three';
 import {OrbitControls} from 'three/addons/controls/OrbitControls.js';
 
 const SLOW = 0.25;       // slow-motion factor
 const MAX_STEP = 0.1;    // s: a longer gap (a hidden tab, a stall) plays as this
 // Frames per request (cli/cmd_view.cpp: how frames reach the page); ?batch=N overrides it.
-const BATCH = Math.max(1, Math.min(16, Number(new URLSearchParams(location.search).get('batch')) || 4));
+const BATCH = Math.max(1, Math.min(16, Number(new URLSearchParams(location.search).get('batch')) || 8));
 const BACKGROUND = 0xdfe4ea;
 
 // Everything the page measures and shows; also read by the browser test and the benchmark
@@ -164,14 +165,22 @@ async function request(dt, n, wait) {
     const r = await fetch(`/api/frames?dt=${dt.toFixed(6)}&n=${n}&wait=${Math.round(wait)}`);
     if (!r.ok) throw new Error(`/api/frames: ${r.status} ${await r.text()}`);
     const states = JSON.parse(r.headers.get('X-Clothdb-Frames'));
-    const all = new Float32Array(await r.arrayBuffer());
-    const size = all.length / states.length, cloth = 3 * state.info.vertices;
-    states.forEach((f, k) => queue.push({
-      f,
-      positions: all.subarray(k * size, k * size + cloth),
-      normals: all.subarray(k * size + cloth, k * size + 2 * cloth),
-      capsules: all.subarray(k * size + 2 * cloth, (k + 1) * size)
-    }));
+    const all = await r.arrayBuffer();
+    const size = state.info.frame_bytes, m = 3 * state.info.vertices, c = 7 * state.info.capsules;
+    if (all.byteLength !== size * states.length)
+      throw new Error(`/api/frames: ${all.byteLength} bytes for ${states.length} frames`);
+    // One frame on the wire (cli/cmd_view.cpp, wire_frame_bytes): origin and step, capsules
+    // (float32), positions (int16 over the frame's box), normals (int8, times 127).
+    states.forEach((f, k) => {
+      const at = k * size, q = at + 4 * (4 + c);
+      queue.push({
+        f,
+        head: new Float32Array(all, at, 4),
+        capsules: new Float32Array(all, at + 16, c),
+        positions: new Int16Array(all, q, m),
+        normals: new Int8Array(all, q + 2 * m, m),
+      });
+    });
   } catch (e) {
     showError(`${e.message} (is clothdb view still running?)`);
     setPaused(true);
@@ -218,16 +227,28 @@ function pull(now) {
 // After a jump the queued frames are from before it.
 function flush() { queue.length = 0; }
 
-function applyFrame({f, positions, normals, capsules}) {
+// A frame's quantised positions and normals into the float arrays three.js draws.
+function dequantise(head, q, qn, p, nr) {
+  const ox = head[0], oy = head[1], oz = head[2], step = head[3], s = 1 / 127;
+  for (let i = 0; i < q.length; i += 3) {
+    p[i] = ox + step * q[i];
+    p[i + 1] = oy + step * q[i + 1];
+    p[i + 2] = oz + step * q[i + 2];
+  }
+  for (let i = 0; i < qn.length; ++i) nr[i] = s * qn[i];
+}
+
+function applyFrame({f, head, positions, normals, capsules}) {
   const attr = geometry.attributes.position;
   if (!attr) {
-    geometry.setAttribute('position', new THREE.BufferAttribute(positions.slice(), 3));
-    geometry.setAttribute('normal', new THREE.BufferAttribute(normals.slice(), 3));
-    frameCamera(positions);
+    const p = new Float32Array(positions.length), nr = new Float32Array(normals.length);
+    dequantise(head, positions, normals, p, nr);
+    geometry.setAttribute('position', new THREE.BufferAttribute(p, 3));
+    geometry.setAttribute('normal', new THREE.BufferAttribute(nr, 3));
+    frameCamera(p);
   } else {
-    attr.array.set(positions);
+    dequantise(head, positions, normals, attr.array, geometry.attributes.normal.array);
     attr.needsUpdate = true;
-    geometry.attributes.normal.array.set(normals);
     geometry.attributes.normal.needsUpdate = true;
   }
   const changed = !state.frame || state.frame.primary_clip !== f.primary_clip ||

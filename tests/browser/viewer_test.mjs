@@ -153,7 +153,7 @@ if (noBrowser) {
     // player takes the lowest-id successor, so choosing the highest-id one is seen only if the
     // choice reached the player. Twice, at two nodes.
     await page.click('#random');  // on at load: off
-    // Choose right after a node: the server plays up to ~7 frames ahead of the picture, so a choice
+    // Choose right after a node: the server plays up to ~11 frames ahead of the picture, so a choice
     // in a clip's last frames is for the node after (docs/guide/viewer.md).
     const start = await st();
     await page.waitForFunction((n) => window.viewer.frame.transitions > n, start.transitions,
