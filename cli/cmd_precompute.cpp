@@ -77,6 +77,9 @@ void register_precompute(CLI::App& app) {
       ->check(CLI::IsMember({"v1", "v2", "v3"}))
       ->capture_default_str();
   contract->add_to(*cmd);
+  cmd->add_flag("--always", args->explore.subspace_always,
+                "--codec v2, v3: keep the subspace blob even where the clip's v1 blob is smaller "
+                "(to measure the codec on the simulated frames; `db recode --always` likewise)");
   cmd->add_option("--modes", args->explore.subspace_modes, "--codec v2, v3: modes of each basis")
       ->check(number_in(1, 1024));
   cmd->add_flag("--body-frame", args->explore.subspace_body_frame,
@@ -177,8 +180,9 @@ void register_precompute(CLI::App& app) {
     PrecomputeRequest request = *args;
     if (*codec_name == "v2" || *codec_name == "v3") {
       if (request.explore.subspace_modes == 0) request.explore.subspace_modes = 64;
-    } else if (request.explore.subspace_modes != 0 || request.explore.subspace_body_frame) {
-      throw std::runtime_error("--modes, --body-frame: only with --codec v2 or v3");
+    } else if (request.explore.subspace_modes != 0 || request.explore.subspace_body_frame ||
+               request.explore.subspace_always) {
+      throw std::runtime_error("--modes, --body-frame, --always: only with --codec v2 or v3");
     }
     if (*codec_name == "v3" && request.explore.subspace_body_frame)
       throw std::runtime_error("--body-frame: only with --codec v2");

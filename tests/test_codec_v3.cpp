@@ -119,6 +119,45 @@ TEST(CodecV3, ResidualOnlyWhereTheContractNeedsIt) {
   EXPECT_GT(stats.residual_interval, 0u) << "two modes cannot hold 1 cm of detail";
 }
 
+// The residual's spatial predictor: on a sheet made of rows the encoder finds the row length in the
+// basis's mean shape and predicts from the previous row too (fewer residual bytes than the previous
+// vertex alone); row 0, the layout of blobs written before the row existed, still decodes within
+// the caps; a row the blob's vertices cannot have is refused.
+TEST(CodecV3, ResidualPredictorRowFoundFromTheBasisAndOldRowZeroStillDecodes) {
+  const uint32_t side = 12, V = side * side;
+  const auto x = waves(30, side, 0.0, 0.004);
+  const Basis basis = basis_of(x, V, 3);
+  V3Settings s;
+  s.contract = {0.001, 0.003, 0.0001};
+  V3Stats found, previous;
+  const auto blob = encode_v3(x.data(), 30, V, basis, s, &found);
+  EXPECT_EQ(found.residual_row, side);
+  V3Settings old = s;
+  old.residual_row = 0;
+  const auto old_blob = encode_v3(x.data(), 30, V, basis, old, &previous);
+  EXPECT_EQ(previous.residual_row, 0u);
+  EXPECT_LT(found.residual_bytes, previous.residual_bytes);
+  DecodeScratch scratch;
+  Error err;
+  for (const auto* b : {&blob, &old_blob}) {
+    std::vector<float> y;
+    ASSERT_EQ(decode_all(b->data(), b->size(), y, scratch, &err, &basis), Status::Ok)
+        << err.message;
+    EXPECT_TRUE(within(measure_contract(y.data(), x.data(), 30, V), s.contract));
+  }
+  // The row lives at byte 52 of the header (docs/DATABASE.md "version 3"); V or more is refused.
+  auto bad = blob;
+  bad[52] = uint8_t(V & 0xff);
+  bad[53] = uint8_t(V >> 8);
+  detail::reseal(bad.data(), bad.size());
+  BlobInfo info;
+  EXPECT_EQ(read_info(bad.data(), bad.size(), &info, &err), Status::Corrupt);
+  EXPECT_NE(std::string(err.message).find("row"), std::string::npos) << err.message;
+  V3Settings too_far = s;
+  too_far.residual_row = V;
+  EXPECT_THROW(encode_v3(x.data(), 30, V, basis, too_far), ClothdbError);
+}
+
 // A player decodes a clip one segment at a time (BlobInfo::key_interval frames, as the runtime
 // stages it): the decoder then holds one segment, however long the clip, and allocates nothing
 // once it has seen a segment of the largest size.

@@ -194,6 +194,10 @@ struct V3Settings {
   double coefficient_step = 0;  // m per coefficient unit; 0: half the jitter cap
   // Frames per segment (each decodable on its own: what a player stages at a time).
   uint32_t segment_frames = 32;
+  // Row P of the residual's spatial predictor (docs/DATABASE.md "version 3"): -1 chooses it from
+  // the basis's mean shape; 0 predicts from the previous vertex alone (the layout of blobs written
+  // before the row existed).
+  int64_t residual_row = -1;
   int zstd_level = kDefaultZstdLevel;
 };
 
@@ -209,6 +213,7 @@ struct V3Stats {
   size_t header_bytes = 0, coefficient_bytes = 0, residual_bytes = 0;
   // Residual symbols (coordinate-frames after each segment's first two) that are not 0.
   uint64_t residual_symbols = 0, residual_nonzero = 0;
+  uint32_t residual_row = 0;  // row P of the residual's spatial predictor (0: previous vertex)
 };
 
 // Encodes frame_count frames as a version 3 blob predicted from `basis` (positions; the mean is
