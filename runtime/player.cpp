@@ -736,85 +736,83 @@ CLOTHRT_MULTIVERSION void gather_rows(const float* __restrict rows,
   }
 }
 
+// (a, b, c) made unit into (x, y, z), or (fa, fb, fc) when its length is zero (or NaN). Everything
+// is computed on both sides of the choice, so the choice is a blend and the loops that call it
+// vectorise. The one rule for every unit vector of the render pass.
+inline __attribute__((always_inline)) void unit_or(float a, float b, float c, float fa, float fb,
+                                                   float fc, float& x, float& y, float& z) {
+  const float l2 = a * a + b * b + c * c;
+  const bool ok = l2 > 0;
+  const float s = 1.0f / std::sqrt(ok ? l2 : 1.0f);
+  const float as = a * s, bs = b * s, cs = c * s;
+  x = ok ? as : fa;
+  y = ok ? bs : fb;
+  z = ok ? cs : fc;
+}
+
+// (a, b, c) turned by the upper 3x3 of the column-major m (a root transform's linear part).
+struct Turn {
+  float m0, m1, m2, m4, m5, m6, m8, m9, m10;
+  explicit Turn(const float* m)
+      : m0(m[0]),
+        m1(m[1]),
+        m2(m[2]),
+        m4(m[4]),
+        m5(m[5]),
+        m6(m[6]),
+        m8(m[8]),
+        m9(m[9]),
+        m10(m[10]) {}
+  inline __attribute__((always_inline)) void operator()(float a, float b, float c, float& p,
+                                                        float& q, float& r) const {
+    p = m0 * a + m4 * b + m8 * c;
+    q = m1 * a + m5 * b + m9 * c;
+    r = m2 * a + m6 * b + m10 * c;
+  }
+};
+
 // Unit vectors in place over planes x, y, z; a zero (or NaN) vector is kept (the tangent pass's
 // normals, already unit, renormalised as the scalar code did).
 CLOTHRT_MULTIVERSION void normalise_planes(float* __restrict x, float* __restrict y,
                                            float* __restrict z, size_t n) {
   for (size_t v = 0; v < n; ++v) {
     const float a = x[v], b = y[v], c = z[v];
-    const float l2 = a * a + b * b + c * c;
-    const bool ok = l2 > 0;
-    // Everything computed on both sides of the choice, so the choice is a blend and the loop
-    // vectorises.
-    const float s = 1.0f / std::sqrt(ok ? l2 : 1.0f);
-    const float as = a * s, bs = b * s, cs = c * s;
-    x[v] = ok ? as : a;
-    y[v] = ok ? bs : b;
-    z[v] = ok ? cs : c;
+    unit_or(a, b, c, a, b, c, x[v], y[v], z[v]);
   }
 }
 
-// Planes turned by the upper 3x3 of the column-major m (a root transform's linear part) into
-// planes ox, oy, oz; normalise_planes makes them unit again.
+// Planes turned by m (Turn) into planes ox, oy, oz; normalise_planes makes them unit again.
 CLOTHRT_MULTIVERSION void turn_planes(const float* __restrict x, const float* __restrict y,
                                       const float* __restrict z, size_t n,
                                       const float* __restrict m, float* __restrict ox,
                                       float* __restrict oy, float* __restrict oz) {
-  const float m0 = m[0], m1 = m[1], m2 = m[2], m4 = m[4], m5 = m[5], m6 = m[6], m8 = m[8],
-              m9 = m[9], m10 = m[10];
-  for (size_t v = 0; v < n; ++v) {
-    const float a = x[v], b = y[v], c = z[v];
-    ox[v] = m0 * a + m4 * b + m8 * c;
-    oy[v] = m1 * a + m5 * b + m9 * c;
-    oz[v] = m2 * a + m6 * b + m10 * c;
-  }
+  const Turn turn(m);
+  for (size_t v = 0; v < n; ++v) turn(x[v], y[v], z[v], ox[v], oy[v], oz[v]);
 }
 
 // The vertex normals from their sums (gather_rows<1> of the face rows, in planes x, y, z of n
-// floats), in place: made unit, a zero or NaN sum becoming +y; with m (not null) also turned by its
-// upper 3x3 and made unit again into planes wx, wy, wz (a zero vector stays zero). A pass of its
-// own after the gather: the gather's loops have per-vertex trip counts, and with the square roots
-// and divisions in the same loop (as it was) the processor waited on their latency chain every
-// four vertices; here the iterations are independent and branch-free, the loop vectorises (eight
-// lanes with AVX2) and the divider stays busy. Each lane does the scalar operations, bit for bit.
+// floats), in place: made unit, a zero or NaN sum becoming +y; with m (not null) also turned by
+// it and made unit again into planes wx, wy, wz (a zero vector stays zero: turn_planes then
+// normalise_planes, fused into one loop). A pass of its own after the gather: the gather's loops
+// have per-vertex trip counts, and with the square roots and divisions in the same loop (as it
+// was) the processor waited on their latency chain every four vertices; here the iterations are
+// independent and branch-free, the loop vectorises (eight lanes with AVX2) and the divider stays
+// busy. Each lane does the scalar operations, bit for bit.
 CLOTHRT_MULTIVERSION void unit_normals(float* __restrict x, float* __restrict y,
                                        float* __restrict z, size_t n, const float* __restrict m,
                                        float* __restrict wx, float* __restrict wy,
                                        float* __restrict wz) {
-  auto unit = [](float a, float b, float c, float* o) {
-    const float l2 = a * a + b * b + c * c;
-    const bool ok = l2 > 0;
-    const float s = 1.0f / std::sqrt(ok ? l2 : 1.0f);
-    const float as = a * s, bs = b * s, cs = c * s;
-    o[0] = ok ? as : 0.0f;
-    o[1] = ok ? bs : 1.0f;
-    o[2] = ok ? cs : 0.0f;
-  };
   if (!m) {
-    for (size_t v = 0; v < n; ++v) {
-      float o[3];
-      unit(x[v], y[v], z[v], o);
-      x[v] = o[0], y[v] = o[1], z[v] = o[2];
-    }
+    for (size_t v = 0; v < n; ++v) unit_or(x[v], y[v], z[v], 0.0f, 1.0f, 0.0f, x[v], y[v], z[v]);
     return;
   }
-  const float m0 = m[0], m1 = m[1], m2 = m[2], m4 = m[4], m5 = m[5], m6 = m[6], m8 = m[8],
-              m9 = m[9], m10 = m[10];
+  const Turn turn(m);
   for (size_t v = 0; v < n; ++v) {
-    float o[3];
-    unit(x[v], y[v], z[v], o);
-    const float a = o[0], b = o[1], c = o[2];
+    float a, b, c, p, q, r;
+    unit_or(x[v], y[v], z[v], 0.0f, 1.0f, 0.0f, a, b, c);
     x[v] = a, y[v] = b, z[v] = c;
-    // As turn_planes, then normalise_planes.
-    const float p = m0 * a + m4 * b + m8 * c, q = m1 * a + m5 * b + m9 * c,
-                r = m2 * a + m6 * b + m10 * c;
-    const float l2 = p * p + q * q + r * r;
-    const bool ok = l2 > 0;
-    const float s = 1.0f / std::sqrt(ok ? l2 : 1.0f);
-    const float ps = p * s, qs = q * s, rs = r * s;
-    wx[v] = ok ? ps : p;
-    wy[v] = ok ? qs : q;
-    wz[v] = ok ? rs : r;
+    turn(a, b, c, p, q, r);
+    unit_or(p, q, r, p, q, r, wx[v], wy[v], wz[v]);
   }
 }
 
