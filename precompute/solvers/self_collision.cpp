@@ -386,10 +386,9 @@ Vec3 common_motion(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& built) {
   return 0.5 * (lo + hi);
 }
 
-// moved[i] = max(moved[i], |x_i - built_i - m|) for m the common motion of x.
+// moved[i] = max(moved[i], |x_i - built_i - m|) for m the common motion of x (common_motion).
 void raise_moved(std::vector<double>& moved, const Eigen::Matrix3Xd& x,
-                 const Eigen::Matrix3Xd& built) {
-  const Vec3 m = common_motion(x, built);
+                 const Eigen::Matrix3Xd& built, const Vec3& m) {
   for (Eigen::Index i = 0; i < x.cols(); ++i)
     moved[static_cast<std::size_t>(i)] =
         std::max(moved[static_cast<std::size_t>(i)], (x.col(i) - built.col(i) - m).norm());
@@ -400,13 +399,14 @@ void raise_moved(std::vector<double>& moved, const Eigen::Matrix3Xd& x,
 bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
                             const Eigen::Matrix3Xd& x_start) {
   bool stale = sc.built_at.cols() != x.cols() || sc.moved.size() != std::size_t(x.cols());
+  Vec3 m = Vec3::Zero();
   if (!stale && x.cols() > 0) {
     // A pair's distance changes by at most |d_i - d_j| <= |d_i - m| + |d_j - m| for the vertex
     // displacements d since the build and any common m: measured from the centre of the
     // displacements' box, a garment carried along by the body (a walk, a jump) keeps its lists
     // for as long as its shape changes by less than skin / 2. No scratch matrix: this runs every
     // sub-step.
-    const Vec3 m = common_motion(x, sc.built_at);
+    m = common_motion(x, sc.built_at);
     const double limit = 0.25 * sc.skin * sc.skin;
     double worst = 0.0;
     for (Eigen::Index i = 0; i < x.cols(); ++i)
@@ -416,11 +416,13 @@ bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Ei
   if (stale) {
     build_candidates(sc, model, x);
     sc.moved.assign(static_cast<std::size_t>(x.cols()), 0.0);
+    m = common_motion(x, sc.built_at);
   }
   // The bounds cover the sub-step's start too (its side decides a contact), and the positions left
-  // by the constraints after the last pass.
-  raise_moved(sc.moved, x, sc.built_at);
-  raise_moved(sc.moved, x_start, sc.built_at);
+  // by the constraints after the last pass. (x's common motion is the staleness check's: measured
+  // once a sub-step.)
+  raise_moved(sc.moved, x, sc.built_at, m);
+  raise_moved(sc.moved, x_start, sc.built_at, common_motion(x_start, sc.built_at));
   return stale;
 }
 
