@@ -183,6 +183,16 @@ void reconstruct(const Basis& b, uint32_t M, const int32_t* q, double cstep, con
   }
 }
 
+// The median edge detector for a value with a row above it (row > 0, c >= 3 row + 3).
+inline int32_t median_prediction(const int32_t* d, size_t c, size_t row) {
+  const int32_t left = d[c - 3];
+  const int32_t up = d[c - 3 * row], corner = d[c - 3 * row - 3];
+  const int32_t lo = std::min(left, up), hi = std::max(left, up);
+  if (corner >= hi) return lo;
+  if (corner <= lo) return hi;
+  return int32_t(uint32_t(left) + uint32_t(up) - uint32_t(corner));
+}
+
 // The spatial prediction of value c (x y z per vertex) of one frame's residual-in-time values d,
 // from vertices before it on the same axis. Row P = 0: the previous vertex's (i - 1). Row P > 0:
 // the median edge detector of LOCO-I (Weinberger et al. 2000, JPEG-LS) over the previous vertex
@@ -193,13 +203,8 @@ void reconstruct(const Basis& b, uint32_t M, const int32_t* q, double cstep, con
 // docs/notebook/codec_v3.md). Vertices of the first row use the previous vertex alone.
 inline int32_t spatial_prediction(const int32_t* d, size_t c, size_t row) {
   if (c < 3) return 0;
-  const int32_t left = d[c - 3];
-  if (row == 0 || c < 3 * row + 3) return left;
-  const int32_t up = d[c - 3 * row], corner = d[c - 3 * row - 3];
-  const int32_t lo = std::min(left, up), hi = std::max(left, up);
-  if (corner >= hi) return lo;
-  if (corner <= lo) return hi;
-  return int32_t(uint32_t(left) + uint32_t(up) - uint32_t(corner));
+  if (row == 0 || c < 3 * row + 3) return d[c - 3];
+  return median_prediction(d, c, row);
 }
 
 // Segment integers (k frames of `width` values, frame-major) from their prediction residuals, in
@@ -211,12 +216,14 @@ bool integrate(int32_t* v, uint32_t k, size_t width, bool spatial, size_t row) {
   if (spatial)
     for (uint32_t f = 0; f < k; ++f) {
       int32_t* d = v + size_t(f) * width;
-      if (row == 0) {  // the previous vertex alone: a running sum per axis
-        for (size_t c = 3; c < width; ++c) d[c] = int32_t(uint32_t(d[c]) + uint32_t(d[c - 3]));
-      } else {
-        for (size_t c = 3; c < width; ++c)
-          d[c] = int32_t(uint32_t(d[c]) + uint32_t(spatial_prediction(d, c, row)));
-      }
+      // spatial_prediction's cases split by range, so neither loop branches on c: the previous
+      // vertex alone (a running sum per axis) over the first row (every value when row is 0),
+      // then the median predictor.
+      const size_t first_row_end = row == 0 ? width : std::min(width, 3 * row + 3);
+      for (size_t c = 3; c < first_row_end; ++c)
+        d[c] = int32_t(uint32_t(d[c]) + uint32_t(d[c - 3]));
+      for (size_t c = first_row_end; c < width; ++c)
+        d[c] = int32_t(uint32_t(d[c]) + uint32_t(median_prediction(d, c, row)));
     }
   for (uint32_t f = 1; f < k; ++f)
     for (size_t c = 0; c < width; ++c) {
