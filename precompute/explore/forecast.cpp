@@ -1,5 +1,6 @@
 #include "explore/forecast.hpp"
 
+#include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -40,64 +41,39 @@ double open_ways_out(const CurvePoint& p) {
 // normal matrix, for the prediction band.
 struct Fit {
   int terms = 0;
-  double beta[3] = {0, 0, 0};
-  double inverse[3][3] = {};  // (X^T X)^-1
+  Eigen::VectorXd beta;
+  Eigen::MatrixXd inverse;  // (X^T X)^-1
   double residual_variance = 0;
-  double at(double v) const { return beta[0] + beta[1] * v + (terms == 3 ? beta[2] * v * v : 0); }
+  static Eigen::VectorXd powers(double v, int terms) {
+    Eigen::VectorXd g(terms);
+    for (int j = 0; j < terms; ++j) g[j] = j == 0 ? 1.0 : g[j - 1] * v;
+    return g;
+  }
+  double at(double v) const { return powers(v, terms).dot(beta); }
   double slope(double v) const { return beta[1] + (terms == 3 ? 2 * beta[2] * v : 0); }
   // Standard deviation of a new point at v (ordinary least-squares prediction interval).
   double sigma(double v) const {
-    const double g[3] = {1, v, v * v};
-    double q = 0;
-    for (int i = 0; i < terms; ++i)
-      for (int j = 0; j < terms; ++j) q += g[i] * inverse[i][j] * g[j];
-    return std::sqrt(residual_variance * (1 + q));
+    const Eigen::VectorXd g = powers(v, terms);
+    return std::sqrt(residual_variance * (1 + g.dot(inverse * g)));
   }
 };
 
-// Inverts the symmetric terms x terms matrix m; false when it is singular.
-bool invert(const double m[3][3], int terms, double out[3][3]) {
-  if (terms == 2) {
-    const double det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
-    if (!(std::fabs(det) > 1e-12 * std::fabs(m[0][0] * m[1][1]))) return false;
-    out[0][0] = m[1][1] / det, out[0][1] = -m[0][1] / det;
-    out[1][0] = -m[1][0] / det, out[1][1] = m[0][0] / det;
-    return true;
-  }
-  const double c00 = m[1][1] * m[2][2] - m[1][2] * m[2][1],
-               c01 = m[1][2] * m[2][0] - m[1][0] * m[2][2],
-               c02 = m[1][0] * m[2][1] - m[1][1] * m[2][0];
-  const double det = m[0][0] * c00 + m[0][1] * c01 + m[0][2] * c02;
-  if (!(std::fabs(det) > 1e-12)) return false;
-  out[0][0] = c00 / det, out[1][0] = c01 / det, out[2][0] = c02 / det;
-  out[0][1] = (m[0][2] * m[2][1] - m[0][1] * m[2][2]) / det;
-  out[1][1] = (m[0][0] * m[2][2] - m[0][2] * m[2][0]) / det;
-  out[2][1] = (m[0][1] * m[2][0] - m[0][0] * m[2][1]) / det;
-  out[0][2] = (m[0][1] * m[1][2] - m[0][2] * m[1][1]) / det;
-  out[1][2] = (m[0][2] * m[1][0] - m[0][0] * m[1][2]) / det;
-  out[2][2] = (m[0][0] * m[1][1] - m[0][1] * m[1][0]) / det;
-  return true;
-}
-
+// False when the normal matrix is singular (every point at one v).
 bool fit(const std::vector<std::pair<double, double>>& points, int terms, Fit& f) {
-  double m[3][3] = {}, r[3] = {};
-  for (const auto& [v, y] : points) {
-    const double g[3] = {1, v, v * v};
-    for (int i = 0; i < terms; ++i) {
-      r[i] += g[i] * y;
-      for (int j = 0; j < terms; ++j) m[i][j] += g[i] * g[j];
-    }
+  Eigen::MatrixXd X(static_cast<Eigen::Index>(points.size()), terms);
+  Eigen::VectorXd y(X.rows());
+  for (Eigen::Index i = 0; i < X.rows(); ++i) {
+    X.row(i) = Fit::powers(points[static_cast<size_t>(i)].first, terms).transpose();
+    y[i] = points[static_cast<size_t>(i)].second;
   }
+  const Eigen::FullPivLU<Eigen::MatrixXd> normal(X.transpose() * X);
+  if (!normal.isInvertible()) return false;
   f.terms = terms;
-  if (!invert(m, terms, f.inverse)) return false;
-  for (int i = 0; i < terms; ++i) {
-    f.beta[i] = 0;
-    for (int j = 0; j < terms; ++j) f.beta[i] += f.inverse[i][j] * r[j];
-  }
-  double ssr = 0;
-  for (const auto& [v, y] : points) ssr += (y - f.at(v)) * (y - f.at(v));
+  f.inverse = normal.inverse();
+  f.beta = f.inverse * (X.transpose() * y);
   f.residual_variance = std::max(
-      kRoundingVariance, ssr / static_cast<double>(points.size() - static_cast<size_t>(terms)));
+      kRoundingVariance, (y - X * f.beta).squaredNorm() /
+                             static_cast<double>(points.size() - static_cast<size_t>(terms)));
   return true;
 }
 
@@ -163,7 +139,7 @@ Forecast forecast_convergence(const std::vector<CurvePoint>& curve, double cpu_b
   if (!fit(points, 3, trend) ||
       !(trend.beta[2] < 0 &&
         -trend.beta[2] >=
-            kBendStandardErrors * std::sqrt(trend.residual_variance * trend.inverse[2][2])))
+            kBendStandardErrors * std::sqrt(trend.residual_variance * trend.inverse(2, 2))))
     fit(points, 2, trend);
   // The trend's zero past the last point: no way out left.
   double v_end = v_last;
