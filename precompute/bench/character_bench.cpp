@@ -102,21 +102,10 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
     iterations += m.iterations;
     factorizations += m.factorizations;
     row.max_strain = std::max(row.max_strain, m.max_strain);
-    const auto& edges = scene.model.mesh.edges;
-    double frame_worst = -1.0;
-    size_t frame_worst_edge = 0;
-    for (size_t e = 0; e < edges.size(); ++e) {
-      const double l0 = scene.model.edge_rest_length[e];
-      if (l0 <= 0.0) continue;
-      strains.push_back((state.x.col(edges[e][0]) - state.x.col(edges[e][1])).norm() / l0 - 1.0);
-      if (strains.back() > frame_worst) {
-        frame_worst = strains.back();
-        frame_worst_edge = e;
-      }
-    }
-    if (frame_worst >= row.max_strain && frame_worst > 0.0) {
+    const EdgeStrainMax frame_worst = append_edge_strains(scene.model, state.x, strains);
+    if (frame_worst.strain >= row.max_strain && frame_worst.strain > 0.0) {
       row.worst_frame = f;
-      locate_edge(scene, clip, f, state.x, edges[frame_worst_edge], row);
+      locate_edge(scene, clip, f, state.x, scene.model.mesh.edges[frame_worst.edge], row);
     }
     row.max_penetration = std::max(row.max_penetration, m.max_penetration);
     const int crossings = count_self_intersections(scene.model.mesh, state.x);

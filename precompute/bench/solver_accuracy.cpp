@@ -214,12 +214,7 @@ EnsembleStats ensemble_stats(const ClothScene& scene, const Trajectory& run) {
       sag_sum += (x.col(i) - x0.col(i)).dot(g);
       ++sag_count;
     }
-    const auto& edges = model.mesh.edges;
-    for (size_t e = 0; e < edges.size(); ++e) {
-      const double l0 = model.edge_rest_length[e];
-      if (l0 <= 0) continue;
-      strains.push_back(((x.col(edges[e][0]) - x.col(edges[e][1])).norm() - l0) / l0);
-    }
+    append_edge_strains(model, x, strains);
   }
   s.sag_mm = sag_count > 0 ? 1e3 * sag_sum / static_cast<double>(sag_count) : NAN;
   s.strain_p99 = report::percentile(std::move(strains), 0.99);

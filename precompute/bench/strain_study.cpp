@@ -64,15 +64,8 @@ StrainStudy run_strain_study(const ClothScene& scene, const StrainStudyOptions& 
       strains.reserve(edges.size() * static_cast<std::size_t>(row.frames));
       row.max_strain = 0.0;
       for (std::size_t f = 1; f < r.frames.size(); ++f) {
-        double frame_max = 0.0;
-        for (std::size_t e = 0; e < edges.size(); ++e) {
-          const double l0 = scene.model.edge_rest_length[e];
-          if (l0 <= 0.0) continue;
-          const double strain =
-              (r.frames[f].col(edges[e][0]) - r.frames[f].col(edges[e][1])).norm() / l0 - 1.0;
-          strains.push_back(strain);
-          frame_max = std::max(frame_max, strain);
-        }
+        const double frame_max =
+            std::max(0.0, append_edge_strains(scene.model, r.frames[f], strains).strain);
         row.max_strain = std::max(row.max_strain, frame_max);
         row.last_strain = frame_max;
       }

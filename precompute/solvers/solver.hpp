@@ -6,6 +6,7 @@
 #include <Eigen/Core>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "cloth/collision.hpp"
 #include "cloth/model.hpp"
@@ -81,7 +82,16 @@ Eigen::Matrix3Xd kinematic_positions(const ClothModel& model, const Eigen::Matri
 
 // Diagnostics used by tests and benchmarks.
 double max_edge_strain(const ClothModel& model, const Eigen::Matrix3Xd& x);  // max (l - l0)/l0
-double kinetic_energy(const ClothModel& model, const Eigen::Matrix3Xd& v);   // J, free vertices
+// Appends the strain (l - l0) / l0 of every edge with a rest length at x to `out` (for
+// percentiles) and returns the largest with its edge (the first such; strain -inf and edge
+// mesh.edges.size() when no edge has a rest length).
+struct EdgeStrainMax {
+  double strain;
+  size_t edge;
+};
+EdgeStrainMax append_edge_strains(const ClothModel& model, const Eigen::Matrix3Xd& x,
+                                  std::vector<double>& out);
+double kinetic_energy(const ClothModel& model, const Eigen::Matrix3Xd& v);  // J, free vertices
 double gravity_potential(const ClothModel& model, const Eigen::Matrix3Xd& x, const Vec3& g);
 
 }  // namespace clothdb

@@ -1,5 +1,6 @@
 // What every solver shares: names, state checks, kinematic pins and the diagnostics.
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 #include "solvers/solver.hpp"
@@ -53,6 +54,20 @@ double max_edge_strain(const ClothModel& model, const Eigen::Matrix3Xd& x) {
     if (l0 <= 0.0) continue;
     const double l = (x.col(edges[e][0]) - x.col(edges[e][1])).norm();
     worst = std::max(worst, (l - l0) / l0);
+  }
+  return worst;
+}
+
+EdgeStrainMax append_edge_strains(const ClothModel& model, const Eigen::Matrix3Xd& x,
+                                  std::vector<double>& out) {
+  const auto& edges = model.mesh.edges;
+  EdgeStrainMax worst{-std::numeric_limits<double>::infinity(), edges.size()};
+  for (size_t e = 0; e < edges.size(); ++e) {
+    const double l0 = model.edge_rest_length[e];
+    if (l0 <= 0.0) continue;
+    const double strain = ((x.col(edges[e][0]) - x.col(edges[e][1])).norm() - l0) / l0;
+    out.push_back(strain);
+    if (strain > worst.strain) worst = {strain, e};
   }
   return worst;
 }
