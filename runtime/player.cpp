@@ -872,13 +872,7 @@ CLOTHRT_MULTIVERSION void tangent_frames(const float* __restrict nx, const float
     const float ge = a * g0 + b * g1;
     const float h0 = g0 - ge * a, h1 = g1 - ge * b, h2 = 0.0f - ge * c;
     float t0 = none ? h0 : u0, t1 = none ? h1 : u1, t2 = none ? h2 : u2;
-    const float l2 = t0 * t0 + t1 * t1 + t2 * t2;
-    const bool ok = l2 > 0;
-    const float s = 1.0f / std::sqrt(ok ? l2 : 1.0f);
-    const float s0 = t0 * s, s1 = t1 * s, s2 = t2 * s;
-    t0 = ok ? s0 : t0;
-    t1 = ok ? s1 : t1;
-    t2 = ok ? s2 : t2;
+    unit_or(t0, t1, t2, t0, t1, t2, t0, t1, t2);
     const float c0 = b * t2 - c * t1, c1 = c * t0 - a * t2, c2 = a * t1 - b * t0;
     const float hand = c0 * wx[r] + c1 * wy[r] + c2 * wz[r] < 0 ? -1.0f : 1.0f;
     ux[r] = t0, uy[r] = t1, uz[r] = t2;
