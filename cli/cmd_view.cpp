@@ -2,17 +2,17 @@
 // (clothrt), with the character's body capsules, controls for the walk through the motion graph,
 // and the clip table of `clothdb clips list` (docs/guide/viewer.md).
 //
-// How frames reach the page: cpp-httplib 0.11 (Debian) has no WebSocket, so the page pulls, over
-// a keep-alive connection: `GET /api/frames?dt=SECONDS&n=8&wait=MS` advances the server's one
+// How frames reach the page: cpp-httplib 0.11 (Debian) has no WebSocket, so the page pulls, one
+// request per connection: `GET /api/frames?dt=SECONDS&n=8&wait=MS` advances the server's one
 // player eight times by dt and answers with the eight frames' cloth on the render mesh (the
 // artist's vertices, seam copies split: positions and normals in character space from
 // clothrt_player_get_render_mesh, quantised: wire_frame_bytes) and body capsules as the body and
 // the player's state at each as a JSON header. The page shows one per animation frame and always
 // has the next request in flight, held by the server for `wait` ms (until the page's queue runs
-// low), so a request's fixed cost is shared by eight frames, its latency is hidden, and the
-// connection never idles in cpp-httplib's polling keep-alive loop (the body's capsules come with
-// each frame for the same reason: no other connection is kept busy). The render mesh's triangles
-// and the clip table are fetched once. Nobody asking (a paused page) costs nothing.
+// low), so a request's fixed cost is shared by eight frames and its latency is hidden. Every
+// connection is closed after its answer, so none idles in cpp-httplib's polling keep-alive loop
+// (run_view). The render mesh's triangles and the clip table are fetched once. Nobody asking (a
+// paused page) costs nothing.
 #include <pthread.h>
 #include <signal.h>
 #include <sys/resource.h>
@@ -755,9 +755,16 @@ void run_view(const ViewArgs& a) {
                  "says so\n",
                  v.assets.string().c_str());
 
-  svr.set_keep_alive_max_count(1 << 30);  // the page pulls every frame over one connection
-  // Short: an idle keep-alive connection costs a thread polling every 10 ms in cpp-httplib 0.11,
-  // and the page loads its files over several; the frame connection is never idle while playing.
+  // One request per connection (cpp-httplib answers with "Connection: close"). Between two
+  // requests a kept-alive connection waits in cpp-httplib 0.11's keep-alive loop, which polls it
+  // every 10 ms and sleeps 1 ms in between: two wake-ups per 11 ms of the page's reaction time
+  // (80 ms between an answer and the page's next request at load 10: a third of the server's CPU;
+  // docs/notebook/viewer.md). A fresh loopback connection (accept, a worker woken, the close)
+  // costs less than one such wait, and nothing idles in the loop: the page's other connections
+  // (its files, the controls) no longer poll for two seconds after their last request either.
+  svr.set_keep_alive_max_count(1);
+  // cpp-httplib also waits in that loop for a connection's first request: a connection opened
+  // ahead (browsers pre-connect) is dropped after this long.
   svr.set_keep_alive_timeout(2);
   // Headers and body go out in two writes: without TCP_NODELAY, Nagle's algorithm and delayed
   // ACKs held every frame back by tens of milliseconds.
