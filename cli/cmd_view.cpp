@@ -710,9 +710,9 @@ void add_routes(httplib::Server& svr, Viewer& v) {
         const int64_t n =
             req.has_param("n") ? parse_int("n", req.get_param_value("n"), 1, kMaxBatch) : 1;
         // The page asks for its next batch as soon as one arrives and says how long to hold
-        // the answer (until its queue runs low): its connection then waits in this handler
-        // instead of in cpp-httplib's keep-alive loop, which polls an idle connection every
-        // 10 ms (half the server's CPU when it did). Controls sent meanwhile apply to it.
+        // the answer (until its queue runs low): the server is the page's timer (one sleep, not
+        // a loaded browser's timers), and the request's latency is hidden. Controls sent
+        // meanwhile apply to it.
         const int64_t wait_ms = req.has_param("wait")
                                     ? parse_int("wait", req.get_param_value("wait"), 0, kMaxWaitMs)
                                     : 0;
