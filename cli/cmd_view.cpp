@@ -666,39 +666,8 @@ httplib::Server::Handler guarded(F f) {
 }
 
 void add_routes(httplib::Server& svr, Viewer& v) {
-  svr.Get("/", guarded([&v](const httplib::Request&, httplib::Response& res) {
-            if (v.three_root.empty()) {
-              res.status = 503;
-              reply(res, missing_three_page(), "text/html; charset=utf-8");
-              return;
-            }
-            serve_file(v.assets, "index.html", res);
-          }));
-  svr.Get(R"(/(viewer\.js|viewer\.css))",
-          guarded([&v](const httplib::Request& req, httplib::Response& res) {
-            serve_file(v.assets, req.matches[1].str(), res);
-          }));
-  svr.Get(R"(/three/(.*))", guarded([&v](const httplib::Request& req, httplib::Response& res) {
-            serve_file(v.three_root, req.matches[1].str(), res);
-          }));
-  svr.Get("/api/info", guarded([&v](const httplib::Request&, httplib::Response& res) {
-            reply(res, text_of(v.info), "application/json");
-          }));
-  svr.Get("/api/triangles", guarded([&v](const httplib::Request&, httplib::Response& res) {
-            reply(res,
-                  std::string(reinterpret_cast<const char*>(v.triangles.data()),
-                              v.triangles.size() * sizeof(uint32_t)),
-                  "application/octet-stream");
-          }));
-  svr.Get("/api/clips", guarded([&v](const httplib::Request& req, httplib::Response& res) {
-            const std::string by = req.has_param("by") ? req.get_param_value("by") : "strain";
-            const auto names = clip_metrics();
-            if (std::none_of(names.begin(), names.end(),
-                             [&](const ClipMetricName& m) { return m.name == by; }))
-              throw BadRequest(400, "by: unknown metric '" + by.substr(0, 40) + "'");
-            db::Reader reader = open_reader(v.file);
-            reply(res, text_of(clips_list_json(reader, by, 0)), "application/json");
-          }));
+  // First: cpp-httplib tries the routes in order, each a std::regex match, and this one is asked
+  // for several times a second.
   // After `wait` ms, n frames, each dt seconds after the one before (dt 0: the current pose
   // again): each frame's positions and body capsules, one frame after another, as the body; their
   // states as a JSON array in a header.
@@ -743,6 +712,39 @@ void add_routes(httplib::Server& svr, Viewer& v) {
         res.set_header("X-Clothdb-Frames", states);
         reply_pooled(res, v, std::move(body), "application/octet-stream");
       }));
+  svr.Get("/", guarded([&v](const httplib::Request&, httplib::Response& res) {
+            if (v.three_root.empty()) {
+              res.status = 503;
+              reply(res, missing_three_page(), "text/html; charset=utf-8");
+              return;
+            }
+            serve_file(v.assets, "index.html", res);
+          }));
+  svr.Get(R"(/(viewer\.js|viewer\.css))",
+          guarded([&v](const httplib::Request& req, httplib::Response& res) {
+            serve_file(v.assets, req.matches[1].str(), res);
+          }));
+  svr.Get(R"(/three/(.*))", guarded([&v](const httplib::Request& req, httplib::Response& res) {
+            serve_file(v.three_root, req.matches[1].str(), res);
+          }));
+  svr.Get("/api/info", guarded([&v](const httplib::Request&, httplib::Response& res) {
+            reply(res, text_of(v.info), "application/json");
+          }));
+  svr.Get("/api/triangles", guarded([&v](const httplib::Request&, httplib::Response& res) {
+            reply(res,
+                  std::string(reinterpret_cast<const char*>(v.triangles.data()),
+                              v.triangles.size() * sizeof(uint32_t)),
+                  "application/octet-stream");
+          }));
+  svr.Get("/api/clips", guarded([&v](const httplib::Request& req, httplib::Response& res) {
+            const std::string by = req.has_param("by") ? req.get_param_value("by") : "strain";
+            const auto names = clip_metrics();
+            if (std::none_of(names.begin(), names.end(),
+                             [&](const ClipMetricName& m) { return m.name == by; }))
+              throw BadRequest(400, "by: unknown metric '" + by.substr(0, 40) + "'");
+            db::Reader reader = open_reader(v.file);
+            reply(res, text_of(clips_list_json(reader, by, 0)), "application/json");
+          }));
   svr.Post("/api/control", guarded([&v](const httplib::Request& req, httplib::Response& res) {
              reply(res, control(v, req.body), "application/json");
            }));
