@@ -73,7 +73,7 @@ constexpr double kMaxBlendFrames = 600;
 // wake-ups, parsing) is shared; more than 16 would only add latency to the controls.
 constexpr int64_t kMaxBatch = 16;
 // How long the page may ask the server to hold a batch (wait=MS), milliseconds.
-constexpr int64_t kMaxWaitMs = 250;
+constexpr int64_t kMaxWaitMs = 500;
 
 struct ViewArgs {
   std::string file, host = "127.0.0.1", assets, scene;
@@ -97,7 +97,13 @@ struct Viewer {
   clothrt_player* player = nullptr;
   uint32_t vertices = 0;
   std::vector<uint32_t> triangles;
-  std::vector<int64_t> clip_ids;        // primary clips, id order
+  std::vector<int64_t> clip_ids;  // primary clips, id order
+  // Per primary clip its last frame index and frame rate: where the runtime reaches the node at
+  // the clip's end (passes_node).
+  struct Span {
+    double last, rate;
+  };
+  std::map<int64_t, Span> spans;
   std::vector<int64_t> cloth_clip_ids;  // for validating jumps
   json info;                            // GET /api/info, built once
   // Body capsules per primary clip, character space: frames x capsule_count x (ax, ay, az, bx, by,
@@ -320,6 +326,7 @@ void open_viewer(Viewer& v, const ViewArgs& a) {
     if (clothrt_db_clip_info(v.db, i, &ci) != CLOTHRT_OK)
       throw std::runtime_error(a.file + ": clip info: " + clothrt_db_errmsg(v.db));
     v.clip_ids.push_back(ci.id);
+    v.spans[ci.id] = {double(ci.frame_count - 1), ci.frame_rate};
     clips.push_back({{"id", ci.id},
                      {"name", ci.name},
                      {"frames", ci.frame_count},
@@ -391,6 +398,18 @@ template <class Int>
 void append_int(std::string& out, Int x) {
   char buf[24];
   out.append(buf, std::to_chars(buf, buf + sizeof buf, x).ptr);
+}
+
+// Whether advancing the player by dt reaches the node at the end of its primary clip, by the
+// runtime's rule (clip time += dt * frame rate; the node at the last frame), where the next clip is
+// chosen and a blend starts. Not at a dead end (the player already on the last frame stays there).
+bool passes_node(const Viewer& v, double dt) {
+  clothrt_frame_info fi{};
+  clothrt_player_info(v.player, &fi);
+  const auto it = v.spans.find(fi.primary_clip);
+  if (it == v.spans.end()) return false;
+  const Viewer::Span& s = it->second;
+  return fi.primary_frame < s.last && fi.primary_frame + dt * s.rate >= s.last;
 }
 
 // The player's state as the page shows it (the JSON header of each frame, the answer to a
@@ -592,7 +611,7 @@ void quantise_frame(const float* p, const float* nr, size_t n, size_t capsules, 
       wire_frame_bytes(n, capsules) - (kFrameHeadFloats + 7 * capsules) * sizeof(float) - 9 * n);
 }
 
-// A pooled body for /api/frames with `bytes` bytes (contents left as they were).
+// A pooled body for /api/frames with at least `bytes` bytes (contents left as they were).
 std::string take_body(Viewer& v, size_t bytes) {
   std::string body;
   {
@@ -602,15 +621,16 @@ std::string take_body(Viewer& v, size_t bytes) {
       v.pool.pop_back();
     }
   }
-  body.resize(bytes);
+  if (body.size() < bytes) body.resize(bytes);  // (never shrunk: see reply_pooled)
   return body;
 }
 
-// As reply(), and the body goes back to the pool once sent (cpp-httplib's releaser runs when the
-// response is destroyed).
-void reply_pooled(httplib::Response& res, Viewer& v, std::string body, const char* type) {
+// As reply() with the first `size` bytes of `body` (a pooled body keeps its length, so that taking
+// it again never zero-fills), and the body goes back to the pool once sent (cpp-httplib's releaser
+// runs when the response is destroyed).
+void reply_pooled(httplib::Response& res, Viewer& v, std::string body, size_t size,
+                  const char* type) {
   auto data = std::make_shared<std::string>(std::move(body));
-  const size_t size = data->size();
   res.set_content_provider(
       size, type,
       [data](size_t offset, size_t length, httplib::DataSink& sink) {
@@ -694,7 +714,13 @@ void add_routes(httplib::Server& svr, Viewer& v) {
         std::lock_guard<std::mutex> lock(v.mu);
         v.scratch.resize(nv * 6);
         float* p = v.scratch.data();
-        for (int64_t k = 0; k < n; ++k) {
+        // A batch ends before the frame that reaches a node, which starts the next batch: that
+        // frame is then made only when the page is about to show it (the hold), so a next-clip
+        // choice or blend length set until then applies at this node, however long the batches
+        // are in the middle of a clip.
+        int64_t k = 0;
+        for (; k < n; ++k) {
+          if (k > 0 && passes_node(v, dt)) break;
           const auto t0 = Clock::now();
           const int rc = clothrt_player_advance(v.player, dt);
           const clothrt_render_output ro{p, 12, p + nv * 3, 12, nullptr, 0};
@@ -710,7 +736,7 @@ void add_routes(httplib::Server& svr, Viewer& v) {
         }
         states += ']';
         res.set_header("X-Clothdb-Frames", states);
-        reply_pooled(res, v, std::move(body), "application/octet-stream");
+        reply_pooled(res, v, std::move(body), size_t(k) * frame_bytes, "application/octet-stream");
       }));
   svr.Get("/", guarded([&v](const httplib::Request&, httplib::Response& res) {
             if (v.three_root.empty()) {

@@ -8,8 +8,9 @@
 //   node viewer/bench.mjs CLOTHDB DB [--seconds 10] [--width 1280] [--height 720] [--png FILE]
 //                         [--batch N (frames per request; the page's default 8)] [--paused]
 //   node viewer/bench.mjs CLOTHDB DB --no-browser [--batch N] [--wait MS] [--frames 1200]
-// The second form measures the server alone: one keep-alive connection asking for the frames the
-// way the page does (N per request, each held MS ms), server CPU per frame served.
+// The second form measures the server alone: one client asking for the frames the way the page
+// does (N per request, each held MS ms; one connection per request, as the server closes each),
+// server CPU per frame served.
 import {launchBrowser, median, startViewer, stopViewer} from './driver.mjs';
 
 const args = process.argv.slice(2);

@@ -12,7 +12,7 @@ import {OrbitControls} from 'three/addons/controls/OrbitControls.js';
 const SLOW = 0.25;       // slow-motion factor
 const MAX_STEP = 0.1;    // s: a longer gap (a hidden tab, a stall) plays as this
 // Frames per request (cli/cmd_view.cpp: how frames reach the page); ?batch=N overrides it.
-const BATCH = Math.max(1, Math.min(16, Number(new URLSearchParams(location.search).get('batch')) || 8));
+const BATCH = Math.max(1, Math.min(16, Number(new URLSearchParams(location.search).get('batch')) || 16));
 const BACKGROUND = 0xdfe4ea;
 
 // Everything the page measures and shows; also read by the browser test and the benchmark
@@ -198,7 +198,7 @@ function ask() {
   if (state.inflight || state.paused) return;
   if (!state.frame && !queue.length) return request(0, 1, 0);
   const interval = state.interval || 1 / 60;
-  const wait = Math.max(0, Math.min(250, (queue.length - 3) * interval * 1000 - 10));
+  const wait = Math.max(0, Math.min(500, (queue.length - 3) * interval * 1000 - 10));
   request(interval * (state.slow ? SLOW : 1), BATCH, wait);
 }
 
