@@ -3,16 +3,16 @@
 // and the clip table of `clothdb clips list` (docs/guide/viewer.md).
 //
 // How frames reach the page: cpp-httplib 0.11 (Debian) has no WebSocket, so the page pulls, one
-// request per connection: `GET /api/frames?dt=SECONDS&n=8&wait=MS` advances the server's one
-// player eight times by dt and answers with the eight frames' cloth on the render mesh (the
-// artist's vertices, seam copies split: positions and normals in character space from
-// clothrt_player_get_render_mesh, quantised: wire_frame_bytes) and body capsules as the body and
-// the player's state at each as a JSON header. The page shows one per animation frame and always
-// has the next request in flight, held by the server for `wait` ms (until the page's queue runs
-// low), so a request's fixed cost is shared by eight frames and its latency is hidden. Every
-// connection is closed after its answer, so none idles in cpp-httplib's polling keep-alive loop
-// (run_view). The render mesh's triangles and the clip table are fetched once. Nobody asking (a
-// paused page) costs nothing.
+// request per connection: `GET /api/frames?dt=SECONDS&n=16&wait=MS` advances the server's one
+// player up to n times by dt, ending before a node (passes_node), and answers with the frames'
+// cloth on the render mesh (the artist's vertices, seam copies split: positions and normals in
+// character space from clothrt_player_get_render_mesh, quantised: wire_frame_bytes) and body
+// capsules as the body and the player's state at each as a JSON header. The page shows one per
+// animation frame and always has the next request in flight, held by the server for `wait` ms
+// (until the page's queue runs low), so a request's fixed cost is shared by up to sixteen frames
+// and its latency is hidden. Every connection is closed after its answer, so none idles in
+// cpp-httplib's polling keep-alive loop (run_view). The render mesh's triangles and the clip table
+// are fetched once. Nobody asking (a paused page) costs nothing.
 #include <pthread.h>
 #include <signal.h>
 #include <sys/resource.h>
@@ -69,8 +69,9 @@ using nlohmann::json;
 // the time since its last request, capped), and blends longer than 600 frames are not blends.
 constexpr double kMaxStepSeconds = 1.0;
 constexpr double kMaxBlendFrames = 600;
-// Frames per request: the page asks for a few at a time, so the fixed cost of a request (thread
-// wake-ups, parsing) is shared; more than 16 would only add latency to the controls.
+// Frames per request: the page asks for several at a time, so the fixed cost of a request (a
+// connection, thread wake-ups, parsing) is shared; more than 16 would only add latency to the
+// controls that apply with the batch (slow motion's step).
 constexpr int64_t kMaxBatch = 16;
 // How long the page may ask the server to hold a batch (wait=MS), milliseconds.
 constexpr int64_t kMaxWaitMs = 500;
