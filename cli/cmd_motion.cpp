@@ -24,10 +24,13 @@ void print_motion(const LoadedMotion& m, bool list_joints) {
               c.source_rate, c.first_source_frame,
               c.first_source_frame + (c.frame_count - 1) * c.source_rate / c.rate);
   std::printf("  frames: %d at %g Hz, duration %.3f s\n", c.frame_count, c.rate, c.duration());
-  std::printf("  scale: %g m per file unit; skeleton size (rest) %.3f m\n", c.scale,
-              skeleton_size(sk));
-  // The size counts end sites, so say which are the file's and which the loader made up
-  // (docs/guide/garment_placement.md, "Motion from Blender").
+  std::printf(
+      "  scale: %g m per file unit; skeleton size %.3f m (%g x its span, %.3f m along "
+      "the bones: the default capsule radii's reference)\n",
+      c.scale, skeleton_size(sk), kStatureOverSpan, skeleton_span(sk));
+  // End sites give the last capsule of each chain its far end (head top, toe and finger tips):
+  // say which are the file's and which the loader made up (docs/guide/garment_placement.md,
+  // "Motion from Blender").
   int from_file = 0, made_up = 0;
   for (int j = 0; j < sk.joint_count(); ++j)
     if (sk.end_site[j]) ++(sk.end_site_from_file[j] ? from_file : made_up);

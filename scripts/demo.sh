@@ -3,7 +3,7 @@
 #  1. the motion graph of CMU 01_01 + 01_03 (Kovar et al. 2002), written into the database and drawn
 #     as SVG;
 #  2. the secondary cloth graph of a 3,000-vertex skirt explored into one SQLite database
-#     (Kim et al. 2013) with epsilon 8 mm (1.5x the garment's measured error floor, 5.2 mm) for a
+#     (Kim et al. 2013) with epsilon 8 mm (1.4x the garment's measured error floor, 5.7 mm) for a
 #     budget of at most 0.2 CPU-hours (it converges in about 2 CPU-minutes);
 #  3. the database checked, summarised, and played back along a random path.
 # Rerunning resumes the exploration where it stopped (CLOTHDB_DEMO_FRESH=1 starts over).

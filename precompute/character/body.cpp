@@ -66,20 +66,31 @@ const char* body_region_name(BodyRegion region) {
   return "?";
 }
 
-double skeleton_size(const Skeleton& skeleton) {
+double skeleton_span(const Skeleton& skeleton) {
   const std::vector<JointPose> rest = rest_pose(skeleton);
-  if (rest.empty()) return 0.0;
-  Eigen::Vector3d lo = rest[0].position, hi = rest[0].position;
-  for (int j = 0; j < skeleton.joint_count(); ++j) {
-    lo = lo.cwiseMin(rest[j].position);
-    hi = hi.cwiseMax(rest[j].position);
-    if (skeleton.end_site[j]) {
-      const Eigen::Vector3d tip = point_in_joint(rest[j], *skeleton.end_site[j]);
-      lo = lo.cwiseMin(tip);
-      hi = hi.cwiseMax(tip);
+  // The tree's diameter by bone length, children before parents (parents[j] < j): longest[j] is
+  // the longest path from j down to one of its descendants; a path through j joins j's two
+  // longest branches.
+  const int n = skeleton.joint_count();
+  std::vector<double> longest(n, 0.0), second(n, 0.0);
+  double span = 0.0;
+  for (int j = n - 1; j >= 0; --j) {
+    span = std::max(span, longest[j] + second[j]);
+    const int parent = skeleton.parents[j];
+    if (parent < 0) continue;
+    const double branch = longest[j] + (rest[j].position - rest[parent].position).norm();
+    if (branch > longest[parent]) {
+      second[parent] = longest[parent];
+      longest[parent] = branch;
+    } else if (branch > second[parent]) {
+      second[parent] = branch;
     }
   }
-  return (hi - lo).maxCoeff();
+  return span;
+}
+
+double skeleton_size(const Skeleton& skeleton) {
+  return kStatureOverSpan * skeleton_span(skeleton);
 }
 
 BodyRegion classify_bone(const Skeleton& skeleton, int joint) {

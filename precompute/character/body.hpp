@@ -52,9 +52,19 @@ struct BodySpec {
   std::map<std::string, double> radius;
 };
 
-// Size of the skeleton: the largest extent of its rest pose (joints and end sites), metres. For a
-// T-pose this is about the stature (or the arm span), the reference for the default radii.
+// Span of the skeleton: the longest path between two of its joints along the bones, the sum of
+// the rest distances from joint to joint (metres). End sites do not count: glTF stores none, and
+// a rigid re-posing keeps every bone's length, so BVH, Blender's FBX (whose rest pose is the pose
+// of its export frame) and glTF of the same rig agree to single precision.
+double skeleton_span(const Skeleton& skeleton);
+
+// Size of the skeleton, the reference for the default radii: a stature estimated from the span,
+// kStatureOverSpan * skeleton_span (metres). It does not depend on the file format.
 double skeleton_size(const Skeleton& skeleton);
+// On CMU's rig (01_01.bvh) the rest pose's extent with the end sites, the size the radii were
+// tuned on before, is 0.6659 of the span (docs/notebook/blender_motion.md, "Capsule radii from
+// the skeleton's span").
+inline constexpr double kStatureOverSpan = 0.666;
 
 BodyRegion classify_bone(const Skeleton& skeleton, int joint);
 // Default radius of a bone of `region` on a skeleton of the given size (metres).
