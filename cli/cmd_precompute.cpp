@@ -175,6 +175,14 @@ void register_precompute(CLI::App& app) {
       ->check(CLI::PositiveNumber);
   cmd->add_flag("--mpi-verbose", args->mpi_verbose,
                 "Under mpirun: one line per job handed out, lost or late");
+  cmd->add_option(
+         "--mpi-replica-mb", args->mpi_replica_mb,
+         "Under mpirun: each worker keeps the states it has been sent, up to this many MB of "
+         "positions and velocities (24 B a vertex a state; the least recently used are dropped), "
+         "so that a job names the states a worker holds by id instead of sending them again. "
+         "Changes the bytes sent, never the result")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 1e7));
 #endif
   cmd->callback([args, epsilon_mm, position_bound_mm, quiet, floor_seconds, codec_name, contract] {
     PrecomputeRequest request = *args;

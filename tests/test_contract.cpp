@@ -223,18 +223,23 @@ TEST(RunSettings, EveryFieldSurvivesTheMpiWire) {
   job.settings = given.settings;
   job.codec = given.codec;
   job.epsilon = 0.0125;
+  job.state = 12;
   job.targets = {{77, {0.5f, -1, 2}, {3, 0.25f, -4}}};
-  const std::vector<uint8_t> bytes = encode_job(9, job);
+  ReplicaLedger ledger;
+  const std::vector<uint8_t> bytes = encode_job(9, job, ledger);
   uint64_t seq = 0;
-  const JobInput back = decode_job(bytes.data(), bytes.size(), &seq);
+  StateReplica worker = make_replica(1, 1.0 / 30);
+  const JobInput back = decode_job(bytes.data(), bytes.size(), &seq, worker);
   EXPECT_EQ(seq, 9u);
   expect_same_solver(back.solver, back.settings, given.solver, given.settings, true);
   expect_same_codec(back.codec, given.codec);
   EXPECT_EQ(back.epsilon, job.epsilon);
-  ASSERT_EQ(back.targets.size(), 1u);
-  EXPECT_EQ(back.targets[0].state, 77);
-  EXPECT_EQ(back.targets[0].x, job.targets[0].x);
-  EXPECT_EQ(back.targets[0].v, job.targets[0].v);
+  EXPECT_EQ(back.state, 12);
+  EXPECT_EQ(back.x, job.x);
+  ASSERT_TRUE(back.target_source);
+  ASSERT_EQ(back.target_source->ids, std::vector<int64_t>{77});
+  EXPECT_EQ(back.target_source->exact->get(77)->x, job.targets[0].x);
+  EXPECT_EQ(back.target_source->exact->get(77)->v, job.targets[0].v);
 }
 
 TEST(RunSettings, EveryFieldSurvivesTheSceneFile) {

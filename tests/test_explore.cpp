@@ -460,12 +460,18 @@ TEST(Explore, JobsThroughTheWireInAnyOrderGiveTheSameDatabase) {
     const ExploreReport direct = run(scene, omp, options);
     ASSERT_TRUE(steering || direct.converged);
     long wired = 0;
+    // One worker's replica across the run, kept to one state beyond those a job names so that it
+    // drops some: the file must not change.
+    ReplicaLedger ledger;
+    ledger.capacity_bytes = exact_state_bytes(uint32_t(scene.model.vertex_count()));
+    StateReplica worker = make_replica(uint32_t(scene.model.vertex_count()), 1.0 / graph.rate);
+    JobWireCounts counts;
     const BatchRunner reversed = [&](const std::vector<JobInput>& jobs,
                                      std::vector<JobResult>& results) {
       for (size_t k = jobs.size(); k-- > 0;) {
-        const std::vector<uint8_t> out = encode_job(1000 + k, jobs[k]);
+        const std::vector<uint8_t> out = encode_job(1000 + k, jobs[k], ledger, &counts);
         uint64_t seq = 0;
-        const JobInput received = decode_job(out.data(), out.size(), &seq);
+        const JobInput received = decode_job(out.data(), out.size(), &seq, worker);
         ASSERT_EQ(seq, 1000 + k);
         const std::vector<uint8_t> back = encode_result(seq, run_job(scene, graph, received));
         results[k] = decode_result(back.data(), back.size(), &seq);
@@ -480,6 +486,17 @@ TEST(Explore, JobsThroughTheWireInAnyOrderGiveTheSameDatabase) {
       ASSERT_GT(direct.steered, 0);
       EXPECT_EQ(report.steered, direct.steered);
     }
+    // States crossed as the file's blobs, were named by id once the worker held them, and were
+    // dropped beyond one.
+    EXPECT_GT(counts.states_sent, 0);
+    EXPECT_EQ(counts.sent_as_blobs, counts.states_sent);
+    EXPECT_GT(counts.states_named, 0);
+    if (!steering) {  // (the steered run, cut at 500 frames, makes two states: both always named)
+      EXPECT_GT(counts.states_dropped, 0);
+    }
+    std::printf("%ld states sent (%ld as blobs), %ld named by id, %ld dropped\n",
+                counts.states_sent, counts.sent_as_blobs, counts.states_named,
+                counts.states_dropped);
     expect_same_file(omp, wire);
   }
 }

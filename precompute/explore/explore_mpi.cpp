@@ -145,6 +145,10 @@ struct Owner::Impl {
   enum class State { Loading, Idle, Busy, Lost };
   struct Worker {
     State state = State::Loading;
+    // What its replica holds. Every job message sent to it updates both, in the order MPI
+    // delivers them; a rank declared lost that answers after all received every message it was
+    // sent, so its account is still right.
+    ReplicaLedger ledger;
     std::string host;
     int64_t pid = 0;
     uint64_t seq = 0;  // the job it is running
@@ -184,6 +188,7 @@ struct Owner::Impl {
     scene_hash_ = scene_hash(scene);
     graph_hash_ = graph_hash(graph);
     workers.resize(static_cast<size_t>(size()));
+    for (Worker& w : workers) w.ledger.capacity_bytes = options.replica_bytes;
     workers[0].state = State::Lost;  // rank 0 is not a worker
     stats.workers = size() - 1;
   }
@@ -294,12 +299,17 @@ struct Owner::Impl {
     const JobInput& job = (*jobs)[index];
     const uint64_t seq = next_seq++;
     const auto t0 = Clock::now();
-    std::vector<uint8_t> bytes = encode_job(seq, job);
+    Worker& w = workers[to];
+    JobWireCounts counts;
+    std::vector<uint8_t> bytes = encode_job(seq, job, w.ledger, &counts);
     stats.encode_seconds += since(t0);
+    stats.states_sent += counts.states_sent;
+    stats.states_named += counts.states_named;
+    stats.states_dropped += counts.states_dropped;
+    stats.sent_as_blobs += counts.sent_as_blobs;
     stats.bytes_out += static_cast<double>(bytes.size());
     ++stats.jobs_sent;
     handed[seq] = {batch, index, static_cast<uint32_t>(graph.edges[job.edge].poses.size())};
-    Worker& w = workers[to];
     w.state = State::Busy;
     w.seq = seq;
     w.start = Clock::now();
@@ -431,16 +441,19 @@ const OwnerStats& Owner::stats() const {
 std::string Owner::summary() const {
   const OwnerStats& s = impl_->stats;
   const double jobs = std::max<long>(1, s.jobs_sent), results = std::max<long>(1, s.results);
-  char text[768];
+  char text[1024];
   std::snprintf(
       text, sizeof text,
       "mpi: %d workers, %ld jobs sent, %ld results (%ld lost, %ld late, %ld duplicates, %ld run on "
       "rank 0)\n"
       "mpi: %.0f bytes per job out, %.0f bytes per result back; rank 0 per job: encode %.1f us, "
-      "decode %.1f us; rank 0 idle %.1f s\n",
+      "decode %.1f us; rank 0 idle %.1f s\n"
+      "mpi: states named by the jobs: %ld sent whole (%ld as the file's blobs), %ld by id (held "
+      "by the worker), %ld dropped from replicas\n",
       s.workers, s.jobs_sent, s.results, s.lost, s.late, s.duplicates, s.local_jobs,
       s.bytes_out / jobs, s.bytes_back / results, 1e6 * s.encode_seconds / jobs,
-      1e6 * s.decode_seconds / results, s.idle_seconds);
+      1e6 * s.decode_seconds / results, s.idle_seconds, s.states_sent, s.sent_as_blobs,
+      s.states_named, s.states_dropped);
   return text;
 }
 
@@ -457,6 +470,8 @@ void run_worker(const CharacterScene& scene, const ExploreGraph& graph, int thre
   const std::vector<uint8_t> hello = encode_hello(h);
   check(MPI_Send(hello.data(), static_cast<int>(hello.size()), MPI_BYTE, 0, kHello, MPI_COMM_WORLD),
         "MPI_Send hello");
+  // The states rank 0 has sent (its ledger of this rank says which).
+  StateReplica replica = make_replica(h.vertices, 1.0 / graph.rate);
   Backoff backoff;
   while (true) {
     int flag = 0;
@@ -476,7 +491,7 @@ void run_worker(const CharacterScene& scene, const ExploreGraph& graph, int thre
       throw std::runtime_error("rank 0 sent an unknown message (tag " + std::to_string(st.MPI_TAG) +
                                ")");
     uint64_t seq = 0;
-    JobInput job = decode_job(bytes.data(), bytes.size(), &seq);
+    JobInput job = decode_job(bytes.data(), bytes.size(), &seq, replica);
     job.settings.threads = h.threads;
     JobResult result;
     try {

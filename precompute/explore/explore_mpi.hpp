@@ -11,6 +11,10 @@
 // microseconds to milliseconds against seconds of simulation, and a coordinator that never blocks
 // in a solver answers every worker at once (docs/notebook/BENCHMARKS.md measures both).
 //
+// A job names its states by id; a worker keeps a replica of those it has been sent and rank 0 an
+// account of each replica, so a job message carries whole only the states that worker lacks
+// (explore/job_wire.hpp, ReplicaLedger).
+//
 // Fault tolerance (OpenMPI 4.1 has no ULFM): run with `mpirun --enable-recovery`, so the job
 // survives a dead process; rank 0 sets MPI_ERRORS_RETURN and polls with MPI_Iprobe, and a job not
 // back within its timeout (see OwnerOptions) goes back to the front of the queue for another rank;
@@ -56,15 +60,21 @@ struct OwnerOptions {
   double job_timeout = 60.0;
   bool verbose = false;  // one line per hand-out, loss and late result on stderr
   int threads = 1;       // rank 0's threads when it must simulate itself (every worker lost)
+  // Each worker's replica of the states it has been sent (explore/job_wire.hpp ReplicaLedger):
+  // at most this many bytes of exact states (24 B a vertex each) beyond those one job names.
+  size_t replica_bytes = size_t(256) << 20;
 };
 
 // What rank 0 measured (for docs/notebook/BENCHMARKS.md and the summary line).
 struct OwnerStats {
   long jobs_sent = 0, results = 0, lost = 0, late = 0, duplicates = 0, local_jobs = 0;
   double bytes_out = 0, bytes_back = 0;  // job and result messages
-  double encode_seconds = 0;             // wall, encoding job messages
-  double decode_seconds = 0;             // wall, decoding (and checking) result messages
-  double idle_seconds = 0;               // wall, rank 0 waiting with nothing to do
+  // The states the job messages named: sent whole (as blobs or floats), by id only, and dropped
+  // from a worker's replica (explore/job_wire.hpp).
+  long states_sent = 0, states_named = 0, states_dropped = 0, sent_as_blobs = 0;
+  double encode_seconds = 0;  // wall, encoding job messages
+  double decode_seconds = 0;  // wall, decoding (and checking) result messages
+  double idle_seconds = 0;    // wall, rank 0 waiting with nothing to do
   int workers = 0, workers_lost = 0;
 };
 

@@ -83,11 +83,17 @@ struct SteerTargetSource {
 struct JobInput {
   int edge = 0;             // index into ExploreGraph::edges
   std::vector<float> x, v;  // start state in character space, as stored (decoded)
+  // The start state's id in the file. The MPI job message names states by id and sends a worker
+  // only the states it does not hold yet (explore/job_wire.hpp): it must be set there.
+  int64_t state = 0;
+  // The explorer's state store (the start state's and the targets' stored blobs for job_wire,
+  // which sends those rather than floats); null: job_wire sends floats.
+  std::shared_ptr<StateCache> store;
   // Steering (SceneFile::steering, on when frames > 0): the states at the edge's end node when the
   // batch was chosen, and the explorer's epsilon (an end already within it is not steered).
   std::vector<SteerTarget> targets;
-  // In-process: the targets read on demand instead (then `targets` is empty); job_wire sends them
-  // as `targets`, so the wire does not change.
+  // The explorer and an MPI worker: the targets read on demand instead (then `targets` is empty);
+  // job_wire sends their ids, and the states a worker lacks.
   std::shared_ptr<const SteerTargetSource> target_source;
   double epsilon = 0;
   SolverKind solver = SolverKind::Xpbd;

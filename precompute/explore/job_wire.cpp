@@ -1,7 +1,10 @@
 #include "explore/job_wire.hpp"
 
+#include <algorithm>
 #include <bit>
 #include <cstring>
+#include <limits>
+#include <unordered_set>
 
 #include "database/codec/codec.hpp"
 #include "database/format/checksum.hpp"
@@ -17,10 +20,10 @@ static_assert(std::endian::native == std::endian::little, "the wire format is li
 #if defined(__x86_64__) && defined(__GLIBCXX__)
 // (The settings inside JobInput travel as JSON: their own size does not matter here.)
 // (The codec v2/v3 basis, body anchors and flag, 40 bytes, and the v3 contract, 24, do not travel:
-// encode_job refuses a job with a basis.) The target source, 16 bytes, travels as `targets`
-// (encode_job reads them).
+// encode_job refuses a job with a basis.) The target source, 16 bytes, travels as its ids, and the
+// store, 16, is where encode_job reads the states a worker lacks; the start state's id, 8, travels.
 static_assert(sizeof(JobInput) - sizeof(SolverSettings) - sizeof(db::CodecSettings) ==
-                  96 + 40 + 16 + 24,
+                  96 + 40 + 16 + 24 + 8 + 16,
               "JobInput changed: update encode_job/decode_job");
 static_assert(sizeof(ClipQuality) == 56, "ClipQuality changed: update encode_result/decode_result");
 // (A version 3 clip's contract figures, 32 bytes, do not travel: they come only with a basis.)
@@ -109,6 +112,14 @@ class In {
                       " bytes left");
     return static_cast<size_t>(n);
   }
+  // A u32 element count checked against what is left (each element at least `element` bytes).
+  size_t count(const char* field, size_t element) {
+    const uint32_t n = u32(field);
+    if (n > static_cast<size_t>(end_ - p_) / element)
+      fail(field, "declares " + std::to_string(n) + " elements, only " + std::to_string(end_ - p_) +
+                      " bytes left");
+    return n;
+  }
   std::string str(const char* field) {
     std::string s(length(field, 1), '\0');
     raw(s.data(), s.size(), field);
@@ -175,55 +186,178 @@ WorkerHello decode_hello(const uint8_t* data, size_t size) {
   return h;
 }
 
-std::vector<uint8_t> encode_job(uint64_t seq, const JobInput& job) {
+StateReplica make_replica(uint32_t vertices, double tau) {
+  if (vertices == 0) throw std::invalid_argument("job_wire: a replica of a garment of 0 vertices");
+  StateReplica r;
+  r.vertices = vertices;
+  r.reducer = make_reducer(vertices, tau);
+  r.exact = std::make_shared<StateCache>(
+      std::numeric_limits<size_t>::max(), [](int64_t id) -> ExactState {
+        // decode_job checks every id a job names before the job runs: this is a bug.
+        throw std::logic_error("job_wire: state " + std::to_string(id) +
+                               " is not in this worker's replica");
+      });
+  return r;
+}
+
+namespace {
+
+// A state rank 0 sends a worker whole: as the file's blobs when the job's store has them and they
+// are codec version 1 (a worker has no basis), else as floats.
+void write_state(Out& o, const JobInput& job, int64_t id, JobWireCounts* counts) {
+  const std::shared_ptr<StateCache> store =
+      job.store ? job.store : (job.target_source ? job.target_source->exact : nullptr);
+  if (store) {
+    const StateBlobs b = store->blobs(id);
+    auto version_1 = [](const std::vector<uint8_t>& blob) {
+      codec::BlobInfo info;
+      db::Error err;
+      return !blob.empty() &&
+             codec::read_info(blob.data(), blob.size(), &info, &err) == db::Status::Ok &&
+             info.version == codec::kFormatVersion && info.frame_count == 1;
+    };
+    if (version_1(b.x) && version_1(b.v)) {
+      o.i64(id);
+      o.u32(1);
+      o.bytes(b.x);
+      o.bytes(b.v);
+      if (counts) ++counts->sent_as_blobs;
+      return;
+    }
+  }
+  auto floats = [&](const std::vector<float>& x, const std::vector<float>& v) {
+    o.i64(id);
+    o.u32(0);
+    o.floats(x);
+    o.floats(v);
+  };
+  if (id == job.state) return floats(job.x, job.v);
+  for (const SteerTarget& t : job.targets)
+    if (t.state == id) return floats(t.x, t.v);
+  if (job.target_source) {
+    const ExactStatePtr e = job.target_source->exact->get(id);
+    return floats(e->x, e->v);
+  }
+  throw std::invalid_argument("job_wire: the job names state " + std::to_string(id) +
+                              " but holds no copy of it");
+}
+
+}  // namespace
+
+std::vector<uint8_t> encode_job(uint64_t seq, const JobInput& job, ReplicaLedger& ledger,
+                                JobWireCounts* counts) {
   // A basis is a few MB; MPI workers would need it sent once per basis, not once per job.
   if (job.basis)
     throw std::invalid_argument(
         "job_wire: codec v2 or v3 during precompute (--codec v2, v3) runs in one process only; "
         "precompute with MPI writes codec v1 (convert afterwards with `clothdb db recode`)");
+  if (job.state == 0)
+    throw std::invalid_argument("job_wire: a job's start state travels by id: set JobInput::state");
+  // The states the job names: its start state, then its targets in their order.
+  std::vector<int64_t> targets;
+  if (job.target_source)
+    targets = job.target_source->ids;
+  else
+    for (const SteerTarget& t : job.targets) targets.push_back(t.state);
+  std::vector<int64_t> needed = {job.state};
+  std::unordered_set<int64_t> named = {job.state};
+  for (int64_t id : targets)
+    if (named.insert(id).second) needed.push_back(id);
+  // What the worker lacks, and what it drops to stay within the ledger's capacity once it holds
+  // them: its least recently used ids that this job does not name.
+  const size_t state_bytes = exact_state_bytes(static_cast<uint32_t>(job.x.size() / 3));
+  std::vector<int64_t> send, drop;
+  for (int64_t id : needed)
+    if (!ledger.where.count(id)) send.push_back(id);
+  size_t bytes = ledger.bytes + send.size() * state_bytes;
+  for (auto it = ledger.lru.rbegin(); it != ledger.lru.rend() && bytes > ledger.capacity_bytes;
+       ++it)
+    if (!named.count(*it)) {
+      drop.push_back(*it);
+      bytes -= state_bytes;
+    }
   Out o("CDBJ");
   o.u64(seq);
   o.i32(job.edge);
-  o.floats(job.x);
-  o.floats(job.v);
+  o.u32(static_cast<uint32_t>(drop.size()));
+  for (int64_t id : drop) o.i64(id);
+  o.u32(static_cast<uint32_t>(send.size()));
+  JobWireCounts local;
+  for (int64_t id : send) write_state(o, job, id, &local);
+  o.i64(job.state);
   db::RunSettings run;
   run.solver = job.solver;
   run.settings = job.settings;
   run.codec = job.codec;
   o.str(db::run_settings_json(run));
   o.f64(job.epsilon);
-  // Targets an in-process explorer reads on demand (JobInput::target_source) travel as copies: a
-  // worker rank has no database to read them from (docs/notebook/explorer.md, "MPI").
-  if (job.target_source) {
-    const SteerTargetSource& source = *job.target_source;
-    o.u32(static_cast<uint32_t>(source.ids.size()));
-    for (int64_t id : source.ids) {
-      const ExactStatePtr t = source.exact->get(id);
-      o.i64(id);
-      o.floats(t->x);
-      o.floats(t->v);
-    }
-  } else {
-    o.u32(static_cast<uint32_t>(job.targets.size()));
-    for (const SteerTarget& t : job.targets) {
-      o.i64(t.state);
-      o.floats(t.x);
-      o.floats(t.v);
-    }
+  o.u32(static_cast<uint32_t>(targets.size()));
+  for (int64_t id : targets) o.i64(id);
+  // The message is made: the ledger follows it as the worker's replica will.
+  for (int64_t id : drop) {
+    ledger.lru.erase(ledger.where.at(id));
+    ledger.where.erase(id);
+  }
+  for (int64_t id : needed) {
+    const auto found = ledger.where.find(id);
+    if (found != ledger.where.end()) ledger.lru.erase(found->second);
+    ledger.lru.push_front(id);
+    ledger.where[id] = ledger.lru.begin();
+  }
+  ledger.bytes = bytes;
+  if (counts) {
+    counts->states_sent += static_cast<long>(send.size());
+    counts->states_named += static_cast<long>(needed.size() - send.size());
+    counts->states_dropped += static_cast<long>(drop.size());
+    counts->sent_as_blobs += local.sent_as_blobs;
   }
   return o.take();
 }
 
-JobInput decode_job(const uint8_t* data, size_t size, uint64_t* seq) {
+JobInput decode_job(const uint8_t* data, size_t size, uint64_t* seq, StateReplica& replica) {
   In in(data, size, "CDBJ", "job");
   JobInput job;
   *seq = in.u64("seq");
   job.edge = in.i32("edge");
-  job.x = in.floats("x");
-  job.v = in.floats("v");
-  if (job.x.size() != job.v.size() || job.x.size() % 3 != 0)
-    in.fail("v", std::to_string(job.x.size()) + " position and " + std::to_string(job.v.size()) +
-                     " velocity floats: must be equal multiples of 3");
+  std::vector<int64_t> drop(in.count("drop", 8));
+  for (int64_t& id : drop) id = in.i64("drop");
+  std::vector<std::pair<int64_t, ExactState>> sent(in.count("states", 8 + 4 + 16));
+  codec::DecodeScratch scratch;
+  for (auto& [id, state] : sent) {
+    id = in.i64("state id");
+    const uint32_t form = in.u32("state form");
+    const std::string which = "state " + std::to_string(id);
+    if (form == 0) {
+      state.x = in.floats("state x");
+      state.v = in.floats("state v");
+    } else if (form == 1) {
+      const std::vector<uint8_t> bx = in.bytes("state x blob"), bv = in.bytes("state v blob");
+      for (const auto* b : {&bx, &bv}) {
+        codec::BlobInfo info;
+        db::Error err;
+        if (codec::read_info(b->data(), b->size(), &info, &err) != db::Status::Ok)
+          in.fail("state blob", which + ": not a valid frame blob: " + err.message);
+        if (info.frame_count != 1 || info.version != codec::kFormatVersion ||
+            info.size != b->size())
+          in.fail("state blob", which + ": " + std::to_string(info.frame_count) +
+                                    " frames of codec version " + std::to_string(info.version) +
+                                    " in " + std::to_string(info.size) + " of " +
+                                    std::to_string(b->size()) + " bytes; must be one frame of 1");
+        std::vector<float>& out = b == &bx ? state.x : state.v;
+        if (codec::decode_all(b->data(), b->size(), out, scratch, &err) != db::Status::Ok)
+          in.fail("state blob", which + " does not decode: " + err.message);
+      }
+    } else {
+      in.fail("state form", which + ": form " + std::to_string(form) + " (0 floats, 1 blobs)");
+    }
+    const size_t floats = 3 * size_t(replica.vertices);
+    if (state.x.size() != floats || state.v.size() != floats)
+      in.fail("state v", which + " has " + std::to_string(state.x.size()) + " position and " +
+                             std::to_string(state.v.size()) + " velocity floats, the garment's " +
+                             std::to_string(replica.vertices) + " vertices " +
+                             std::to_string(floats));
+  }
+  job.state = in.i64("start state");
   const std::string settings = in.str("settings");
   try {
     const db::RunSettings run = db::parse_run_settings_json(settings, "job message: settings");
@@ -234,19 +368,42 @@ JobInput decode_job(const uint8_t* data, size_t size, uint64_t* seq) {
     in.fail("settings", e.what());
   }
   job.epsilon = in.f64("epsilon");
-  const uint32_t targets = in.u32("targets");
-  for (uint32_t k = 0; k < targets; ++k) {
-    SteerTarget t;
-    t.state = in.i64("target state");
-    t.x = in.floats("target x");
-    t.v = in.floats("target v");
-    if (t.x.size() != job.x.size() || t.v.size() != job.x.size())
-      in.fail("targets", "target " + std::to_string(k) + " has " + std::to_string(t.x.size()) +
-                             " position and " + std::to_string(t.v.size()) +
-                             " velocity floats, the job's state " + std::to_string(job.x.size()));
-    job.targets.push_back(std::move(t));
-  }
+  std::vector<int64_t> targets(in.count("targets", 8));
+  for (int64_t& id : targets) id = in.i64("target");
   in.finish();
+  // Every state the job names must be held once the drops and the states sent are applied.
+  std::unordered_set<int64_t> arriving, dropped(drop.begin(), drop.end());
+  for (const auto& s : sent) arriving.insert(s.first);
+  auto held = [&](int64_t id) {
+    return arriving.count(id) || (replica.reduced.count(id) && !dropped.count(id));
+  };
+  if (!held(job.state))
+    in.fail("start state",
+            "state " + std::to_string(job.state) + " is neither held by this worker nor sent");
+  for (int64_t id : targets)
+    if (!held(id))
+      in.fail("targets",
+              "state " + std::to_string(id) + " is neither held by this worker nor sent");
+  // Applied: the replica now holds what rank 0's ledger says it holds.
+  for (int64_t id : drop) {
+    replica.exact->erase(id);
+    replica.reduced.erase(id);
+  }
+  for (auto& [id, state] : sent) {
+    replica.reduced[id] = reduce(replica.reducer, state.x.data(), state.v.data());
+    replica.exact->put(id, std::move(state));
+  }
+  const ExactStatePtr start = replica.exact->get(job.state);
+  job.x = start->x;
+  job.v = start->v;
+  if (!targets.empty()) {
+    auto source = std::make_shared<SteerTargetSource>();
+    source->reducer = replica.reducer;
+    source->exact = replica.exact;
+    source->ids = targets;
+    for (int64_t id : targets) source->reduced.push_back(replica.reduced.at(id));
+    job.target_source = std::move(source);
+  }
   return job;
 }
 

@@ -338,6 +338,8 @@ std::vector<JobInput> job_inputs(const CharacterScene& scene, const ExploreGraph
     inputs[b].edge = batch[b].edge;
     inputs[b].x = start->x;
     inputs[b].v = start->v;
+    inputs[b].state = sg.states[static_cast<size_t>(batch[b].state)].id;
+    inputs[b].store = sg.exact;
     inputs[b].solver = scene.file.solver;
     inputs[b].settings = scene.file.settings;
     inputs[b].settings.threads =

@@ -351,6 +351,7 @@ PrecomputeOutcome run_precompute(const PrecomputeRequest& request, std::FILE* lo
     mpi::OwnerOptions mo;
     mo.job_timeout = request.job_timeout;
     mo.verbose = request.mpi_verbose;
+    mo.replica_bytes = static_cast<size_t>(request.mpi_replica_mb * double(1 << 20));
     mo.threads = options.threads;
     owner = std::make_unique<mpi::Owner>(scene, eg, mo);
     if (log)

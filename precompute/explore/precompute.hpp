@@ -52,6 +52,8 @@ struct PrecomputeRequest {
   // under mpirun
   double job_timeout = 60.0;
   bool mpi_verbose = false;
+  double mpi_replica_mb =
+      256;  // each worker's replica of the states it was sent (mpi::OwnerOptions)
 };
 
 struct PrecomputeOutcome {

@@ -26,18 +26,28 @@ SecondaryGraph empty_secondary_graph(const ExploreGraph& graph, uint32_t vertice
   // One scratch for every read (the cache calls this under its lock): a decoder context is
   // costly to make, more than decoding a small state.
   auto scratch = std::make_shared<codec::DecodeScratch>();
-  sg.exact = std::make_shared<StateCache>(cache_bytes, [from, vertices, scratch](int64_t id) {
-    ExactState s;
-    db::Error err;
-    if (from->read_state(id, &s.x, &s.v, *scratch, &err) != db::Status::Ok)
-      throw std::runtime_error(from->path() + ": reading cloth state " + std::to_string(id) +
-                               " back: " + std::string(err.message));
-    if (s.x.size() != 3 * size_t(vertices) || s.v.size() != s.x.size())
-      throw std::runtime_error(from->path() + ": cloth state " + std::to_string(id) + " has " +
-                               std::to_string(s.x.size() / 3) + " vertices, the garment " +
-                               std::to_string(vertices));
-    return s;
-  });
+  sg.exact = std::make_shared<StateCache>(
+      cache_bytes,
+      [from, vertices, scratch](int64_t id) {
+        ExactState s;
+        db::Error err;
+        if (from->read_state(id, &s.x, &s.v, *scratch, &err) != db::Status::Ok)
+          throw std::runtime_error(from->path() + ": reading cloth state " + std::to_string(id) +
+                                   " back: " + std::string(err.message));
+        if (s.x.size() != 3 * size_t(vertices) || s.v.size() != s.x.size())
+          throw std::runtime_error(from->path() + ": cloth state " + std::to_string(id) + " has " +
+                                   std::to_string(s.x.size() / 3) + " vertices, the garment " +
+                                   std::to_string(vertices));
+        return s;
+      },
+      [from](int64_t id) {
+        StateBlobs b;
+        db::Error err;
+        if (from->state_blobs(id, &b.x, &b.v, &err) != db::Status::Ok)
+          throw std::runtime_error(from->path() + ": reading cloth state " + std::to_string(id) +
+                                   "'s blobs: " + std::string(err.message));
+        return b;
+      });
   return sg;
 }
 

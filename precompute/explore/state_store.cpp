@@ -69,8 +69,8 @@ PrunedNearest nearest_pruned(size_t n, const std::function<double(size_t)>& lowe
   return out;
 }
 
-StateCache::StateCache(size_t capacity_bytes, Read read)
-    : capacity_(capacity_bytes), read_(std::move(read)) {}
+StateCache::StateCache(size_t capacity_bytes, Read read, ReadBlobs read_blobs)
+    : capacity_(capacity_bytes), read_(std::move(read)), read_blobs_(std::move(read_blobs)) {}
 
 ExactStatePtr StateCache::track(ExactState state) {
   const size_t bytes = (state.x.size() + state.v.size()) * sizeof(float);
@@ -128,6 +128,20 @@ ExactStatePtr StateCache::put(int64_t id, ExactState state) {
   }
   insert(id, tracked);
   return tracked;
+}
+
+StateBlobs StateCache::blobs(int64_t id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return read_blobs_ ? read_blobs_(id) : StateBlobs{};
+}
+
+void StateCache::erase(int64_t id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto found = where_.find(id);
+  if (found == where_.end()) return;
+  cached_ -= (found->second->second->x.size() + found->second->second->v.size()) * sizeof(float);
+  lru_.erase(found->second);
+  where_.erase(found);
 }
 
 StateCache::Stats StateCache::stats() const {

@@ -68,16 +68,30 @@ struct ExactState {
 };
 using ExactStatePtr = std::shared_ptr<const ExactState>;
 
+// A state as the file stores it: its two one-frame blobs (database/format/reader.hpp state_blobs).
+// Decoding them gives the ExactState bit for bit; they are 3-4x smaller, which is what the MPI job
+// messages send a worker (explore/job_wire.hpp).
+struct StateBlobs {
+  std::vector<uint8_t> x, v;
+};
+
 // An LRU cache of exact states of a fixed capacity in bytes, reading a state it does not hold
 // through `read` (the database). Thread-safe: jobs read steering targets from worker threads,
 // and `read` is called under the cache's lock (one reader connection at a time).
 class StateCache {
  public:
   using Read = std::function<ExactState(int64_t id)>;
-  StateCache(size_t capacity_bytes, Read read);
+  using ReadBlobs = std::function<StateBlobs(int64_t id)>;
+  // read_blobs (optional): the state's stored blobs, read under the same lock as `read` (one reader
+  // connection for both).
+  StateCache(size_t capacity_bytes, Read read, ReadBlobs read_blobs = {});
   ExactStatePtr get(int64_t id);
   // A state the caller already has (just decoded): cached without a read.
   ExactStatePtr put(int64_t id, ExactState state);
+  // The state's stored blobs, never cached; empty when the cache was made without read_blobs.
+  StateBlobs blobs(int64_t id);
+  // Forgets a state (an MPI worker's replica drops what rank 0 says it dropped); no-op if absent.
+  void erase(int64_t id);
 
   // Bytes of exact states alive: those the cache holds plus those callers still hold after
   // their eviction. The bound (docs/notebook/explorer.md): capacity plus a few states per
@@ -100,6 +114,7 @@ class StateCache {
   mutable std::mutex mutex_;
   size_t capacity_;
   Read read_;
+  ReadBlobs read_blobs_;
   std::list<std::pair<int64_t, ExactStatePtr>> lru_;  // most recent first
   std::unordered_map<int64_t, std::list<std::pair<int64_t, ExactStatePtr>>::iterator> where_;
   size_t cached_ = 0;

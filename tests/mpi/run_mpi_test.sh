@@ -15,7 +15,10 @@
 #     must declare it lost, hand its job to the other worker, and still write the same rows.
 #   run_mpi_test.sh steer CLOTHDB MPIEXEC SOURCE_DIR WORK_DIR
 #     as `same` on a scene that steers clip ends (tests/data/mpi_steer.json; the demo scene steers):
-#     the jobs carry epsilon and the target states over the wire, and clips must be steered.
+#     the jobs carry epsilon and the target states over the wire, and clips must be steered. Each
+#     worker's replica of the states it was sent is kept to about 4 states (--mpi-replica-mb 0.02
+#     of the 192-vertex skirt's 4.6 KB states), so rank 0 has them drop states and send some again.
+# In every mode the jobs name states by id: some must have been named without being sent again.
 # With a sixth argument (the db_rows helper, tests/support/db_rows_main.cpp) every table of the two
 # files is compared, run bookkeeping excluded by name, and `db check` must pass on both.
 set -euo pipefail
@@ -41,7 +44,9 @@ dump=(db dump --mask run.started,run.finished,run.cpu_seconds,run.host,run.setti
 [ "$(grep -c . single.dump)" -gt 50 ] || { echo "the single-process run stored too little"; exit 1; }
 
 if [ "$mode" = same ] || [ "$mode" = stored ] || [ "$mode" = steer ]; then
-  "${mpi[@]}" "$clothdb" precompute "$scene" --db mpi.db "${args[@]}" >mpi.out 2>mpi.err ||
+  replica=()
+  [ "$mode" = steer ] && replica=(--mpi-replica-mb 0.02)
+  "${mpi[@]}" "$clothdb" precompute "$scene" --db mpi.db "${args[@]}" "${replica[@]}" >mpi.out 2>mpi.err ||
     { cat mpi.err; exit 1; }
 elif [ "$mode" = kill ]; then
   # --enable-recovery: the job survives a dead rank; --job-timeout 1: a job is lost after
@@ -66,6 +71,17 @@ else
   echo "unknown mode $mode"; exit 2
 fi
 grep -q "converged" mpi.out || { echo "the MPI run did not converge"; cat mpi.out mpi.err; exit 1; }
+# "mpi: states named by the jobs: S sent whole (B as the file's blobs), N by id (held by the
+# worker), D dropped from replicas"
+states=$(grep -m1 "^mpi: states named by the jobs" mpi.err) ||
+  { echo "rank 0 printed no states line"; cat mpi.err; exit 1; }
+echo "$states"
+by_id=$(sed -E 's/.* ([0-9]+) by id.*/\1/' <<<"$states")
+dropped=$(sed -E 's/.* ([0-9]+) dropped.*/\1/' <<<"$states")
+[ "$by_id" -gt 0 ] || { echo "no state was named by id: the replicas saved nothing"; exit 1; }
+if [ "$mode" = steer ] && [ "$dropped" -eq 0 ]; then
+  echo "no state was dropped from a replica of about 4 states: the bound was not exercised"; exit 1
+fi
 "$clothdb" "${dump[@]}" mpi.db >mpi.dump
 if ! cmp -s single.dump mpi.dump; then
   echo "the MPI run stored different rows:"; diff single.dump mpi.dump | head -20; exit 1
