@@ -1,4 +1,4 @@
-// `clothdb bench nearest`: the nearest-state search with and without its pivot table
+// `clothdb bench nearest`: the nearest-state search with and without its pruning steps
 // (bench/nearest_bench.hpp).
 #include <cstdio>
 #include <memory>
@@ -22,9 +22,8 @@ void register_bench_nearest(CLI::App& bench) {
   CLI::App* cmd = bench.add_subcommand(
       "nearest",
       "The explorer's nearest-state search and priority updates, adding every state as a resume "
-      "does: as before (every candidate's reduced bound, sorted), then adding early exit, the "
-      "coarse bound first and the pivot table (all: as the explorer runs): CPU time (one thread) "
-      "and state distances "
+      "does: as before (every candidate's reduced bound, sorted), then adding early exit and the "
+      "coarse bound first (both: as the explorer runs): CPU time (one thread) and state distances "
       "begun, and whether every answer is the same (it must be)");
   cmd->add_option("--db", args->db, "A database: its cloth states, in the order they were added")
       ->check(CLI::ExistingFile);
@@ -50,10 +49,8 @@ void register_bench_nearest(CLI::App& bench) {
                 r.reduced_only.cpu_seconds, r.reduced_only.exact_evaluations);
     std::printf("+ early exit             %.3f CPU s, %ld state distances begun\n",
                 r.early_exit.cpu_seconds, r.early_exit.exact_evaluations);
-    std::printf("+ coarse bound first     %.3f CPU s, %ld state distances begun\n",
+    std::printf("+ coarse (the explorer)  %.3f CPU s, %ld state distances begun\n",
                 r.coarse.cpu_seconds, r.coarse.exact_evaluations);
-    std::printf("+ pivots (the explorer)  %.3f CPU s, %ld state distances begun\n",
-                r.pivots.cpu_seconds, r.pivots.exact_evaluations);
     std::printf("answers                  %s\n",
                 r.identical ? "identical (nearest state, distance, priority)" : "DIFFER");
     if (!r.identical) throw std::runtime_error("bench nearest: the answers differ");

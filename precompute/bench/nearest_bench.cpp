@@ -37,16 +37,13 @@ struct Answers {
 };
 
 // Adds every state as the explorer and a resume do (nearest_state, then add_state).
-Answers replay(const StateSet& set, size_t max_pivots, bool early_exit, bool coarse_first,
-               NearestBenchSide* side) {
+Answers replay(const StateSet& set, bool early_exit, bool coarse_first, NearestBenchSide* side) {
   SecondaryGraph sg;
   sg.tau = set.tau;
   sg.out_edges.assign(size_t(set.nodes), {});
   sg.states_at_node.assign(size_t(set.nodes), {});
-  sg.pivots_at_node.assign(size_t(set.nodes), {});
   const uint32_t vertices = static_cast<uint32_t>(set.exact.front().x.size() / 3);
   sg.reducer = make_reducer(vertices, sg.tau);
-  sg.max_pivots = max_pivots;
   sg.early_exit = early_exit;
   sg.coarse_first = coarse_first;
   // Every state stays cached: the figure is the search's, not the file's reads.
@@ -80,14 +77,13 @@ NearestBenchResult run(const StateSet& set) {
   for (int n : set.node) ++per_node[size_t(n)];
   r.nodes = size_t(std::count_if(per_node.begin(), per_node.end(), [](size_t k) { return k > 0; }));
   r.largest_node = *std::max_element(per_node.begin(), per_node.end());
-  const Answers old = replay(set, 0, false, false, &r.reduced_only);
-  const Answers early = replay(set, 0, true, false, &r.early_exit);
-  const Answers coarse = replay(set, 0, true, true, &r.coarse);
-  const Answers pivots = replay(set, kPivots, true, true, &r.pivots);
+  const Answers old = replay(set, false, false, &r.reduced_only);
+  const Answers early = replay(set, true, false, &r.early_exit);
+  const Answers coarse = replay(set, true, true, &r.coarse);
   auto same = [](const Answers& a, const Answers& b) {
     return a.nearest == b.nearest && a.distance == b.distance && a.priority == b.priority;
   };
-  r.identical = same(old, early) && same(old, coarse) && same(old, pivots);
+  r.identical = same(old, early) && same(old, coarse);
   return r;
 }
 

@@ -1,9 +1,9 @@
 // `clothdb bench nearest`: the explorer's nearest-state search and its priority updates
-// (explore/secondary_graph.hpp) with the pivot table and early exit against the reduced bound
-// alone, on a file's
-// states replayed in the order a resume adds them, or on a synthetic clustered set at one node.
-// Both give the same answers (checked, every query and every priority); the figures are CPU time
-// and state distances measured.
+// (explore/secondary_graph.hpp) with early exit and the coarse bound first against the reduced
+// bound alone, on a file's states replayed in the order a resume adds them, or on a synthetic
+// clustered set at one node. All give the same answers (checked, every query and every priority);
+// the figures are CPU time and state distances measured. (The pivot table it also measured until
+// 2026-12-04 is gone: docs/notebook/explorer.md, "The pivots removed".)
 #pragma once
 
 #include <cstddef>
@@ -21,9 +21,9 @@ struct NearestBenchResult {
   size_t states = 0, nodes = 0, largest_node = 0;
   uint32_t vertices = 0;
   // The search as it was (every candidate's reduced bound, sorted; every distance summed to its
-  // end), then adding one by one: early exit, the coarse bound first (a heap), the pivot table
-  // (all three: what the explorer runs).
-  NearestBenchSide reduced_only, early_exit, coarse, pivots;
+  // end), then adding one by one: early exit, the coarse bound first (a heap; both: what the
+  // explorer runs).
+  NearestBenchSide reduced_only, early_exit, coarse;
   bool identical = false;  // same nearest state, distance and priority for every state, all three
 };
 

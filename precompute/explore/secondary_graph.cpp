@@ -20,7 +20,6 @@ SecondaryGraph empty_secondary_graph(const ExploreGraph& graph, uint32_t vertice
   for (size_t e = 0; e < graph.edges.size(); ++e)
     sg.out_edges[static_cast<size_t>(graph.edges[e].from_node)].push_back(static_cast<int>(e));
   sg.states_at_node.assign(static_cast<size_t>(graph.node_count), {});
-  sg.pivots_at_node.assign(static_cast<size_t>(graph.node_count), {});
   sg.reducer = make_reducer(vertices, sg.tau);
   db::Reader* from = &reader;
   // One scratch for every read (the cache calls this under its lock): a decoder context is
@@ -52,8 +51,7 @@ SecondaryGraph empty_secondary_graph(const ExploreGraph& graph, uint32_t vertice
 }
 
 size_t bytes_per_state(const SecondaryGraph& sg) {
-  return sizeof(StateRec) + sg.reducer.size() * sizeof(double) + sizeof(int) +
-         sg.max_pivots * sizeof(double);
+  return sizeof(StateRec) + sg.reducer.size() * sizeof(double) + sizeof(int);
 }
 
 SecondaryGraph load_secondary_graph(db::Reader& reader, const std::string& path,
@@ -121,9 +119,6 @@ SecondaryGraph load_secondary_graph(db::Reader& reader, const std::string& path,
 
 namespace {
 
-// The pivot table's lower bound of d(q, s) from both states' distances to the same pivots (the
-// triangle inequality), less a margin for the rounding of the distances (each a sum of 6 x
-// vertices squares: a relative error far below 1e-9), so pruning never changes the answer.
 // The coarse form: the projection of the reduced form onto fields constant over the whole garment
 // (6 doubles: mean position and tau x mean velocity, in the distance's normalisation). A
 // projection of a projection, so its distance is at most the reduced distance.
@@ -139,14 +134,6 @@ std::array<double, 6> coarse_form(const StateReducer& reducer, const std::vector
 
 double coarse_distance(const std::array<double, 6>& a, const std::array<double, 6>& b) {
   return reduced_distance(a.data(), b.data(), 6);
-}
-
-double pivot_bound(const std::vector<double>& q, const std::vector<double>& s) {
-  double bound = 0;
-  const size_t n = std::min(q.size(), s.size());
-  for (size_t i = 0; i < n; ++i)
-    bound = std::max(bound, std::fabs(q[i] - s[i]) - 1e-9 * (q[i] + s[i]));
-  return bound;
 }
 
 // db::state_distance (database/format/cloth_graph.cpp: the same sum in the same order, so the same
@@ -187,30 +174,21 @@ Nearest nearest_state(SecondaryGraph& sg, int node, const std::vector<float>& x,
   Nearest out;
   out.reduced = reduce(sg.reducer, x.data(), v.data());
   const std::vector<int>& here = sg.states_at_node[static_cast<size_t>(node)];
-  const std::vector<int>& pivots = sg.pivots_at_node[static_cast<size_t>(node)];
   const size_t n = sg.reducer.size();
   out.distances.assign(here.size(), std::numeric_limits<double>::quiet_NaN());
   out.above.assign(here.size(), 0.0);
-  // The pivots first: their distances are exact, and bound every other state.
   double best = std::numeric_limits<double>::infinity();
-  for (int k : pivots) {
-    out.distances[size_t(k)] = exact_distance(sg, x, v, here[size_t(k)]);
-    out.pivot_distances.push_back(out.distances[size_t(k)]);
-    best = std::min(best, out.distances[size_t(k)]);
-  }
   // Coarse to fine: candidates come in order of the coarse bound (a heap, popped only as far as
-  // needed); one whose coarse bound exceeds the best distance measured so far (pivots included)
-  // ends the search (every later one's does too), one whose fine bound (reduced form, pivots)
-  // exceeds it is skipped, the rest are measured, stopping early beyond the best and their own
-  // priority. A candidate is left out
-  // only when its distance provably exceeds the best so far, so the answer (ties to the lower
-  // position, the older state) is the exhaustive search's.
+  // needed); one whose coarse bound exceeds the best distance measured so far ends the search
+  // (every later one's does too), one whose fine bound (the reduced form) exceeds it is skipped,
+  // the rest are measured, stopping early beyond the best and their own priority. A candidate is
+  // left out only when its distance provably exceeds the best so far, so the answer (ties to the
+  // lower position, the older state) is the exhaustive search's.
   out.coarse = coarse_form(sg.reducer, out.reduced);
   std::vector<std::pair<double, size_t>> order(here.size());
   const auto fine = [&](size_t k) {
-    const StateRec& s = sg.states[static_cast<size_t>(here[k])];
-    return std::max(reduced_distance(out.reduced.data(), s.reduced.data(), n),
-                    pivot_bound(out.pivot_distances, s.pivot_distance));
+    return reduced_distance(out.reduced.data(),
+                            sg.states[static_cast<size_t>(here[k])].reduced.data(), n);
   };
   for (size_t k = 0; k < here.size(); ++k)
     order[k] = {
@@ -226,22 +204,19 @@ Nearest nearest_state(SecondaryGraph& sg, int node, const std::vector<float>& x,
     std::pop_heap(order.begin(), end, later);
     const auto [bound, k] = *(end - 1);
     if (bound_exceeds(bound, best)) break;
-    double d = out.distances[k];  // a pivot: measured
-    if (std::isnan(d)) {
-      const StateRec& s = sg.states[static_cast<size_t>(here[k])];
-      if (sg.coarse_first && bound_exceeds(fine(k), best)) continue;
-      // Farther than the best so far cannot be the answer (nor tie it), and farther than the
-      // state's priority cannot lower it when the query becomes a state (add_state): stopped
-      // early beyond both, and add_state knows it is beyond them.
-      const double limit = std::max(best, s.priority);
-      d = exact_distance(sg, x, v, here[k], limit);
-      if (std::isinf(d)) {
-        out.above[k] = limit;
-        continue;
-      }
-      out.distances[k] = d;
-      best = std::min(best, d);
+    const StateRec& s = sg.states[static_cast<size_t>(here[k])];
+    if (sg.coarse_first && bound_exceeds(fine(k), best)) continue;
+    // Farther than the best so far cannot be the answer (nor tie it), and farther than the
+    // state's priority cannot lower it when the query becomes a state (add_state): stopped early
+    // beyond both, and add_state knows it is beyond them.
+    const double limit = std::max(best, s.priority);
+    const double d = exact_distance(sg, x, v, here[k], limit);
+    if (std::isinf(d)) {
+      out.above[k] = limit;
+      continue;
     }
+    out.distances[k] = d;
+    best = std::min(best, d);
     if (best_k < 0 || d < best_d || (d == best_d && int(k) < best_k)) best_d = d, best_k = int(k);
   }
   if (best_k >= 0) {
@@ -257,10 +232,6 @@ int add_state(SecondaryGraph& sg, StateRec rec, ExactState exact, const Nearest&
                                         : nearest.reduced;
   rec.coarse = coarse_form(sg.reducer, rec.reduced);
   std::vector<int>& here = sg.states_at_node[static_cast<size_t>(rec.node)];
-  std::vector<int>& pivots = sg.pivots_at_node[static_cast<size_t>(rec.node)];
-  rec.pivot_distance = nearest.pivot_distances;
-  for (size_t i = rec.pivot_distance.size(); i < pivots.size(); ++i)  // a query made elsewhere
-    rec.pivot_distance.push_back(exact_distance(sg, exact.x, exact.v, here[size_t(pivots[i])]));
   const size_t n = sg.reducer.size();
   for (size_t j = 0; j < here.size(); ++j) {
     StateRec& other = sg.states[static_cast<size_t>(here[j])];
@@ -275,8 +246,7 @@ int add_state(SecondaryGraph& sg, StateRec rec, ExactState exact, const Nearest&
       continue;
     if (sg.coarse_first && bound_exceeds(coarse_distance(rec.coarse, other.coarse), other.priority))
       continue;
-    if (bound_exceeds(std::max(reduced_distance(rec.reduced.data(), other.reduced.data(), n),
-                               pivot_bound(rec.pivot_distance, other.pivot_distance)),
+    if (bound_exceeds(reduced_distance(rec.reduced.data(), other.reduced.data(), n),
                       other.priority))
       continue;
     // Only a distance below its priority changes it: stopped early above that.
@@ -285,17 +255,8 @@ int add_state(SecondaryGraph& sg, StateRec rec, ExactState exact, const Nearest&
   }
   const int index = static_cast<int>(sg.states.size());
   here.push_back(index);
-  const ExactStatePtr added = sg.exact->put(rec.id, std::move(exact));
+  sg.exact->put(rec.id, std::move(exact));
   sg.states.push_back(std::move(rec));
-  // The state that brings the node to kPivotsFrom x 2^i states becomes its i-th pivot: every
-  // state there gets its distance to it (measured once each).
-  if (pivots.size() < sg.max_pivots && here.size() == (kPivotsFrom << pivots.size())) {
-    for (size_t j = 0; j + 1 < here.size(); ++j)
-      sg.states[size_t(here[j])].pivot_distance.push_back(
-          exact_distance(sg, added->x, added->v, here[j]));
-    sg.states[size_t(index)].pivot_distance.push_back(0);
-    pivots.push_back(static_cast<int>(here.size() - 1));
-  }
   return index;
 }
 

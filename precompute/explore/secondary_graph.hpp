@@ -32,33 +32,16 @@ struct StateRec {
   // or newer), kept up to date as states are added there, so a dead end that a later state came
   // close to no longer counts as far from everything. kNoNeighbour while it is alone.
   double priority = 0;
-  // Exact state distances to its node's pivots (SecondaryGraph::pivots_at_node), in their order:
-  // with the query's, a triangle-inequality lower bound of the distance between two states.
-  std::vector<double> pivot_distance;
   // The reduced form's projection onto fields constant over the garment (mean position, tau x
   // mean velocity): a coarser lower bound, 6 doubles, that the search scans first.
   std::array<double, 6> coarse{};
 };
-
-// Pivots (a pivot table, LAESA: Mico, Oncina & Vidal 1994): a node's i-th pivot is the state that
-// brings its count to kPivotsFrom x 2^i, at most kPivots of them, spread over the node's history.
-// The state distance is a Euclidean norm, so |d(q, p) - d(s, p)| <= d(q, s) for any pivot p: with
-// the reduced form's bound, a lower bound that stays tight when a node's states cluster closer
-// than their block means can tell apart (the reduced bound alone then measures nearly every state,
-// and a run or a resume goes quadratic). Each new pivot measures its distance to the states
-// already there: at most twice the node's states over the run.
-inline constexpr size_t kPivots = 8;
-inline constexpr size_t kPivotsFrom = 8;
 
 struct SecondaryGraph {
   double tau = 0;                           // s, the state distance's velocity weight (1 / rate)
   std::vector<std::vector<int>> out_edges;  // per node: edges leaving it
   std::vector<StateRec> states;
   std::vector<std::vector<int>> states_at_node;  // indices into states, per node
-  // Per node: its pivots, as positions in states_at_node[node]. max_pivots below kPivots (0: the
-  // reduced bound alone) only for `clothdb bench nearest`: the answers are the same.
-  std::vector<std::vector<int>> pivots_at_node;
-  size_t max_pivots = kPivots;
   // Stop a state distance as soon as its partial sum proves it exceeds what it is compared with
   // (the best so far, a priority). false only for `clothdb bench nearest`: the answers are the
   // same.
@@ -77,9 +60,9 @@ struct SecondaryGraph {
   ExactStatePtr state(int index) const { return exact->get(states[size_t(index)].id); }
 };
 
-// Bytes the store holds per state besides the cache: the StateRec, its reduced form and its
-// distances to the pivots (the figure docs/notebook/explorer.md documents; set/map entries of its
-// clips come on top).
+// Bytes the store holds per state besides the cache: the StateRec, its reduced form and its index
+// at its node (the figure docs/notebook/explorer.md documents; set/map entries of its clips come
+// on top).
 size_t bytes_per_state(const SecondaryGraph& sg);
 
 // The graph's nodes and ways out, with no state yet, for a garment of `vertices` vertices; exact
@@ -102,9 +85,8 @@ SecondaryGraph load_secondary_graph(db::Reader& reader, const std::string& path,
 struct Nearest {
   int state = -1;  // index into states
   double distance = 0;
-  std::vector<double> reduced;          // the query's reduced form
-  std::vector<double> pivot_distances;  // to the node's pivots, in their order
-  std::array<double, 6> coarse{};       // the query's coarse form
+  std::vector<double> reduced;     // the query's reduced form
+  std::array<double, 6> coarse{};  // the query's coarse form
   // To each of states_at_node[node] whose distance was stopped early (as soon as it exceeded both
   // the best so far and the state's priority): the larger of the two, a lower bound of its
   // distance; 0 elsewhere.
