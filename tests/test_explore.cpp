@@ -30,8 +30,9 @@ using namespace clothdb::test;
 
 namespace {
 
+// Per process: CTest runs these tests two at a time, and several use the same names.
 std::string db_path(const std::string& name) {
-  return testing::TempDir() + "/clothdb_explore_" + name + ".db";
+  return testing::TempDir() + "/clothdb_explore_" + std::to_string(getpid()) + "_" + name + ".db";
 }
 
 // A fresh (removed) database path.
@@ -541,7 +542,8 @@ TEST(Precompute, MotionGraphRuleAndResumeRule) {
   const ChosenGraph stored = choose_motion_graph(scene, "", built.json, -1);
   EXPECT_EQ(stored.json, built.json);
   EXPECT_EQ(stored.graph.edge_count(), built.graph.edge_count());
-  const std::string graph_file = testing::TempDir() + "/clothdb_explore_graph.json";
+  const std::string graph_file =
+      testing::TempDir() + "/clothdb_explore_graph_" + std::to_string(getpid()) + ".json";
   std::ofstream(graph_file) << built.json;
   EXPECT_EQ(choose_motion_graph(scene, graph_file, "{\"not\": \"this\"}", -1).where, graph_file);
   EXPECT_THROW(choose_motion_graph(scene, "", "{not json", -1), std::runtime_error);
