@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdint>
 #include <stdexcept>
 #include <string>
 
@@ -97,101 +96,6 @@ float float_below(double d) {
   if (static_cast<double>(f) > d) f = std::nextafter(f, -INFINITY);
   return f;
 }
-float float_above(double d) {
-  float f = static_cast<float>(d);
-  if (static_cast<double>(f) < d) f = std::nextafter(f, INFINITY);
-  return f;
-}
-
-// Boxes of mesh parts (vertices or edges) in a uniform grid of cubic cells hashed into a table of
-// 2^k buckets (Teschner et al. 2003, with a multiplicative hash so the table index is a shift, not
-// a division). Each entry keeps its cell's key and its box next to each other, so a query reads a
-// bucket's entries in a row and skips those of other cells sharing the bucket by key: no stamps,
-// and no part is visited twice. An entry is filed under the cell of its box's lower corner; a query
-// reaches down by the largest box extent to find the boxes that start below it. Entries of a
-// bucket are in index order (a stable counting sort): the same pairs in the same order for any
-// thread count.
-struct BoxGrid {
-  // Boxes in float, rounded outwards (a superset of the double boxes: the exact tests decide): 40
-  // bytes an entry instead of 64, and a query reads ~150 of them per edge.
-  struct Entry {
-    std::uint64_t key;
-    int index;
-    float lo[3], hi[3];
-  };
-  double inv_cell = 1.0;
-  int shift = 63;
-  Vec3 extent = Vec3::Zero();  // largest box extent along each axis
-  std::vector<int> bucket_begin;
-  std::vector<Entry> entries;
-
-  static long cell_of(double coordinate, double inv_cell) {
-    // Clamped to the key's 21 bits per axis (far-apart parts may share a cell: the box test
-    // decides).
-    return static_cast<long>(std::clamp(std::floor(coordinate * inv_cell), -1048575.0, 1048575.0));
-  }
-  static std::uint64_t key_of(long ix, long iy, long iz) {
-    constexpr long bias = 1L << 20;
-    return (static_cast<std::uint64_t>(ix + bias) << 42) |
-           (static_cast<std::uint64_t>(iy + bias) << 21) | static_cast<std::uint64_t>(iz + bias);
-  }
-  std::size_t bucket_of(std::uint64_t key) const {
-    return static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ULL) >> shift);  // Fibonacci hashing
-  }
-
-  // box(i, lo, hi) gives part i's box; count parts; cell > 0.
-  template <class Box>
-  void build(int count, double cell, Box&& box) {
-    inv_cell = 1.0 / cell;
-    int bits = 1;
-    while ((1L << bits) < 2L * count + 1) ++bits;  // at least twice as many buckets as parts
-    shift = 64 - bits;
-    const std::size_t table = std::size_t(1) << bits;
-    bucket_begin.assign(table + 1, 0);
-    std::vector<Entry> unsorted(static_cast<std::size_t>(count));
-    extent.setZero();
-    for (int i = 0; i < count; ++i) {
-      Entry& e = unsorted[static_cast<std::size_t>(i)];
-      Vec3 lo, hi;
-      box(i, lo, hi);
-      extent = extent.cwiseMax(hi - lo);
-      for (int k = 0; k < 3; ++k) {
-        e.lo[k] = float_below(lo[k]);
-        e.hi[k] = float_above(hi[k]);
-      }
-      e.index = i;
-      e.key = key_of(cell_of(lo[0], inv_cell), cell_of(lo[1], inv_cell), cell_of(lo[2], inv_cell));
-      ++bucket_begin[bucket_of(e.key) + 1];
-    }
-    for (std::size_t b = 0; b < table; ++b) bucket_begin[b + 1] += bucket_begin[b];
-    entries.resize(static_cast<std::size_t>(count));
-    std::vector<int> fill(bucket_begin.begin(), bucket_begin.end() - 1);
-    for (const Entry& e : unsorted) entries[static_cast<std::size_t>(fill[bucket_of(e.key)]++)] = e;
-  }
-
-  // Calls visit(index) for every part whose box overlaps [lo, hi].
-  template <class F>
-  void query(const Vec3& lo, const Vec3& hi, F&& visit) const {
-    const Vec3 from = lo - extent;
-    const long x0 = cell_of(from[0], inv_cell), x1 = cell_of(hi[0], inv_cell);
-    const long y0 = cell_of(from[1], inv_cell), y1 = cell_of(hi[1], inv_cell);
-    const long z0 = cell_of(from[2], inv_cell), z1 = cell_of(hi[2], inv_cell);
-    for (long ix = x0; ix <= x1; ++ix)
-      for (long iy = y0; iy <= y1; ++iy)
-        for (long iz = z0; iz <= z1; ++iz) {
-          const std::uint64_t key = key_of(ix, iy, iz);
-          const std::size_t b = bucket_of(key);
-          for (int k = bucket_begin[b]; k < bucket_begin[b + 1]; ++k) {
-            const Entry& e = entries[static_cast<std::size_t>(k)];
-            if (e.key != key || e.lo[0] > hi[0] || e.hi[0] < lo[0] || e.lo[1] > hi[1] ||
-                e.hi[1] < lo[1] || e.lo[2] > hi[2] || e.hi[2] < lo[2])
-              continue;
-            visit(e.index);
-          }
-        }
-  }
-};
-
 bool listed(const std::vector<int>& begin, const std::vector<int>& items, int owner, int other) {
   for (int k = begin[static_cast<std::size_t>(owner)];
        k < begin[static_cast<std::size_t>(owner) + 1]; ++k)
@@ -199,91 +103,553 @@ bool listed(const std::vector<int>& begin, const std::vector<int>& items, int ow
   return false;
 }
 
-// Every vertex-triangle and edge-edge pair nearer than `reach` at positions x, except pairs that
-// share a vertex, pairs of only fixed vertices and the rest neighbours listed in sc (when
-// skip_rest_neighbours). Pairs in (triangle, vertex) and (first edge, second edge) order.
-void find_pairs(const SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
-                double reach, bool skip_rest_neighbours, std::vector<std::array<int, 2>>& vt,
-                std::vector<std::array<int, 2>>& ee, std::vector<float>* vt_dist = nullptr,
-                std::vector<float>* ee_dist = nullptr) {
-  const ClothMesh& mesh = model.mesh;
-  const double* w = model.inv_mass.data();
-  const double reach_sq = reach * reach;
+// ---- The patch hierarchy (self_collision.hpp, top) ----
+
+constexpr int kLeafTriangles = 8;
+// Half-angle of the normal cone under which a patch (a disk with a simple projected contour) is
+// taken as flat. Below pi/2 it cannot pass through itself (Volino & Magnenat-Thalmann 1994); pi/5
+// leaves room for the patch to bend between builds, where the list is reused.
+constexpr double kFlatAngle = 3.14159265358979323846 / 5.0;
+// Contours longer than this are not tested (the test is quadratic): such a patch is searched.
+constexpr int kMaxContour = 512;
+
+// Node `id` over tri_order[begin, end): split at the median of the triangles' rest centroids along
+// the longest axis of their box (ties by index: the same tree on every machine).
+int build_patch(std::vector<Patch>& patches, std::vector<int>& order,
+                const std::vector<Vec3>& centre, int begin, int end) {
+  const int id = static_cast<int>(patches.size());
+  patches.emplace_back();
+  patches.back().tri_begin = begin;
+  patches.back().tri_end = end;
+  if (end - begin <= kLeafTriangles) return id;
+  Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
+  for (int k = begin; k < end; ++k) {
+    lo = lo.cwiseMin(centre[static_cast<std::size_t>(order[static_cast<std::size_t>(k)])]);
+    hi = hi.cwiseMax(centre[static_cast<std::size_t>(order[static_cast<std::size_t>(k)])]);
+  }
+  int axis = 0;
+  (hi - lo).maxCoeff(&axis);
+  const int mid = begin + (end - begin) / 2;
+  std::nth_element(order.begin() + begin, order.begin() + mid, order.begin() + end,
+                   [&](int a, int b) {
+                     const double ca = centre[static_cast<std::size_t>(a)][axis];
+                     const double cb = centre[static_cast<std::size_t>(b)][axis];
+                     return ca < cb || (ca == cb && a < b);
+                   });
+  const int left = build_patch(patches, order, centre, begin, mid);
+  const int right = build_patch(patches, order, centre, mid, end);
+  patches[static_cast<std::size_t>(id)].left = left;
+  patches[static_cast<std::size_t>(id)].right = right;
+  return id;
+}
+
+// The hierarchy's topology, once, from the rest shape: the tree, each patch's own vertices and
+// edges, whether it is a disk, and its contour.
+void make_patches(SelfCollision& sc, const ClothMesh& mesh) {
+  const int nt = static_cast<int>(mesh.triangles.size());
+  const int nv = mesh.vertex_count();
+  const int ne = static_cast<int>(mesh.edges.size());
+  sc.patches.clear();
+  sc.tri_order.resize(static_cast<std::size_t>(nt));
+  std::vector<Vec3> centre(static_cast<std::size_t>(nt));
+  for (int t = 0; t < nt; ++t) {
+    const auto& tri = mesh.triangles[static_cast<std::size_t>(t)];
+    centre[static_cast<std::size_t>(t)] =
+        (mesh.rest.col(tri[0]) + mesh.rest.col(tri[1]) + mesh.rest.col(tri[2])) / 3.0;
+    sc.tri_order[static_cast<std::size_t>(t)] = t;
+  }
+  if (nt == 0) return;
+  build_patch(sc.patches, sc.tri_order, centre, 0, nt);
+
+  // Each triangle's three edges (by the edges starting at each vertex).
+  std::vector<int> from_begin(static_cast<std::size_t>(nv) + 1, 0);
+  for (const auto& e : mesh.edges) ++from_begin[static_cast<std::size_t>(e[0]) + 1];
+  for (int v = 0; v < nv; ++v)
+    from_begin[static_cast<std::size_t>(v) + 1] += from_begin[static_cast<std::size_t>(v)];
+  std::vector<int> from(static_cast<std::size_t>(ne));
+  {
+    std::vector<int> fill(from_begin.begin(), from_begin.end() - 1);
+    for (int e = 0; e < ne; ++e)
+      from[static_cast<std::size_t>(
+          fill[static_cast<std::size_t>(mesh.edges[static_cast<std::size_t>(e)][0])]++)] = e;
+  }
+  auto edge_of = [&](int a, int b) {
+    if (a > b) std::swap(a, b);
+    for (int k = from_begin[static_cast<std::size_t>(a)];
+         k < from_begin[static_cast<std::size_t>(a) + 1]; ++k)
+      if (mesh.edges[static_cast<std::size_t>(from[static_cast<std::size_t>(k)])][1] == b)
+        return from[static_cast<std::size_t>(k)];
+    throw std::logic_error("self-collision: a triangle's edge is not in the mesh's edges");
+  };
+  std::vector<std::array<int, 3>> tri_edges(static_cast<std::size_t>(nt));
+  for (int t = 0; t < nt; ++t) {
+    const auto& tri = mesh.triangles[static_cast<std::size_t>(t)];
+    tri_edges[static_cast<std::size_t>(t)] = {edge_of(tri[0], tri[1]), edge_of(tri[1], tri[2]),
+                                              edge_of(tri[2], tri[0])};
+  }
+
+  // Owners: each vertex and edge belongs to the first triangle holding it in tri_order; sorted by
+  // that position, a patch's own ones are a range.
+  std::vector<int> vert_owner(static_cast<std::size_t>(nv), -1),
+      edge_owner(static_cast<std::size_t>(ne), -1);
+  for (int k = 0; k < nt; ++k) {
+    const int t = sc.tri_order[static_cast<std::size_t>(k)];
+    for (int j = 0; j < 3; ++j) {
+      int& vo =
+          vert_owner[static_cast<std::size_t>(mesh.triangles[static_cast<std::size_t>(t)][j])];
+      if (vo < 0) vo = k;
+      int& eo = edge_owner[static_cast<std::size_t>(tri_edges[static_cast<std::size_t>(t)][j])];
+      if (eo < 0) eo = k;
+    }
+  }
+  // Counting sort by owner position; before[k] = how many have an owner before position k.
+  auto order_by_owner = [nt](const std::vector<int>& owner, std::vector<int>& order,
+                             std::vector<int>& before) {
+    before.assign(static_cast<std::size_t>(nt) + 1, 0);
+    for (int o : owner)
+      if (o >= 0) ++before[static_cast<std::size_t>(o) + 1];
+    for (int k = 0; k < nt; ++k)
+      before[static_cast<std::size_t>(k) + 1] += before[static_cast<std::size_t>(k)];
+    order.assign(static_cast<std::size_t>(before[static_cast<std::size_t>(nt)]), 0);
+    std::vector<int> fill(before.begin(), before.end() - 1);
+    for (std::size_t i = 0; i < owner.size(); ++i)
+      if (owner[i] >= 0)
+        order[static_cast<std::size_t>(fill[static_cast<std::size_t>(owner[i])]++)] =
+            static_cast<int>(i);
+  };
+  std::vector<int> vert_before, edge_before;
+  order_by_owner(vert_owner, sc.vert_order, vert_before);
+  order_by_owner(edge_owner, sc.edge_order, edge_before);
+
+  // Per patch: own ranges, disk (edge-connected, V - E + F = 1), contour (edges in one of its
+  // triangles). Stamps keep it O(triangles) per level.
+  std::vector<int> vert_stamp(static_cast<std::size_t>(nv), -1),
+      edge_stamp(static_cast<std::size_t>(ne), -1), edge_uses(static_cast<std::size_t>(ne), 0),
+      edge_first(static_cast<std::size_t>(ne), -1);
+  std::vector<int> parent;  // union-find over the patch's triangles (local positions)
+  sc.contour.clear();
+  for (std::size_t id = 0; id < sc.patches.size(); ++id) {
+    Patch& p = sc.patches[id];
+    p.vert_begin = vert_before[static_cast<std::size_t>(p.tri_begin)];
+    p.vert_end = vert_before[static_cast<std::size_t>(p.tri_end)];
+    p.edge_begin = edge_before[static_cast<std::size_t>(p.tri_begin)];
+    p.edge_end = edge_before[static_cast<std::size_t>(p.tri_end)];
+    const int stamp = static_cast<int>(id);
+    const int count = p.tri_end - p.tri_begin;
+    parent.resize(static_cast<std::size_t>(count));
+    for (int i = 0; i < count; ++i) parent[static_cast<std::size_t>(i)] = i;
+    auto root = [&](int i) {
+      while (parent[static_cast<std::size_t>(i)] != i)
+        i = parent[static_cast<std::size_t>(i)] =
+            parent[static_cast<std::size_t>(parent[static_cast<std::size_t>(i)])];
+      return i;
+    };
+    int vertices = 0, edges = 0, components = count;
+    for (int i = 0; i < count; ++i) {
+      const int t = sc.tri_order[static_cast<std::size_t>(p.tri_begin + i)];
+      for (int j = 0; j < 3; ++j) {
+        const int v = mesh.triangles[static_cast<std::size_t>(t)][j];
+        if (vert_stamp[static_cast<std::size_t>(v)] != stamp) {
+          vert_stamp[static_cast<std::size_t>(v)] = stamp;
+          ++vertices;
+        }
+        const int e = tri_edges[static_cast<std::size_t>(t)][j];
+        if (edge_stamp[static_cast<std::size_t>(e)] != stamp) {
+          edge_stamp[static_cast<std::size_t>(e)] = stamp;
+          edge_uses[static_cast<std::size_t>(e)] = 1;
+          edge_first[static_cast<std::size_t>(e)] = i;
+          ++edges;
+        } else {
+          ++edge_uses[static_cast<std::size_t>(e)];
+          const int a = root(i), b = root(edge_first[static_cast<std::size_t>(e)]);
+          if (a != b) {
+            parent[static_cast<std::size_t>(a)] = b;
+            --components;
+          }
+        }
+      }
+    }
+    p.disk = components == 1 && vertices - edges + count == 1;
+    p.contour_begin = static_cast<int>(sc.contour.size());
+    for (int i = 0; i < count; ++i) {
+      const int t = sc.tri_order[static_cast<std::size_t>(p.tri_begin + i)];
+      for (int j = 0; j < 3; ++j) {
+        const int e = tri_edges[static_cast<std::size_t>(t)][j];
+        if (edge_uses[static_cast<std::size_t>(e)] == 1) sc.contour.push_back(e);
+      }
+    }
+    p.contour_end = static_cast<int>(sc.contour.size());
+  }
+  sc.patch_bounds.resize(sc.patches.size());
+}
+
+// Boxes and normal cones at positions x, bottom-up (children after parents in sc.patches). A
+// parent's cone holds its children's: half-angle max(angle(axis, child axis) + child half-angle).
+void refit_patches(SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix3Xd& x) {
+  constexpr double pi = 3.14159265358979323846;
+  auto angle_between = [](const Vec3& a, const Vec3& b) {
+    return std::acos(std::clamp(a.dot(b), -1.0, 1.0));
+  };
+  for (std::size_t id = sc.patches.size(); id-- > 0;) {
+    const Patch& p = sc.patches[id];
+    PatchBounds& b = sc.patch_bounds[id];
+    if (p.left < 0) {
+      b.lo = Vec3::Constant(INFINITY);
+      b.hi = Vec3::Constant(-INFINITY);
+      b.normal_sum.setZero();
+      Vec3 normals[kLeafTriangles];
+      bool degenerate = false;
+      for (int k = p.tri_begin; k < p.tri_end; ++k) {
+        const auto& t =
+            mesh.triangles[static_cast<std::size_t>(sc.tri_order[static_cast<std::size_t>(k)])];
+        const Vec3 a = x.col(t[0]), c1 = x.col(t[1]), c2 = x.col(t[2]);
+        b.lo = b.lo.cwiseMin(a.cwiseMin(c1).cwiseMin(c2));
+        b.hi = b.hi.cwiseMax(a.cwiseMax(c1).cwiseMax(c2));
+        const Vec3 n = (c1 - a).cross(c2 - a);
+        b.normal_sum += n;
+        const double len = n.norm();
+        degenerate = degenerate || !(len > 0.0);
+        normals[k - p.tri_begin] = len > 0.0 ? Vec3(n / len) : Vec3::Zero();
+      }
+      const double len = b.normal_sum.norm();
+      b.axis = len > 0.0 ? Vec3(b.normal_sum / len) : Vec3::Zero();
+      double lowest = 1.0;
+      for (int k = 0; k < p.tri_end - p.tri_begin; ++k)
+        lowest = std::min(lowest, normals[k].dot(b.axis));
+      b.angle = degenerate || !(len > 0.0) ? pi : std::acos(std::clamp(lowest, -1.0, 1.0));
+    } else {
+      const PatchBounds& l = sc.patch_bounds[static_cast<std::size_t>(p.left)];
+      const PatchBounds& r = sc.patch_bounds[static_cast<std::size_t>(p.right)];
+      b.lo = l.lo.cwiseMin(r.lo);
+      b.hi = l.hi.cwiseMax(r.hi);
+      b.normal_sum = l.normal_sum + r.normal_sum;
+      const double len = b.normal_sum.norm();
+      b.axis = len > 0.0 ? Vec3(b.normal_sum / len) : Vec3::Zero();
+      b.angle = !(len > 0.0) || l.angle >= pi || r.angle >= pi
+                    ? pi
+                    : std::min(pi, std::max(angle_between(b.axis, l.axis) + l.angle,
+                                            angle_between(b.axis, r.axis) + r.angle));
+    }
+  }
+}
+
+// Whether segments ab and cd of the plane meet (touching and collinear overlap count: a patch
+// whose contour only touches itself is not taken as flat).
+bool segments_meet(const double* a, const double* b, const double* c, const double* d) {
+  auto orient = [](const double* p, const double* q, const double* r) {
+    return (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0]);
+  };
+  if (std::max(a[0], b[0]) < std::min(c[0], d[0]) || std::max(c[0], d[0]) < std::min(a[0], b[0]) ||
+      std::max(a[1], b[1]) < std::min(c[1], d[1]) || std::max(c[1], d[1]) < std::min(a[1], b[1]))
+    return false;
+  const double o1 = orient(a, b, c), o2 = orient(a, b, d);
+  const double o3 = orient(c, d, a), o4 = orient(c, d, b);
+  return !(o1 * o2 > 0.0) && !(o3 * o4 > 0.0);
+}
+
+// Whether the contour edges `contour[0, k)`, projected onto the plane normal to `axis`, keep apart
+// (edges sharing a vertex excepted). A sweep along u: the edges sorted by their lowest u, each
+// tested only against those that start before it ends.
+bool contour_is_simple(const ClothMesh& mesh, const Eigen::Matrix3Xd& x, const int* contour, int k,
+                       const Vec3& axis, std::vector<std::array<double, 4>>& scratch,
+                       std::vector<int>& sorted) {
+  if (k > kMaxContour) return false;
+  // A basis (u, v) of the plane normal to the axis.
+  const Vec3 helper = std::abs(axis[0]) < 0.6 ? Vec3(1, 0, 0) : Vec3(0, 1, 0);
+  const Vec3 u = axis.cross(helper).normalized(), v = axis.cross(u);
+  scratch.resize(static_cast<std::size_t>(k));
+  sorted.resize(static_cast<std::size_t>(k));
+  for (int i = 0; i < k; ++i) {
+    const auto& e = mesh.edges[static_cast<std::size_t>(contour[i])];
+    const Vec3 a = x.col(e[0]), c = x.col(e[1]);
+    scratch[static_cast<std::size_t>(i)] = {a.dot(u), a.dot(v), c.dot(u), c.dot(v)};
+    sorted[static_cast<std::size_t>(i)] = i;
+  }
+  auto low = [&](int i) {
+    const auto& si = scratch[static_cast<std::size_t>(i)];
+    return std::min(si[0], si[2]);
+  };
+  std::sort(sorted.begin(), sorted.end(),
+            [&](int i, int j) { return low(i) < low(j) || (low(i) == low(j) && i < j); });
+  for (int a = 0; a < k; ++a) {
+    const int i = sorted[static_cast<std::size_t>(a)];
+    const auto& ei = mesh.edges[static_cast<std::size_t>(contour[i])];
+    const auto& si = scratch[static_cast<std::size_t>(i)];
+    const double high = std::max(si[0], si[2]);
+    for (int b = a + 1; b < k && low(sorted[static_cast<std::size_t>(b)]) <= high; ++b) {
+      const int j = sorted[static_cast<std::size_t>(b)];
+      const auto& ej = mesh.edges[static_cast<std::size_t>(contour[j])];
+      if (ei[0] == ej[0] || ei[0] == ej[1] || ei[1] == ej[0] || ei[1] == ej[1]) continue;
+      const auto& sj = scratch[static_cast<std::size_t>(j)];
+      if (segments_meet(&si[0], &si[2], &sj[0], &sj[2])) return false;
+    }
+  }
+  return true;
+}
+
+// Volino & Magnenat-Thalmann 1994's test: a disk whose normals lie within a cone of half-angle
+// below kFlatAngle (< pi/2, so it projects onto the plane normal to the axis without folding
+// locally) and whose contour projects onto that plane without crossing itself projects one to one:
+// a height field, which cannot pass through itself.
+bool patch_is_flat(const SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix3Xd& x,
+                   int id, std::vector<std::array<double, 4>>& scratch, std::vector<int>& sorted) {
+  const Patch& p = sc.patches[static_cast<std::size_t>(id)];
+  const PatchBounds& b = sc.patch_bounds[static_cast<std::size_t>(id)];
+  if (!p.disk || !(b.angle < kFlatAngle)) return false;
+  return contour_is_simple(mesh, x, sc.contour.data() + p.contour_begin,
+                           p.contour_end - p.contour_begin, b.axis, scratch, sorted);
+}
+
+// The search over the hierarchy: a patch's own pairs (unless flat), then pairs of patches whose
+// boxes come within the reach, down to pairs of leaves, where each own vertex meets the other's
+// triangles and each own edge the other's own edges.
+struct PairSearch {
+  const SelfCollision& sc;
+  const ClothMesh& mesh;
+  const Eigen::Matrix3Xd& x;
+  const double* w;
+  double reach, reach_sq, thickness;
+  bool skip_rest, skip_flat;
+  std::vector<std::array<int, 2>>& vt;
+  std::vector<std::array<int, 2>>& ee;
+  std::vector<float>* vt_gap;
+  std::vector<float>* ee_gap;
+  std::vector<std::array<double, 4>> scratch;
+  // Scratch for the union of two patches (union_is_flat): stamps per vertex and edge, its contour.
+  std::vector<int> vertex_stamp, edge_stamp, union_contour, sorted;
+  int stamp = 0;
+
+  // Whether two disks that border each other form a flat disk (the same test as patch_is_flat, on
+  // their union): a pair of patches split apart high in the tree along a flat stretch of cloth is
+  // then not descended to the leaves along their border (Volino & Magnenat-Thalmann 1994 treat
+  // adjacent patches so). The union of two disks is a disk when they share a path: shared edges
+  // E_s >= 1 and shared vertices V_s = E_s + 1 (chi = 1 + 1 - (V_s - E_s)); its contour is the
+  // two contours without the shared edges.
+  bool union_is_flat(int a, int b) {
+    const Patch& pa = patch(a);
+    const Patch& pb = patch(b);
+    if (!pa.disk || !pb.disk) return false;
+    const PatchBounds& ba = sc.patch_bounds[static_cast<std::size_t>(a)];
+    const PatchBounds& bb = sc.patch_bounds[static_cast<std::size_t>(b)];
+    const Vec3 sum = ba.normal_sum + bb.normal_sum;
+    const double len = sum.norm();
+    if (!(len > 0.0)) return false;
+    const Vec3 axis = sum / len;
+    const double angle = std::max(std::acos(std::clamp(axis.dot(ba.axis), -1.0, 1.0)) + ba.angle,
+                                  std::acos(std::clamp(axis.dot(bb.axis), -1.0, 1.0)) + bb.angle);
+    if (!(angle < kFlatAngle)) return false;
+    if (vertex_stamp.empty()) {
+      vertex_stamp.assign(static_cast<std::size_t>(mesh.vertex_count()), 0);
+      edge_stamp.assign(mesh.edges.size(), 0);
+    }
+    ++stamp;
+    for (int k = pa.contour_begin; k < pa.contour_end; ++k) {
+      const int e = sc.contour[static_cast<std::size_t>(k)];
+      edge_stamp[static_cast<std::size_t>(e)] = stamp;
+      for (int v : mesh.edges[static_cast<std::size_t>(e)])
+        vertex_stamp[static_cast<std::size_t>(v)] = stamp;
+    }
+    // Shared vertices counted once each: re-stamped with -stamp when seen from b.
+    int shared_vertices = 0, shared_edges = 0;
+    union_contour.clear();
+    for (int k = pb.contour_begin; k < pb.contour_end; ++k) {
+      const int e = sc.contour[static_cast<std::size_t>(k)];
+      if (edge_stamp[static_cast<std::size_t>(e)] == stamp) {
+        ++shared_edges;
+        edge_stamp[static_cast<std::size_t>(e)] = -stamp;
+      } else {
+        union_contour.push_back(e);
+      }
+      for (int v : mesh.edges[static_cast<std::size_t>(e)])
+        if (vertex_stamp[static_cast<std::size_t>(v)] == stamp) {
+          ++shared_vertices;
+          vertex_stamp[static_cast<std::size_t>(v)] = -stamp;
+        }
+    }
+    if (shared_edges < 1 || shared_vertices != shared_edges + 1) return false;
+    for (int k = pa.contour_begin; k < pa.contour_end; ++k) {
+      const int e = sc.contour[static_cast<std::size_t>(k)];
+      if (edge_stamp[static_cast<std::size_t>(e)] == stamp) union_contour.push_back(e);
+    }
+    return contour_is_simple(mesh, x, union_contour.data(), static_cast<int>(union_contour.size()),
+                             axis, scratch, sorted);
+  }
+
+  const Patch& patch(int id) const { return sc.patches[static_cast<std::size_t>(id)]; }
+
+  bool apart(int a, int b) const {
+    const PatchBounds& p = sc.patch_bounds[static_cast<std::size_t>(a)];
+    const PatchBounds& q = sc.patch_bounds[static_cast<std::size_t>(b)];
+    for (int k = 0; k < 3; ++k)
+      if (p.lo[k] > q.hi[k] + reach || q.lo[k] > p.hi[k] + reach) return true;
+    return false;
+  }
+
+  void vertex_triangle(int tri, int v, const Vec3& a, const Vec3& b, const Vec3& c,
+                       bool triangle_free) {
+    const auto& t = mesh.triangles[static_cast<std::size_t>(tri)];
+    if (v == t[0] || v == t[1] || v == t[2]) return;
+    if (!triangle_free && w[v] <= 0.0) return;
+    if (skip_rest && listed(sc.rest_vt_begin, sc.rest_vt, tri, v)) return;
+    const Vec3 p = x.col(v);
+    const double d_sq = (closest_on_triangle(p, a, b, c) - p).squaredNorm();
+    if (d_sq >= reach_sq) return;
+    vt.push_back({tri, v});
+    if (vt_gap) vt_gap->push_back(float_below(std::sqrt(d_sq) - thickness));
+  }
+
+  // Triangles of leaf `tris` against the vertices owned by leaf `verts`: first the vertices within
+  // reach of the first leaf's box, then each triangle against those (at a pair of leaves that only
+  // border each other, most of both are out of reach of the other).
+  void triangles_vertices(int tris, int verts) {
+    const Patch& pt = patch(tris);
+    const Patch& pv = patch(verts);
+    const PatchBounds& bt = sc.patch_bounds[static_cast<std::size_t>(tris)];
+    const Vec3 grow = Vec3::Constant(reach);
+    const Vec3 near_lo = bt.lo - grow, near_hi = bt.hi + grow;
+    int near[3 * kLeafTriangles];
+    int count = 0;
+    for (int j = pv.vert_begin; j < pv.vert_end; ++j) {
+      const int v = sc.vert_order[static_cast<std::size_t>(j)];
+      const Vec3 p = x.col(v);
+      if ((p.array() < near_lo.array()).any() || (p.array() > near_hi.array()).any()) continue;
+      near[count++] = v;
+    }
+    if (count == 0) return;
+    for (int k = pt.tri_begin; k < pt.tri_end; ++k) {
+      const int tri = sc.tri_order[static_cast<std::size_t>(k)];
+      const auto& t = mesh.triangles[static_cast<std::size_t>(tri)];
+      const Vec3 a = x.col(t[0]), b = x.col(t[1]), c = x.col(t[2]);
+      const Vec3 lo = a.cwiseMin(b).cwiseMin(c) - grow, hi = a.cwiseMax(b).cwiseMax(c) + grow;
+      const bool triangle_free = w[t[0]] + w[t[1]] + w[t[2]] > 0.0;
+      for (int j = 0; j < count; ++j) {
+        const int v = near[j];
+        const Vec3 p = x.col(v);
+        if ((p.array() < lo.array()).any() || (p.array() > hi.array()).any()) continue;
+        vertex_triangle(tri, v, a, b, c, triangle_free);
+      }
+    }
+  }
+
+  void edge_pair(int e1i, int e2i) {
+    const int first = std::min(e1i, e2i), second = std::max(e1i, e2i);
+    const auto& e1 = mesh.edges[static_cast<std::size_t>(first)];
+    const auto& e2 = mesh.edges[static_cast<std::size_t>(second)];
+    if (e2[0] == e1[0] || e2[0] == e1[1] || e2[1] == e1[0] || e2[1] == e1[1]) return;
+    if (w[e1[0]] + w[e1[1]] <= 0.0 && w[e2[0]] + w[e2[1]] <= 0.0) return;
+    if (skip_rest && listed(sc.rest_ee_begin, sc.rest_ee, first, second)) return;
+    const double d_sq = segment_distance_sq(x.col(e1[0]), x.col(e1[1]), x.col(e2[0]), x.col(e2[1]));
+    if (d_sq >= reach_sq) return;
+    ee.push_back({first, second});
+    if (ee_gap) ee_gap->push_back(float_below(std::sqrt(d_sq) - thickness));
+  }
+
+  // Own edges of leaf a against own edges of leaf b (a == b: each unordered pair once): each
+  // side's edges within reach of the other's box first, with their boxes, then the pairs of those.
+  struct NearEdge {
+    int index;
+    Vec3 lo, hi;
+  };
+  int near_edges(int of, int to, NearEdge* out) const {
+    const Patch& p = patch(of);
+    const PatchBounds& b = sc.patch_bounds[static_cast<std::size_t>(to)];
+    const Vec3 near_lo = b.lo - Vec3::Constant(reach), near_hi = b.hi + Vec3::Constant(reach);
+    int count = 0;
+    for (int i = p.edge_begin; i < p.edge_end; ++i) {
+      const int e = sc.edge_order[static_cast<std::size_t>(i)];
+      const auto& ends = mesh.edges[static_cast<std::size_t>(e)];
+      const Vec3 q = x.col(ends[0]), r = x.col(ends[1]);
+      const Vec3 lo = q.cwiseMin(r), hi = q.cwiseMax(r);
+      if ((hi.array() < near_lo.array()).any() || (lo.array() > near_hi.array()).any()) continue;
+      out[count++] = {e, lo, hi};
+    }
+    return count;
+  }
+  void edges_edges(int a, int b) {
+    NearEdge from_a[3 * kLeafTriangles], from_b[3 * kLeafTriangles];
+    const int count_a = near_edges(a, b, from_a);
+    if (count_a == 0) return;
+    const int count_b = a == b ? count_a : near_edges(b, a, from_b);
+    const NearEdge* others = a == b ? from_a : from_b;
+    for (int i = 0; i < count_a; ++i) {
+      const Vec3 lo = from_a[i].lo - Vec3::Constant(reach),
+                 hi = from_a[i].hi + Vec3::Constant(reach);
+      for (int j = a == b ? i + 1 : 0; j < count_b; ++j) {
+        if ((others[j].hi.array() < lo.array()).any() || (others[j].lo.array() > hi.array()).any())
+          continue;
+        edge_pair(from_a[i].index, others[j].index);
+      }
+    }
+  }
+
+  void own(int id) {
+    if (skip_flat && patch_is_flat(sc, mesh, x, id, scratch, sorted)) return;
+    const Patch& p = patch(id);
+    if (p.left < 0) {
+      triangles_vertices(id, id);
+      edges_edges(id, id);
+      return;
+    }
+    own(p.left);
+    own(p.right);
+    between(p.left, p.right);
+  }
+
+  void between(int a, int b) {
+    if (apart(a, b)) return;
+    if (skip_flat && union_is_flat(a, b)) return;
+    const Patch& pa = patch(a);
+    const Patch& pb = patch(b);
+    if (pa.left < 0 && pb.left < 0) {
+      triangles_vertices(a, b);
+      triangles_vertices(b, a);
+      edges_edges(a, b);
+      return;
+    }
+    // Descend the larger (by triangles) of the two that can be split.
+    if (pb.left < 0 || (pa.left >= 0 && pa.tri_end - pa.tri_begin >= pb.tri_end - pb.tri_begin)) {
+      between(pa.left, b);
+      between(pa.right, b);
+    } else {
+      between(a, pb.left);
+      between(a, pb.right);
+    }
+  }
+};
+
+// Every vertex-triangle and edge-edge pair nearer than `reach` at positions x (see
+// find_self_collision_pairs), with their distances less the thickness when gaps are given.
+void find_pairs(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x, double reach,
+                bool skip_rest_neighbours, bool skip_flat, std::vector<std::array<int, 2>>& vt,
+                std::vector<std::array<int, 2>>& ee, std::vector<float>* vt_gap = nullptr,
+                std::vector<float>* ee_gap = nullptr) {
   vt.clear();
   ee.clear();
-  if (vt_dist) vt_dist->clear();
-  if (ee_dist) ee_dist->clear();
-  if (!x.allFinite() || mesh.edges.empty()) return;  // the solver's sanity check reports it
-  // Cells about as large as a query's box (a mean edge grown by the reach on both sides): each
-  // query reads a few cells of a few parts.
-  const double cell = sc.mean_edge + 2.0 * reach;
-  const Vec3 grow = Vec3::Constant(reach);
-
-  // Vertex-triangle pairs: each triangle's box grown by the reach, against the vertices.
-  BoxGrid grid;
-  grid.build(static_cast<int>(x.cols()), cell,
-             [&](int i, Vec3& lo, Vec3& hi) { lo = hi = x.col(i); });
-  for (std::size_t ti = 0; ti < mesh.triangles.size(); ++ti) {
-    const std::array<int, 3>& t = mesh.triangles[ti];
-    const int tri = static_cast<int>(ti);
-    const Vec3 a = x.col(t[0]), b = x.col(t[1]), c = x.col(t[2]);
-    const bool triangle_free = w[t[0]] + w[t[1]] + w[t[2]] > 0.0;
-    grid.query(a.cwiseMin(b).cwiseMin(c) - grow, a.cwiseMax(b).cwiseMax(c) + grow, [&](int v) {
-      if (v == t[0] || v == t[1] || v == t[2]) return;
-      if (!triangle_free && w[v] <= 0.0) return;
-      if (skip_rest_neighbours && listed(sc.rest_vt_begin, sc.rest_vt, tri, v)) return;
-      const Vec3 p = x.col(v);
-      const double d_sq = (closest_on_triangle(p, a, b, c) - p).squaredNorm();
-      if (d_sq >= reach_sq) return;
-      vt.push_back({tri, v});
-      if (vt_dist) vt_dist->push_back(float_below(std::sqrt(d_sq) - sc.thickness));
-    });
-  }
-
-  // Edge-edge pairs: each edge's box grown by the reach, against the edges' boxes.
-  const size_t edge_count = mesh.edges.size();
-  grid.build(static_cast<int>(edge_count), cell, [&](int e, Vec3& lo, Vec3& hi) {
-    const Vec3 p = x.col(mesh.edges[static_cast<std::size_t>(e)][0]);
-    const Vec3 q = x.col(mesh.edges[static_cast<std::size_t>(e)][1]);
-    lo = p.cwiseMin(q);
-    hi = p.cwiseMax(q);
-  });
-  // Queried per run of edges that share their first vertex (a vertex's star, about three edges in
-  // the mesh's order): one query of the run's box instead of one per edge, so each entry read is
-  // tested against the run's edges while in cache (docs/notebook/self_collision.md, "Fourth
-  // round").
-  for (size_t run = 0; run < edge_count;) {
-    size_t run_end = run + 1;
-    while (run_end < edge_count && mesh.edges[run_end][0] == mesh.edges[run][0]) ++run_end;
-    Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
-    for (size_t ei = run; ei < run_end; ++ei) {
-      const Vec3 p = x.col(mesh.edges[ei][0]), q = x.col(mesh.edges[ei][1]);
-      lo = lo.cwiseMin(p.cwiseMin(q));
-      hi = hi.cwiseMax(p.cwiseMax(q));
-    }
-    grid.query(lo - grow, hi + grow, [&](int e) {
-      const std::array<int, 2>& e2 = mesh.edges[static_cast<size_t>(e)];
-      const Vec3 p2 = x.col(e2[0]), q2 = x.col(e2[1]);
-      const Vec3 lo2 = p2.cwiseMin(q2) - grow, hi2 = p2.cwiseMax(q2) + grow;
-      const bool second_free = w[e2[0]] + w[e2[1]] > 0.0;
-      for (size_t ei = run; ei < run_end && static_cast<int>(ei) < e; ++ei) {
-        const std::array<int, 2>& e1 = mesh.edges[ei];
-        const int first = static_cast<int>(ei);
-        const Vec3 p1 = x.col(e1[0]), q1 = x.col(e1[1]);
-        if ((p1.cwiseMin(q1).array() > hi2.array()).any() ||
-            (p1.cwiseMax(q1).array() < lo2.array()).any())
-          continue;
-        if (e2[0] == e1[0] || e2[0] == e1[1] || e2[1] == e1[0] || e2[1] == e1[1]) continue;
-        if (!second_free && w[e1[0]] + w[e1[1]] <= 0.0) continue;
-        if (skip_rest_neighbours && listed(sc.rest_ee_begin, sc.rest_ee, first, e)) continue;
-        const double d_sq = segment_distance_sq(p1, q1, p2, q2);
-        if (d_sq >= reach_sq) continue;
-        ee.push_back({first, e});
-        if (ee_dist) ee_dist->push_back(float_below(std::sqrt(d_sq) - sc.thickness));
-      }
-    });
-    run = run_end;
-  }
+  if (vt_gap) vt_gap->clear();
+  if (ee_gap) ee_gap->clear();
+  if (!x.allFinite() || model.mesh.edges.empty() || sc.patches.empty())
+    return;  // the solver's sanity check reports it
+  refit_patches(sc, model.mesh, x);
+  PairSearch search{sc,
+                    model.mesh,
+                    x,
+                    model.inv_mass.data(),
+                    reach,
+                    reach * reach,
+                    sc.thickness,
+                    skip_rest_neighbours,
+                    skip_flat,
+                    vt,
+                    ee,
+                    vt_gap,
+                    ee_gap,
+                    {},
+                    {},
+                    {},
+                    {},
+                    {},
+                    0};
+  search.own(0);
 }
 
 // Pairs (owner, other) sorted by owner as compressed rows: begin[owner] .. begin[owner + 1].
@@ -333,7 +699,7 @@ void sort_pairs(std::vector<std::array<int, 2>>& pairs, std::vector<float>& gaps
 }
 
 void build_candidates(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x) {
-  find_pairs(sc, model, x, sc.thickness + sc.skin, true, sc.vertex_triangle, sc.edge_edge,
+  find_pairs(sc, model, x, sc.thickness + sc.skin, true, true, sc.vertex_triangle, sc.edge_edge,
              &sc.vertex_triangle_gap, &sc.edge_edge_gap);
   std::vector<int> begin;
   std::vector<std::array<int, 2>> pairs_out;
@@ -364,9 +730,11 @@ SelfCollision make_self_collision(const ClothModel& model, double thickness) {
   // apart cross in tight folds: 20 crossings at worst and 615 of 687 frames with any on the 3k
   // skirt over 01_01, against 4 and 71 (docs/notebook/self_collision.md, "Cost, second round").
   sc.rest_gap = thickness;
-  // The rest neighbours: every pair nearer than rest_gap in the rest shape, found once.
+  make_patches(sc, model.mesh);
+  // The rest neighbours: every pair nearer than rest_gap in the rest shape (flat patches searched
+  // too), found once.
   std::vector<std::array<int, 2>> vt, ee;
-  find_pairs(sc, model, model.mesh.rest, sc.rest_gap, false, vt, ee);
+  find_pairs(sc, model, model.mesh.rest, sc.rest_gap, false, false, vt, ee);
   to_rows(vt, static_cast<int>(model.mesh.triangles.size()), sc.rest_vt_begin, sc.rest_vt);
   to_rows(ee, static_cast<int>(model.mesh.edges.size()), sc.rest_ee_begin, sc.rest_ee);
   return sc;
@@ -531,6 +899,13 @@ int project_self_collision(SelfCollision& sc, const ClothModel& model, Eigen::Ma
     ++contacts;
   }
   return contacts;
+}
+
+void find_self_collision_pairs(SelfCollision& sc, const ClothModel& model,
+                               const Eigen::Matrix3Xd& x, double reach, bool skip_rest_neighbours,
+                               bool skip_flat, std::vector<std::array<int, 2>>& vertex_triangle,
+                               std::vector<std::array<int, 2>>& edge_edge) {
+  find_pairs(sc, model, x, reach, skip_rest_neighbours, skip_flat, vertex_triangle, edge_edge);
 }
 
 }  // namespace clothdb

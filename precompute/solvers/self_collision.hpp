@@ -4,20 +4,30 @@
 // for the pair types and their closest points; Mueller et al. 2007 sec. 4.2 / Macklin 2016 for
 // projecting C >= 0 with inverse-mass weights).
 //
-// Cost: candidates are found with a spatial hash (a grid of boxes, self_collision.cpp) only when
-// needed. A build lists every pair closer than thickness + skin (a Verlet list); it stays
-// complete until some vertex has moved more than skin / 2 since the build, relative to the
-// garment's common motion (a pair's distance changes by at most the sum of two vertex
-// displacements relative to any common vector), which is checked every sub-step in O(vertices). So
-// a slowly moving garment is hashed once every few frames, a fast one a few times per frame, and
-// every sub-step tests only the listed pairs, and of those only the ones whose distance at the
-// build (less the thickness) is not more than their parts have moved since (`moved`): most listed
-// pairs are flat-sheet neighbours that never come within the thickness. A build's lists are sorted
-// by (first, second), so the contacts' Gauss-Seidel order does not depend on how the grid found
-// them. Pairs nearer than the thickness in the rest shape (neighbours on the mesh) are found once,
-// in make_self_collision, and skipped by a scan of a short row instead of a closest-point test at
-// every build (docs/notebook/self_collision.md, "Cost, second round", also for why pairs up to
-// thickness + skin apart at rest must stay listed).
+// Cost: candidates are found only when needed. A build lists every pair closer than thickness +
+// skin (a Verlet list); it stays complete until some vertex has moved more than skin / 2 since the
+// build, relative to the garment's common motion (a pair's distance changes by at most the sum of
+// two vertex displacements relative to any common vector), which is checked every sub-step in
+// O(vertices). Every sub-step tests only the listed pairs, and of those only the ones whose
+// distance at the build (less the thickness) is not more than their parts have moved since
+// (`moved`).
+//
+// The build searches a hierarchy of patches of the garment (Volino & Magnenat-Thalmann 1994,
+// "Efficient self-collision detection on smoothly discretized surface animations using geometrical
+// shape regularity"; Provot 1997): a binary tree over the triangles, made once from the rest shape,
+// whose boxes and normal cones are refit bottom-up at each build. A patch that is a topological
+// disk, whose normals lie within a cone of half-angle below pi/5 and whose contour, projected along
+// the cone's axis, does not cross itself is a height field over that plane: it cannot pass through
+// itself, and its parts are apart by about their distance on the sheet, so its own pairs are not
+// searched ("flat"); only pairs of patches whose boxes come within the reach are descended, and not
+// two bordering disks whose union is flat. This leaves out most of the flat sheet's near neighbours
+// (lists of 66 k pairs instead of 163 k on the 12k skirt's first frames, and the same simulation
+// bit for bit in the frames checked: docs/notebook/self_collision.md, "Fifth round"). A build's
+// lists are sorted by (first, second), so the contacts' Gauss-Seidel order does not depend on how
+// the search found them. Pairs nearer than the thickness in the rest shape (neighbours on the mesh)
+// are found once, in make_self_collision, and skipped by a scan of a short row
+// (docs/notebook/self_collision.md, "Cost, second round", also for why pairs up to thickness + skin
+// apart at rest must stay listed).
 //
 // Side: each contact is pushed to the side its pair was on at the start of the sub-step, so a
 // pair that went through within one sub-step is put back, not pushed further through.
@@ -36,10 +46,31 @@
 
 namespace clothdb {
 
+// A patch of the hierarchy: its triangles are tri_order[tri_begin, tri_end); each vertex and edge
+// is owned by the first triangle in tri_order that holds it, and a patch's own vertices and edges
+// are vert_order[vert_begin, vert_end) and edge_order[edge_begin, edge_end) (so every
+// vertex-triangle and edge-edge pair is met in exactly one leaf or pair of leaves). Its contour
+// (edges in one of its triangles only) is contour[contour_begin, contour_end). Children come after
+// their parent.
+struct Patch {
+  int left = -1, right = -1;  // children; -1 for a leaf
+  int tri_begin = 0, tri_end = 0, vert_begin = 0, vert_end = 0, edge_begin = 0, edge_end = 0;
+  int contour_begin = 0, contour_end = 0;
+  bool disk = false;  // edge-connected with Euler characteristic 1: a topological disk
+};
+
+// A patch's box and normal cone at the last build (refit bottom-up).
+struct PatchBounds {
+  Vec3 lo, hi;      // box of its vertices
+  Vec3 normal_sum;  // sum of its triangles' area-weighted normals
+  Vec3 axis;        // normal_sum normalised (zero if it vanishes)
+  double angle;     // cone half-angle (rad) about axis holding every triangle normal; pi if none
+};
+
 struct SelfCollision {
   double thickness = 0.0;  // m
   double skin = 0.0;       // m: how much farther than thickness a listed pair may be at build
-  double mean_edge = 0.0;  // m, mean rest edge length (sets the hash's cell size)
+  double mean_edge = 0.0;  // m, mean rest edge length (sets the skin)
   // m: pairs nearer than this in the rest shape (the thickness) are neighbours on the mesh and
   // never listed.
   double rest_gap = 0.0;
@@ -53,6 +84,10 @@ struct SelfCollision {
   // Per listed pair, its distance at the build minus the thickness (m, rounded down to float): how
   // far its parts must still move towards each other before it can be in contact.
   std::vector<float> vertex_triangle_gap, edge_edge_gap;
+  // The patch hierarchy (topology from the rest shape; bounds refit at each build).
+  std::vector<Patch> patches;
+  std::vector<int> tri_order, vert_order, edge_order, contour;
+  std::vector<PatchBounds> patch_bounds;
   Eigen::Matrix3Xd built_at;  // positions at the last build (empty: never built)
   // Per vertex, a bound (m) on how far it has moved since the build relative to the garment's
   // common motion, over every position a pass may see (the sub-step's start and now, and each move
@@ -78,5 +113,15 @@ bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Ei
 // contacts projected.
 int project_self_collision(SelfCollision& sc, const ClothModel& model, Eigen::Matrix3Xd& x,
                            const Eigen::Matrix3Xd& x_start);
+
+// Every vertex-triangle (triangle, vertex) and edge-edge (first, second edge, first < second) pair
+// nearer than `reach` at positions x, except pairs that share a vertex, pairs of only fixed
+// vertices, the rest neighbours (when skip_rest_neighbours) and, when skip_flat, the pairs within a
+// flat patch (self_collision.hpp, top). Refits sc's patch bounds to x. Unsorted. For builds and
+// tests.
+void find_self_collision_pairs(SelfCollision& sc, const ClothModel& model,
+                               const Eigen::Matrix3Xd& x, double reach, bool skip_rest_neighbours,
+                               bool skip_flat, std::vector<std::array<int, 2>>& vertex_triangle,
+                               std::vector<std::array<int, 2>>& edge_edge);
 
 }  // namespace clothdb
