@@ -22,6 +22,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <string>
 
@@ -136,48 +137,125 @@ size_t segment_offset(const uint8_t* blob, const Header& h, uint32_t s) {
 }
 
 // Frames of the subspace plus the residual: out[j] = mean + sum_k c_jk modes[k] (+ s_r r_j), in
-// float, each coordinate summed in mode order whatever the tiling, so encoder and decoder agree to
-// the bit (the library is built with -ffp-contract=off). Tiled over coordinates so one tile of a
-// mode is read once for all `count` frames: the basis (M x 3V floats) is streamed once per call,
-// not once per frame. q: count x M coefficient units (stride M); Q: count x n residual units or
-// null.
+// float, each coordinate summed in mode order whatever the blocking (the mean, then mode 0, 1, ...,
+// then the residual), so encoder and decoder agree to the bit (the library is built with
+// -ffp-contract=off) and so does every build of this function. q: count x M coefficient units
+// (stride M); Q: count x n residual units or null.
+//
+// It is a matrix product, (count x M) weights times (M x n) modes, blocked as one: a chunk of
+// coordinates of all M modes (at most kChunkBytes) stays in the L2 cache while every frame of the
+// call uses it; within it a register block of kFrames frames x kCoords coordinates is summed over
+// the M modes, so each value of a mode read from cache serves kFrames frames (the loop the
+// version before this one ran read a mode's value once per frame, from a tile larger than L1:
+// docs/notebook/codec_v3.md, "Decoding speed").
+constexpr uint32_t kFrames = 4;
+constexpr size_t kCoords = 16;
+constexpr size_t kChunkBytes = 128 * 1024;
+
+// Eight floats as one value (GCC and Clang vector extensions): element by element the same IEEE
+// multiply and add as scalar code, but the register block below stays in registers, which the
+// plain loops' auto-vectorised form did not (it shuffled and spilled: 2.7x slower than before).
+typedef float Floats8 __attribute__((vector_size(32)));
+
+// One register block: frames [0, F) (F <= kFrames) of coordinates [lo, lo + kCoords). w: F x M
+// weights (stride M); u: the modes from coordinate lo (stride n).
+template <uint32_t F>
+inline __attribute__((always_inline)) void sum_block(const float* __restrict u, size_t n,
+                                                     uint32_t M, const float* __restrict w,
+                                                     const float* __restrict mean,
+                                                     float (&out)[kFrames][kCoords]) {
+  static_assert(kCoords == 16, "two Floats8 per frame");
+  Floats8 acc[F][2];
+  for (uint32_t j = 0; j < F; ++j) std::memcpy(acc[j], mean, sizeof acc[j]);
+  for (uint32_t k = 0; k < M; ++k) {
+    Floats8 u0, u1;
+    std::memcpy(&u0, u + size_t(k) * n, sizeof u0);
+    std::memcpy(&u1, u + size_t(k) * n + 8, sizeof u1);
+    for (uint32_t j = 0; j < F; ++j) {
+      const float x = w[size_t(j) * M + k];
+      const Floats8 wj = {x, x, x, x, x, x, x, x};
+      acc[j][0] += wj * u0;
+      acc[j][1] += wj * u1;
+    }
+  }
+  for (uint32_t j = 0; j < F; ++j) std::memcpy(out[j], acc[j], sizeof acc[j]);
+}
+
+// The same sum for `len` (< kCoords) coordinates of one frame: the chunk's last partial block.
+inline void sum_tail(const float* u, size_t n, uint32_t M, const float* w, const float* mean,
+                     size_t len, float* acc) {
+  for (size_t i = 0; i < len; ++i) acc[i] = mean[i];
+  for (uint32_t k = 0; k < M; ++k) {
+    const float* uk = u + size_t(k) * n;
+    const float wk = w[k];
+    for (size_t i = 0; i < len; ++i) acc[i] += wk * uk[i];
+  }
+}
+
+// acc plus the residual (if any) into out, `len` coordinates.
+inline void store(const float* acc, const int32_t* r, double rstep, size_t len, float* out) {
+  if (r != nullptr)
+    for (size_t i = 0; i < len; ++i) out[i] = acc[i] + float(double(r[i]) * rstep);
+  else
+    std::memcpy(out, acc, len * sizeof(float));
+}
+
+template <uint32_t F>
+inline __attribute__((always_inline)) void reconstruct_frames(const Basis& b, uint32_t M,
+                                                              const float* w, const int32_t* Q,
+                                                              double rstep, float* out, size_t n,
+                                                              size_t lo, size_t hi) {
+  float acc[kFrames][kCoords];
+  size_t c = lo;
+  for (; c + kCoords <= hi; c += kCoords) {
+    sum_block<F>(b.modes.data() + c, n, M, w, b.mean.data() + c, acc);
+    for (uint32_t j = 0; j < F; ++j)
+      store(acc[j], Q ? Q + size_t(j) * n + c : nullptr, rstep, kCoords, out + size_t(j) * n + c);
+  }
+  if (c < hi)
+    for (uint32_t j = 0; j < F; ++j) {
+      sum_tail(b.modes.data() + c, n, M, w + size_t(j) * M, b.mean.data() + c, hi - c, acc[0]);
+      store(acc[0], Q ? Q + size_t(j) * n + c : nullptr, rstep, hi - c, out + size_t(j) * n + c);
+    }
+}
+
+// Built for AVX2 as well as the x86-64 baseline, picked at load time (as version 2's predict and
+// the runtime's playback kernels): without FMA (and with -ffp-contract=off) both round every
+// operation alike, so the frames are bit-identical whichever runs.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define CLOTHDB_V3_MULTIVERSION __attribute__((target_clones("avx2", "default")))
+#else
+#define CLOTHDB_V3_MULTIVERSION
+#endif
+CLOTHDB_V3_MULTIVERSION
 void reconstruct(const Basis& b, uint32_t M, const int32_t* q, double cstep, const int32_t* Q,
                  double rstep, uint32_t count, float* out, size_t n) {
-  // A tile of 256 coordinates of all M modes (M KB) stays in cache across the frames; each frame's
-  // tile is summed in registers, four modes per pass over it, in mode order.
-  constexpr size_t kTile = 256;
-  float acc[kTile];
-  float w[kMaxBasisModes];
-  for (size_t lo = 0; lo < n; lo += kTile) {
-    const size_t len = std::min(kTile, n - lo);
-    const float* u = b.modes.data() + lo;
-    for (uint32_t j = 0; j < count; ++j) {
-      for (uint32_t k = 0; k < M; ++k) w[k] = float(double(q[size_t(j) * M + k]) * cstep);
-      std::memcpy(acc, b.mean.data() + lo, len * sizeof(float));
-      uint32_t k = 0;
-      for (; k + 4 <= M; k += 4) {
-        const float *u0 = u + size_t(k) * n, *u1 = u0 + n, *u2 = u1 + n, *u3 = u2 + n;
-        const float w0 = w[k], w1 = w[k + 1], w2 = w[k + 2], w3 = w[k + 3];
-        for (size_t i = 0; i < len; ++i) {
-          float a = acc[i];
-          a += w0 * u0[i];
-          a += w1 * u1[i];
-          a += w2 * u2[i];
-          a += w3 * u3[i];
-          acc[i] = a;
-        }
-      }
-      for (; k < M; ++k) {
-        const float* uk = u + size_t(k) * n;
-        const float wk = w[k];
-        for (size_t i = 0; i < len; ++i) acc[i] += wk * uk[i];
-      }
-      float* o = out + size_t(j) * n + lo;
-      if (Q != nullptr) {
-        const int32_t* r = Q + size_t(j) * n + lo;
-        for (size_t i = 0; i < len; ++i) o[i] = acc[i] + float(double(r[i]) * rstep);
-      } else {
-        std::memcpy(o, acc, len * sizeof(float));
+  // Coordinates per chunk: kChunkBytes of modes, a whole number of register blocks.
+  const size_t chunk = std::max(
+      kCoords, kChunkBytes / (sizeof(float) * std::max<uint32_t>(M, 1)) / kCoords * kCoords);
+  float w[kFrames * kMaxBasisModes];
+  for (size_t lo = 0; lo < n; lo += chunk) {
+    const size_t hi = std::min(n, lo + chunk);
+    for (uint32_t j0 = 0; j0 < count; j0 += kFrames) {
+      const uint32_t F = std::min(kFrames, count - j0);
+      for (uint32_t j = 0; j < F; ++j)
+        for (uint32_t k = 0; k < M; ++k)
+          w[size_t(j) * M + k] = float(double(q[size_t(j0 + j) * M + k]) * cstep);
+      const int32_t* Qj = Q ? Q + size_t(j0) * n : nullptr;
+      float* oj = out + size_t(j0) * n;
+      switch (F) {
+        case 4:
+          reconstruct_frames<4>(b, M, w, Qj, rstep, oj, n, lo, hi);
+          break;
+        case 3:
+          reconstruct_frames<3>(b, M, w, Qj, rstep, oj, n, lo, hi);
+          break;
+        case 2:
+          reconstruct_frames<2>(b, M, w, Qj, rstep, oj, n, lo, hi);
+          break;
+        default:
+          reconstruct_frames<1>(b, M, w, Qj, rstep, oj, n, lo, hi);
+          break;
       }
     }
   }
@@ -187,10 +265,16 @@ void reconstruct(const Basis& b, uint32_t M, const int32_t* q, double cstep, con
 inline int32_t median_prediction(const int32_t* d, size_t c, size_t row) {
   const int32_t left = d[c - 3];
   const int32_t up = d[c - 3 * row], corner = d[c - 3 * row - 3];
-  const int32_t lo = std::min(left, up), hi = std::max(left, up);
-  if (corner >= hi) return lo;
-  if (corner <= lo) return hi;
-  return int32_t(uint32_t(left) + uint32_t(up) - uint32_t(corner));
+  // corner >= max(left, up) gives the smaller, corner <= min(left, up) the larger, otherwise
+  // left + up - corner. Written with masks, not comparisons the compiler turns into branches: the
+  // decoder's spatial pass is a chain through `left`, and on real residuals those branches go
+  // either way at random (GCC 12 branched on std::min).
+  const int32_t lt = -int32_t(left < up);  // all ones where left < up
+  const int32_t lo = (left & lt) | (up & ~lt), hi = (up & lt) | (left & ~lt);
+  const int32_t inside = int32_t(uint32_t(left) + uint32_t(up) - uint32_t(corner));
+  const int32_t ge = -int32_t(corner >= hi), le = -int32_t(corner <= lo);
+  const int32_t below = (hi & le) | (inside & ~le);
+  return (lo & ge) | (below & ~ge);
 }
 
 // The spatial prediction of value c (x y z per vertex) of one frame's residual-in-time values d,
@@ -207,36 +291,66 @@ inline int32_t spatial_prediction(const int32_t* d, size_t c, size_t row) {
   return median_prediction(d, c, row);
 }
 
-// Segment integers (k frames of `width` values, frame-major) from their prediction residuals, in
-// place: with `spatial` each residual first plus its spatial prediction in the same frame
-// (spatial_prediction with `row`); then in time, first frame as is, second plus the first, the
-// rest plus 2 a[f-1] - a[f-2]. Wrapping arithmetic, then range-checked so a damaged payload cannot
-// overflow later.
-bool integrate(int32_t* v, uint32_t k, size_t width, bool spatial, size_t row) {
-  if (spatial)
-    for (uint32_t f = 0; f < k; ++f) {
-      int32_t* d = v + size_t(f) * width;
-      // spatial_prediction's cases split by range, so neither loop branches on c: the previous
-      // vertex alone (a running sum per axis) over the first row (every value when row is 0),
-      // then the median predictor.
-      const size_t first_row_end = row == 0 ? width : std::min(width, 3 * row + 3);
-      for (size_t c = 3; c < first_row_end; ++c)
-        d[c] = int32_t(uint32_t(d[c]) + uint32_t(d[c - 3]));
-      for (size_t c = first_row_end; c < width; ++c)
-        d[c] = int32_t(uint32_t(d[c]) + uint32_t(median_prediction(d, c, row)));
+// Values [0, width) of one frame of a segment part from its 4 byte planes (p: the frame's first
+// low byte; N: values per plane), zigzagged in the payload.
+inline void unpack(const uint8_t* __restrict p, size_t N, size_t width, int32_t* __restrict d) {
+  const uint8_t *p1 = p + N, *p2 = p1 + N, *p3 = p2 + N;
+  for (size_t i = 0; i < width; ++i)
+    d[i] = int32_t(unzigzag(uint32_t(p[i]) | uint32_t(p1[i]) << 8 | uint32_t(p2[i]) << 16 |
+                            uint32_t(p3[i]) << 24));
+}
+
+// The spatial pass over G frames of a segment's residual (d: the first, frames `width` apart), in
+// place: each value plus its spatial prediction in the same frame (spatial_prediction with `row`).
+// spatial_prediction's cases split by range, so neither loop branches on c: the previous vertex
+// alone (a running sum per axis) over the first row (every value when row is 0), then the median
+// predictor. Each frame's pass is a chain through the value to its left (three chains, one per
+// axis); G frames side by side give the processor 3 G independent chains to overlap.
+template <uint32_t G>
+void add_spatial_prediction(int32_t* d, size_t width, size_t row) {
+  const size_t first_row_end = row == 0 ? width : std::min(width, 3 * row + 3);
+  for (size_t c = 3; c < first_row_end; ++c)
+    for (uint32_t g = 0; g < G; ++g) {
+      int32_t* e = d + size_t(g) * width;
+      e[c] = int32_t(uint32_t(e[c]) + uint32_t(e[c - 3]));
     }
-  for (uint32_t f = 1; f < k; ++f)
+  for (size_t c = first_row_end; c < width; ++c)
+    for (uint32_t g = 0; g < G; ++g) {
+      int32_t* e = d + size_t(g) * width;
+      e[c] = int32_t(uint32_t(e[c]) + uint32_t(median_prediction(e, c, row)));
+    }
+}
+
+// Frame f of a segment part (frames of `width` values, frame-major, v) in time, in place, once the
+// frames before it are done: the first frame as is, the second plus the first, the rest plus
+// 2 a[f-1] - a[f-2]. Wrapping arithmetic, then range-checked so a damaged payload cannot overflow
+// later.
+bool add_time_prediction(int32_t* v, uint32_t f, size_t width) {
+  int32_t* __restrict d = v + size_t(f) * width;
+  // In range: -kMaxInt <= x <= kMaxInt, as one unsigned comparison so the loops vectorise.
+  auto out_of_range = [](int32_t x) {
+    return uint32_t(uint32_t(x) + uint32_t(kMaxInt) > 2u * kMaxInt);
+  };
+  uint32_t bad = 0;
+  if (f == 0) {
+    for (size_t c = 0; c < width; ++c) bad |= out_of_range(d[c]);
+  } else if (f == 1) {
+    const int32_t* __restrict a = d - width;
     for (size_t c = 0; c < width; ++c) {
-      const size_t i = size_t(f) * width + c;
-      const uint32_t pred =
-          f == 1 ? uint32_t(v[i - width]) : 2 * uint32_t(v[i - width]) - uint32_t(v[i - 2 * width]);
-      const int32_t x = int32_t(pred + uint32_t(v[i]));
-      if (x > kMaxInt || x < -kMaxInt) return false;
-      v[i] = x;
+      const int32_t x = int32_t(uint32_t(a[c]) + uint32_t(d[c]));
+      bad |= out_of_range(x);
+      d[c] = x;
     }
-  for (size_t c = 0; c < width; ++c)
-    if (v[c] > kMaxInt || v[c] < -kMaxInt) return false;
-  return true;
+  } else {
+    const int32_t* __restrict a = d - width;
+    const int32_t* __restrict b = a - width;
+    for (size_t c = 0; c < width; ++c) {
+      const int32_t x = int32_t(2 * uint32_t(a[c]) - uint32_t(b[c]) + uint32_t(d[c]));
+      bad |= out_of_range(x);
+      d[c] = x;
+    }
+  }
+  return bad == 0;
 }
 
 }  // namespace
@@ -273,21 +387,42 @@ struct DecoderV3Access {
     if (s.v3_ints_.size() < N) s.v3_ints_.resize(N);
     int32_t* v = s.v3_ints_.data();
     const uint8_t* b = s.bytes_.data();
-    // Two parts, each in 4 byte planes.
-    const size_t parts[2] = {size_t(k) * h.modes, N - size_t(k) * h.modes};
-    size_t at = 0;
-    for (size_t part : parts) {
-      const uint8_t* p = b + 4 * at;
-      for (size_t i = 0; i < part; ++i)
-        v[at + i] =
-            int32_t(unzigzag(uint32_t(p[i]) | uint32_t(p[part + i]) << 8 |
-                             uint32_t(p[2 * part + i]) << 16 | uint32_t(p[3 * part + i]) << 24));
-      at += part;
+    // Two parts, each in 4 byte planes: the coefficients (k x M), then the residual (k x 3V).
+    const size_t Nc = size_t(k) * h.modes, n = N - Nc;
+    for (uint32_t f = 0; f < k; ++f) {
+      unpack(b + size_t(f) * h.modes, Nc, h.modes, v + size_t(f) * h.modes);
+      if (!add_time_prediction(v, f, h.modes))
+        return fail(err, Status::Corrupt, "frame blob segment %u: coefficient out of range", seg);
     }
-    if (!integrate(v, k, h.modes, false, 0))
-      return fail(err, Status::Corrupt, "frame blob segment %u: coefficient out of range", seg);
-    if (h.residual() && !integrate(v + size_t(k) * h.modes, k, size_t(h.V) * 3, true, h.row))
-      return fail(err, Status::Corrupt, "frame blob segment %u: residual out of range", seg);
+    if (n > 0) {
+      // Four frames at a time, so they stay in cache from unpacking to the time pass, each frame's
+      // spatial pass (within the frame) before its time pass (from the two frames before it).
+      const size_t width = size_t(h.V) * 3;
+      int32_t* r = v + Nc;
+      for (uint32_t f0 = 0; f0 < k; f0 += 4) {
+        const uint32_t G = std::min(4u, k - f0);
+        for (uint32_t f = f0; f < f0 + G; ++f)
+          unpack(b + 4 * Nc + size_t(f) * width, n, width, r + size_t(f) * width);
+        int32_t* d = r + size_t(f0) * width;
+        switch (G) {
+          case 4:
+            add_spatial_prediction<4>(d, width, h.row);
+            break;
+          case 3:
+            add_spatial_prediction<3>(d, width, h.row);
+            break;
+          case 2:
+            add_spatial_prediction<2>(d, width, h.row);
+            break;
+          default:
+            add_spatial_prediction<1>(d, width, h.row);
+            break;
+        }
+        for (uint32_t f = f0; f < f0 + G; ++f)
+          if (!add_time_prediction(r, f, width))
+            return fail(err, Status::Corrupt, "frame blob segment %u: residual out of range", seg);
+      }
+    }
     s.v3_key_ = key;
     s.v3_segment_ = seg;
     s.v3_valid_ = true;
@@ -573,6 +708,79 @@ void steer(const double* t, size_t n, uint32_t F, double jmax, double band, size
   }
 }
 
+// The residual's symbols with the jitter cap kept on the vertex rather than on each axis: a
+// vertex's three symbols may be any integer point within `radius` (step units) of r''/s, a ball,
+// where steer keeps each axis within J / sqrt(3) (the cube inscribed in that ball, 1 / 2.7 of its
+// volume), so the step can be coarser for the same freedom. Each axis is scored as steer chooses:
+// its spatial prediction while the error's rest point stays in the band, otherwise the smallest
+// rest; the vertex takes the point of least total score. radius >= sqrt(3) / 2, so the ball always
+// holds a point.
+void steer_ball(const double* t, size_t n, uint32_t F, double radius, double band, size_t row,
+                int32_t* Q) {
+  for (size_t c = 0; c < n; ++c) {
+    const int32_t q0 = std::fabs(t[c]) <= 0.5 * band ? 0 : int32_t(std::nearbyint(t[c]));
+    Q[c] = q0;
+    if (F > 1)
+      Q[n + c] = std::fabs(q0 - t[n + c]) <= 0.5 * band ? q0 : int32_t(std::nearbyint(t[n + c]));
+  }
+  // What one axis can always choose either way while the other two take their nearest symbols.
+  const double amin = std::max(0.25, std::sqrt(std::max(0.0, radius * radius - 0.5)) - 0.5);
+  const double r2 = radius * radius;
+  std::vector<int32_t> syms(n);
+  for (uint32_t f = 2; f < F; ++f) {
+    const double *t0 = t + size_t(f) * n, *t1 = t0 - n, *t2 = t1 - n;
+    int32_t* q = Q + size_t(f) * n;
+    const int32_t *q1 = q - n, *q2 = q1 - n;
+    for (size_t c0 = 0; c0 + 3 <= n; c0 += 3) {
+      double tpp[3], e1[3], v1[3], pred[3];
+      int lo[3], hi[3];
+      for (int a = 0; a < 3; ++a) {
+        const size_t c = c0 + size_t(a);
+        tpp[a] = t0[c] - 2 * t1[c] + t2[c];
+        e1[a] = q1[c] - t1[c];
+        v1[a] = e1[a] - (q2[c] - t2[c]);
+        lo[a] = int(std::ceil(tpp[a] - radius));
+        hi[a] = int(std::floor(tpp[a] + radius));
+        pred[a] = double(spatial_prediction(syms.data(), c, row));
+      }
+      // Each axis's score for a symbol: 0 for its prediction within the band, 1 for another symbol
+      // within the band, beyond the band 1000 + how far the error would come to rest.
+      auto score = [&](int a, double sym) {
+        const double v = v1[a] + (sym - tpp[a]), e = e1[a] + v;
+        const double rest = std::fabs(e + v * std::fabs(v) / (2 * amin));
+        if (rest > band) return 1000 + rest;
+        return sym == pred[a] ? 0.0 : 1.0 + 1e-3 * std::fabs(sym - pred[a]);
+      };
+      double best = HUGE_VAL;
+      double pick[3] = {std::nearbyint(tpp[0]), std::nearbyint(tpp[1]), std::nearbyint(tpp[2])};
+      for (int x = lo[0]; x <= hi[0]; ++x) {
+        const double dx = x - tpp[0], sx = score(0, x);
+        for (int y = lo[1]; y <= hi[1]; ++y) {
+          const double dy = y - tpp[1];
+          if (dx * dx + dy * dy > r2) continue;
+          const double sy = sx + score(1, y);
+          for (int z = lo[2]; z <= hi[2]; ++z) {
+            const double dz = z - tpp[2];
+            if (dx * dx + dy * dy + dz * dz > r2) continue;
+            const double total = sy + score(2, z);
+            if (total < best) {
+              best = total;
+              pick[0] = x;
+              pick[1] = y;
+              pick[2] = z;
+            }
+          }
+        }
+      }
+      for (int a = 0; a < 3; ++a) {
+        const size_t c = c0 + size_t(a);
+        syms[c] = int32_t(pick[a]);
+        q[c] = int32_t(2 * q1[c] - q2[c] + int64_t(pick[a]));
+      }
+    }
+  }
+}
+
 }  // namespace
 
 std::vector<uint8_t> encode_v3(const float* frames, uint32_t F, uint32_t V, const Basis& basis,
@@ -630,10 +838,14 @@ std::vector<uint8_t> encode_v3(const float* frames, uint32_t F, uint32_t V, cons
   // bands and finer steps. Each is decoded and measured.
   struct Attempt {
     double step, band;  // m
+    bool ball = false;  // steer_ball (step: radius 0.98 J / step) instead of steer
   };
   const double j = cap.jitter / std::sqrt(3.0);
   const double band0 = std::min(cap.rms, 0.5 * cap.max) / std::sqrt(3.0);
   std::vector<Attempt> attempts = {{0, 0}};
+  if (const char* e = std::getenv("CLOTHDB_V3_BALL"))  // experiment: step = factor x J
+    for (double k : {1.0, 0.5, 0.25})
+      attempts.push_back({std::atof(e) * cap.jitter, band0 * k, true});
   for (double k : {1.0, 0.5, 0.25, 0.125}) attempts.push_back({0.98 * j, band0 * k});
   for (double k : {0.5, 0.25}) attempts.push_back({0.98 * j * k, band0 * 0.125});
   if (settings.residual_row >= int64_t(V))
@@ -658,7 +870,10 @@ std::vector<uint8_t> encode_v3(const float* frames, uint32_t F, uint32_t V, cons
         if (std::fabs(v) > double(kMaxInt) / 4)
           throw ClothdbError(Status::InvalidArgument,
                              "encode_v3: the residual does not fit its step");
-      steer(t.data(), n, F, 0.98 * j / a.step, a.band / a.step, row, Q.data());
+      if (a.ball)
+        steer_ball(t.data(), n, F, 0.98 * cap.jitter / a.step, a.band / a.step, row, Q.data());
+      else
+        steer(t.data(), n, F, 0.98 * j / a.step, a.band / a.step, row, Q.data());
       std::vector<int32_t> syms(n);
       for (uint32_t f = 0; f < F; ++f) {
         if (f % K < 2) continue;
