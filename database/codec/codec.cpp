@@ -380,6 +380,7 @@ DecodeScratch::DecodeScratch(DecodeScratch&& other) noexcept
       coefficients_(std::move(other.coefficients_)),
       body_(std::move(other.body_)),
       v3_ints_(std::move(other.v3_ints_)),
+      v3_lanes_(std::move(other.v3_lanes_)),
       v3_key_(other.v3_key_),
       v3_segment_(other.v3_segment_),
       v3_valid_(other.v3_valid_),
@@ -397,6 +398,7 @@ DecodeScratch& DecodeScratch::operator=(DecodeScratch&& other) noexcept {
     std::swap(coefficients_, other.coefficients_);
     std::swap(body_, other.body_);
     std::swap(v3_ints_, other.v3_ints_);
+    std::swap(v3_lanes_, other.v3_lanes_);
     std::swap(v3_key_, other.v3_key_);
     std::swap(v3_segment_, other.v3_segment_);
     std::swap(v3_valid_, other.v3_valid_);
@@ -423,8 +425,9 @@ void DecodeScratch::reserve(uint32_t vertex_count, uint32_t key_interval, uint32
 }
 
 size_t DecodeScratch::memory_bytes() const {
-  size_t bytes = bytes_.capacity() + 4 * (subspace_.capacity() + coefficients_.capacity() +
-                                          body_.capacity() + v3_ints_.capacity());
+  size_t bytes =
+      bytes_.capacity() + 4 * (subspace_.capacity() + coefficients_.capacity() + body_.capacity() +
+                               v3_ints_.capacity() + v3_lanes_.capacity());
   for (const auto& q : q_) bytes += 4 * q.capacity();
   return bytes;
 }

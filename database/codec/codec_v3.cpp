@@ -7,8 +7,9 @@
 //    coefficients are exactly the encoder's);
 //  - the residual r (what the decoded modes leave) is coded per coordinate as r^[f] = 2 r^[f-1] -
 //    r^[f-2] + s q[f]. The coding error e = r^ - r then has second difference e''[f] = s q[f] -
-//    r''[f] exactly, so any q within J of r''/s keeps the jitter under its cap J whatever the
-//    error itself is; among those the encoder takes 0 (nothing to send) while the error stays in
+//    r''[f] exactly, so any vertex's three q within J of r''/s (a ball; steer_ball, tried first,
+//    or the cube inside it, steer) keep the jitter under its cap J whatever the error itself is;
+//    among those the encoder takes 0 (nothing to send) while the error stays in
 //    a band, and otherwise the q that steers the error back (a double integrator driven by a
 //    bounded acceleration: bang-bang control toward zero error and zero velocity). Rounding each
 //    frame on its own instead would give jitter up to 2 s per coordinate (version 1's 0.57 mm at
@@ -22,7 +23,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdlib>
 #include <cstring>
 #include <string>
 
@@ -55,6 +55,16 @@ constexpr size_t kEntrySize = 16;
 constexpr int32_t kMaxInt = (1 << 27) - 1;  // so 2 a - b never overflows int32
 constexpr double kMaxStep = 1e3;
 constexpr uint32_t kMaxSegmentFrames = 4096;
+
+// The decoder's kernels (reconstruct, add_spatial_prediction8) are built for AVX2 as well as the
+// x86-64 baseline, picked at load time (as version 2's predict and the runtime's playback kernels):
+// without FMA (and with -ffp-contract=off) both round every operation alike, and integer code is
+// exact, so the frames are bit-identical whichever runs.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define CLOTHDB_V3_MULTIVERSION __attribute__((target_clones("avx2", "default")))
+#else
+#define CLOTHDB_V3_MULTIVERSION
+#endif
 
 struct Header {
   uint32_t V = 0, F = 0, modes = 0, K = 0, S = 0;
@@ -148,7 +158,7 @@ size_t segment_offset(const uint8_t* blob, const Header& h, uint32_t s) {
 // the M modes, so each value of a mode read from cache serves kFrames frames (the loop the
 // version before this one ran read a mode's value once per frame, from a tile larger than L1:
 // docs/notebook/codec_v3.md, "Decoding speed").
-constexpr uint32_t kFrames = 4;
+constexpr uint32_t kFrames = 6;
 constexpr size_t kCoords = 16;
 constexpr size_t kChunkBytes = 128 * 1024;
 
@@ -219,14 +229,6 @@ inline __attribute__((always_inline)) void reconstruct_frames(const Basis& b, ui
     }
 }
 
-// Built for AVX2 as well as the x86-64 baseline, picked at load time (as version 2's predict and
-// the runtime's playback kernels): without FMA (and with -ffp-contract=off) both round every
-// operation alike, so the frames are bit-identical whichever runs.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define CLOTHDB_V3_MULTIVERSION __attribute__((target_clones("avx2", "default")))
-#else
-#define CLOTHDB_V3_MULTIVERSION
-#endif
 CLOTHDB_V3_MULTIVERSION
 void reconstruct(const Basis& b, uint32_t M, const int32_t* q, double cstep, const int32_t* Q,
                  double rstep, uint32_t count, float* out, size_t n) {
@@ -244,6 +246,12 @@ void reconstruct(const Basis& b, uint32_t M, const int32_t* q, double cstep, con
       const int32_t* Qj = Q ? Q + size_t(j0) * n : nullptr;
       float* oj = out + size_t(j0) * n;
       switch (F) {
+        case 6:
+          reconstruct_frames<6>(b, M, w, Qj, rstep, oj, n, lo, hi);
+          break;
+        case 5:
+          reconstruct_frames<5>(b, M, w, Qj, rstep, oj, n, lo, hi);
+          break;
         case 4:
           reconstruct_frames<4>(b, M, w, Qj, rstep, oj, n, lo, hi);
           break;
@@ -293,51 +301,81 @@ inline int32_t spatial_prediction(const int32_t* d, size_t c, size_t row) {
 
 // Values [0, width) of one frame of a segment part from its 4 byte planes (p: the frame's first
 // low byte; N: values per plane), zigzagged in the payload.
+// (stride: where value i goes, d[i * stride]; 8 into the spatial pass's lanes.)
+template <size_t stride>
 inline void unpack(const uint8_t* __restrict p, size_t N, size_t width, int32_t* __restrict d) {
   const uint8_t *p1 = p + N, *p2 = p1 + N, *p3 = p2 + N;
   for (size_t i = 0; i < width; ++i)
-    d[i] = int32_t(unzigzag(uint32_t(p[i]) | uint32_t(p1[i]) << 8 | uint32_t(p2[i]) << 16 |
-                            uint32_t(p3[i]) << 24));
+    d[i * stride] = int32_t(unzigzag(uint32_t(p[i]) | uint32_t(p1[i]) << 8 | uint32_t(p2[i]) << 16 |
+                                     uint32_t(p3[i]) << 24));
 }
 
-// The spatial pass over G frames of a segment's residual (d: the first, frames `width` apart), in
-// place: each value plus its spatial prediction in the same frame (spatial_prediction with `row`).
+// The spatial pass over eight frames of a segment's residual at once, in place: each value plus its
+// spatial prediction in the same frame (spatial_prediction with `row`). lanes holds value c of
+// frame g at lanes[8 c + g], so one vector of eight lanes is one value of eight frames: each
+// frame's pass is a chain through the value to its left (one per axis), which runs at the latency
+// of the median per value frame by frame, and eight frames side by side take the same time.
 // spatial_prediction's cases split by range, so neither loop branches on c: the previous vertex
 // alone (a running sum per axis) over the first row (every value when row is 0), then the median
-// predictor. Each frame's pass is a chain through the value to its left (three chains, one per
-// axis); G frames side by side give the processor 3 G independent chains to overlap.
-template <uint32_t G>
-void add_spatial_prediction(int32_t* d, size_t width, size_t row) {
+// edge detector, as median_prediction computes it, with masks.
+typedef int32_t Ints8 __attribute__((vector_size(32)));
+typedef uint32_t Uints8 __attribute__((vector_size(32)));
+CLOTHDB_V3_MULTIVERSION
+void add_spatial_prediction8(int32_t* lanes, size_t width, size_t row) {
+  // (Loads and stores through memcpy: no alignment assumed, and no vector passed by value, which
+  // would change the baseline build's calling convention.)
+  auto at = [&](Uints8& v, size_t c) { std::memcpy(&v, lanes + 8 * c, sizeof v); };
+  auto put = [&](size_t c, const Uints8& v) { std::memcpy(lanes + 8 * c, &v, sizeof v); };
   const size_t first_row_end = row == 0 ? width : std::min(width, 3 * row + 3);
-  for (size_t c = 3; c < first_row_end; ++c)
-    for (uint32_t g = 0; g < G; ++g) {
-      int32_t* e = d + size_t(g) * width;
-      e[c] = int32_t(uint32_t(e[c]) + uint32_t(e[c - 3]));
-    }
-  for (size_t c = first_row_end; c < width; ++c)
-    for (uint32_t g = 0; g < G; ++g) {
-      int32_t* e = d + size_t(g) * width;
-      e[c] = int32_t(uint32_t(e[c]) + uint32_t(median_prediction(e, c, row)));
+  Uints8 x, y;
+  for (size_t c = 3; c < first_row_end; ++c) {
+    at(x, c);
+    at(y, c - 3);
+    put(c, x + y);
+  }
+  if (first_row_end >= width) return;
+  Uints8 left[3];
+  for (size_t a = 0; a < 3; ++a) at(left[a], first_row_end - 3 + a);
+  for (size_t c = first_row_end; c < width; c += 3)
+    for (size_t a = 0; a < 3; ++a) {
+      Uints8 up, corner, d;
+      at(up, c + a - 3 * row);
+      at(corner, c + a - 3 * row - 3);
+      at(d, c + a);
+      const Ints8 l = Ints8(left[a]), u = Ints8(up), k = Ints8(corner);
+      const Uints8 lt = Uints8(l < u);  // all ones where left < up
+      const Uints8 lo = (left[a] & lt) | (up & ~lt), hi = (up & lt) | (left[a] & ~lt);
+      const Uints8 inside = left[a] + up - corner;
+      const Uints8 ge = Uints8(k >= Ints8(hi)), le = Uints8(k <= Ints8(lo));
+      const Uints8 below = (hi & le) | (inside & ~le);
+      left[a] = d + ((lo & ge) | (below & ~ge));
+      put(c + a, left[a]);
     }
 }
 
-// Frame f of a segment part (frames of `width` values, frame-major, v) in time, in place, once the
-// frames before it are done: the first frame as is, the second plus the first, the rest plus
+// Frame f of a segment part (frames of `width` values, frame-major, v) in time, once the frames
+// before it are done: value c is src[c * stride] (the frame itself, stride 1, or its lane of the
+// spatial pass, stride 8) plus the first frame nothing, the second the first, the rest
 // 2 a[f-1] - a[f-2]. Wrapping arithmetic, then range-checked so a damaged payload cannot overflow
 // later.
-bool add_time_prediction(int32_t* v, uint32_t f, size_t width) {
-  int32_t* __restrict d = v + size_t(f) * width;
+template <size_t stride>
+bool add_time_prediction(int32_t* v, uint32_t f, size_t width, const int32_t* src) {
+  int32_t* d = v + size_t(f) * width;
   // In range: -kMaxInt <= x <= kMaxInt, as one unsigned comparison so the loops vectorise.
   auto out_of_range = [](int32_t x) {
     return uint32_t(uint32_t(x) + uint32_t(kMaxInt) > 2u * kMaxInt);
   };
   uint32_t bad = 0;
   if (f == 0) {
-    for (size_t c = 0; c < width; ++c) bad |= out_of_range(d[c]);
+    for (size_t c = 0; c < width; ++c) {
+      const int32_t x = src[c * stride];
+      bad |= out_of_range(x);
+      d[c] = x;
+    }
   } else if (f == 1) {
     const int32_t* __restrict a = d - width;
     for (size_t c = 0; c < width; ++c) {
-      const int32_t x = int32_t(uint32_t(a[c]) + uint32_t(d[c]));
+      const int32_t x = int32_t(uint32_t(a[c]) + uint32_t(src[c * stride]));
       bad |= out_of_range(x);
       d[c] = x;
     }
@@ -345,7 +383,7 @@ bool add_time_prediction(int32_t* v, uint32_t f, size_t width) {
     const int32_t* __restrict a = d - width;
     const int32_t* __restrict b = a - width;
     for (size_t c = 0; c < width; ++c) {
-      const int32_t x = int32_t(2 * uint32_t(a[c]) - uint32_t(b[c]) + uint32_t(d[c]));
+      const int32_t x = int32_t(2 * uint32_t(a[c]) - uint32_t(b[c]) + uint32_t(src[c * stride]));
       bad |= out_of_range(x);
       d[c] = x;
     }
@@ -390,36 +428,28 @@ struct DecoderV3Access {
     // Two parts, each in 4 byte planes: the coefficients (k x M), then the residual (k x 3V).
     const size_t Nc = size_t(k) * h.modes, n = N - Nc;
     for (uint32_t f = 0; f < k; ++f) {
-      unpack(b + size_t(f) * h.modes, Nc, h.modes, v + size_t(f) * h.modes);
-      if (!add_time_prediction(v, f, h.modes))
+      unpack<1>(b + size_t(f) * h.modes, Nc, h.modes, v + size_t(f) * h.modes);
+      if (!add_time_prediction<1>(v, f, h.modes, v + size_t(f) * h.modes))
         return fail(err, Status::Corrupt, "frame blob segment %u: coefficient out of range", seg);
     }
     if (n > 0) {
-      // Four frames at a time, so they stay in cache from unpacking to the time pass, each frame's
-      // spatial pass (within the frame) before its time pass (from the two frames before it).
+      // Eight frames at a time: unpacked, their spatial passes side by side in eight lanes
+      // (add_spatial_prediction8), then each frame's time pass (from the two frames before it).
       const size_t width = size_t(h.V) * 3;
       int32_t* r = v + Nc;
-      for (uint32_t f0 = 0; f0 < k; f0 += 4) {
-        const uint32_t G = std::min(4u, k - f0);
-        for (uint32_t f = f0; f < f0 + G; ++f)
-          unpack(b + 4 * Nc + size_t(f) * width, n, width, r + size_t(f) * width);
-        int32_t* d = r + size_t(f0) * width;
-        switch (G) {
-          case 4:
-            add_spatial_prediction<4>(d, width, h.row);
-            break;
-          case 3:
-            add_spatial_prediction<3>(d, width, h.row);
-            break;
-          case 2:
-            add_spatial_prediction<2>(d, width, h.row);
-            break;
-          default:
-            add_spatial_prediction<1>(d, width, h.row);
-            break;
+      if (s.v3_lanes_.size() < 8 * width) s.v3_lanes_.resize(8 * width);
+      int32_t* lanes = s.v3_lanes_.data();
+      for (uint32_t f0 = 0; f0 < k; f0 += 8) {
+        const uint32_t G = std::min(8u, k - f0);
+        for (uint32_t g = 0; g < 8; ++g) {
+          if (g < G)
+            unpack<8>(b + 4 * Nc + size_t(f0 + g) * width, n, width, lanes + g);
+          else
+            for (size_t c = 0; c < width; ++c) lanes[8 * c + g] = 0;
         }
-        for (uint32_t f = f0; f < f0 + G; ++f)
-          if (!add_time_prediction(r, f, width))
+        add_spatial_prediction8(lanes, width, h.row);
+        for (uint32_t g = 0; g < G; ++g)
+          if (!add_time_prediction<8>(r, f0 + g, width, lanes + g))
             return fail(err, Status::Corrupt, "frame blob segment %u: residual out of range", seg);
       }
     }
@@ -843,9 +873,12 @@ std::vector<uint8_t> encode_v3(const float* frames, uint32_t F, uint32_t V, cons
   const double j = cap.jitter / std::sqrt(3.0);
   const double band0 = std::min(cap.rms, 0.5 * cap.max) / std::sqrt(3.0);
   std::vector<Attempt> attempts = {{0, 0}};
-  if (const char* e = std::getenv("CLOTHDB_V3_BALL"))  // experiment: step = factor x J
-    for (double k : {1.0, 0.5, 0.25})
-      attempts.push_back({std::atof(e) * cap.jitter, band0 * k, true});
+  // First the jitter cap on the vertex (steer_ball) at a step of J: a radius of 0.98 steps, where
+  // the axis-by-axis steer needs a step of 0.98 J / sqrt(3). Measured on the whole-motion skirt
+  // (docs/notebook/codec_v3.md, "Decoding speed, and the residual's ball"): 18.14 -> 16.04 bits per
+  // vertex-frame at RMS 1 / max 3 / jitter 0.1 mm (steps of 0.7, 0.8, 1.1 and 1.13 J: 17.25,
+  // 16.79, 16.50, 16.61). Where the controller then loses the error, the finer attempts follow.
+  for (double k : {1.0, 0.5, 0.25}) attempts.push_back({cap.jitter, band0 * k, true});
   for (double k : {1.0, 0.5, 0.25, 0.125}) attempts.push_back({0.98 * j, band0 * k});
   for (double k : {0.5, 0.25}) attempts.push_back({0.98 * j * k, band0 * 0.125});
   if (settings.residual_row >= int64_t(V))
