@@ -419,8 +419,10 @@ void DecodeScratch::reserve(uint32_t vertex_count, uint32_t key_interval, uint32
     if (coefficients_.size() < size_t(modes) * key_interval)
       coefficients_.resize(size_t(modes) * key_interval);
     if (body_.size() < size_t(12) * key_interval) body_.resize(size_t(12) * key_interval);
-    // Version 3: one segment of coefficients and residual as integers.
+    // Version 3: one segment of coefficients and residual as integers, and eight frames of the
+    // residual side by side for the spatial pass.
     if (v3_ints_.size() < (n + modes) * key_interval) v3_ints_.resize((n + modes) * key_interval);
+    if (v3_lanes_.size() < 8 * n) v3_lanes_.resize(8 * n);
   }
 }
 
