@@ -5,12 +5,16 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
 #include <random>
 #include <vector>
 
 #include "compress/subspace.hpp"
 #include "database/codec/codec.hpp"
 #include "database/codec/contract.hpp"
+#include "database/format/checksum.hpp"
 #include "support/allocation_counter.hpp"
 
 namespace clothdb::codec {
@@ -196,8 +200,9 @@ TEST(CodecV3, DecodingHoldsOneSegmentAndAllocatesNothingWhenWarm) {
   play(0);
   const size_t short_clip = scratch.memory_bytes();
   play(1);
-  // One segment of integers and their bytes: 2 x 4 bytes x K x (3V + M), not the clip's.
-  EXPECT_LE(scratch.memory_bytes(), 8 * size_t(s.segment_frames) * (n + 4));
+  // One segment of integers and their bytes, 2 x 4 bytes x K x (3V + M), and eight frames of the
+  // residual for the spatial pass, not the clip's.
+  EXPECT_LE(scratch.memory_bytes(), 8 * size_t(s.segment_frames) * (n + 4) + 4 * 8 * n);
   EXPECT_EQ(scratch.memory_bytes(), short_clip);
   const uint64_t before = g_allocations.load();
   play(2);
@@ -207,6 +212,120 @@ TEST(CodecV3, DecodingHoldsOneSegmentAndAllocatesNothingWhenWarm) {
   std::vector<float> y;
   ASSERT_EQ(decode_all(blobs[1].data(), blobs[1].size(), y, scratch, &err, &basis), Status::Ok);
   EXPECT_TRUE(within(measure_contract(y.data(), inputs[1].data(), 300, V), s.contract));
+}
+
+// The decoder as it was before it was blocked for speed (commit 78b73c7) and the decoder now give
+// the same frames to the bit. tests/data/codec_v3_pinned.bin holds a basis and five blobs that
+// commit's encoder wrote (the row predictor and row 0, no residual, segments of 32 and 16 frames,
+// vertex and mode counts that fill no register block or cache chunk evenly), and kPinned the XXH64
+// of every frame that commit's decoder made of each. The file and the hashes were made by this
+// test at that commit with CLOTHDB_WRITE_V3_PINNED=FILE (the branch below, which writes instead of
+// checking). Each blob is decoded whole, segment by segment as the runtime stages it, and one
+// frame at a time backwards: every way must give the same bits.
+TEST(CodecV3, DecodesBitForBitAsBeforeTheFastDecoder) {
+  struct Spec {
+    uint32_t side_i, side_j, frames, modes, segment;
+    int64_t row;
+    double detail;
+  };
+  const Spec specs[] = {{13, 11, 70, 7, 32, -1, 0.004},
+                        {13, 11, 70, 7, 32, 0, 0.004},
+                        {13, 11, 43, 12, 32, -1, 0.0},
+                        {24, 24, 45, 21, 16, -1, 0.003},
+                        {7, 5, 9, 3, 4, -1, 0.006}};
+  const uint64_t kPinned[] = {0x20fe4dde3df4be17ull, 0x40fb38e2d020e2ccull, 0xcfc1566a21956d52ull,
+                              0x831a5555f8b7d988ull, 0x23891bf63de05f8aull};
+  std::vector<std::vector<uint8_t>> items;  // for each spec: basis, blob
+  if (const char* path = std::getenv("CLOTHDB_WRITE_V3_PINNED")) {
+    for (const Spec& sp : specs) {
+      const uint32_t V = sp.side_i * sp.side_j;
+      auto grid = [&](uint32_t frames, double phase, double detail) {
+        std::vector<float> x(size_t(frames) * V * 3);
+        for (uint32_t f = 0; f < frames; ++f)
+          for (uint32_t i = 0; i < sp.side_i; ++i)
+            for (uint32_t j = 0; j < sp.side_j; ++j) {
+              const double t = f / 30.0 + phase, u = double(i) / sp.side_i,
+                           w = double(j) / sp.side_j;
+              float* p = x.data() + (size_t(f) * V + size_t(i) * sp.side_j + j) * 3;
+              p[0] = float(u + 0.05 * std::sin(3 * t + 4 * w) +
+                           detail * std::sin(1.3 * t + 23.0 * u * w + 11 * w));
+              p[1] = float(1.5 - w + 0.2 * std::sin(2.1 * t + 6 * u) * w);
+              p[2] = float(0.2 * std::cos(1.7 * t + 5 * u + 3 * w) * w +
+                           detail * std::cos(2.3 * t + 17.0 * u - 9 * w * w));
+            }
+        return x;
+      };
+      std::vector<float> sample = grid(sp.frames, 0.0, 0.0);
+      const auto more = grid(sp.frames, 1.1, 0.0);
+      sample.insert(sample.end(), more.begin(), more.end());
+      const Subspace sub = build_subspace(sample, V * 3, sp.modes);
+      const Basis basis = make_basis(7, V, sub.mean.data(), sub.basis.data(), sub.modes);
+      const auto x = grid(sp.frames, 0.4, sp.detail);
+      V3Settings s;
+      s.contract = {0.001, 0.003, 0.0001};
+      s.segment_frames = sp.segment;
+      s.residual_row = sp.row;
+      items.push_back(serialize_basis(basis));
+      items.push_back(encode_v3(x.data(), sp.frames, V, basis, s));
+    }
+    std::ofstream out(path, std::ios::binary);
+    for (const auto& item : items) {
+      const uint32_t size = uint32_t(item.size());
+      out.write(reinterpret_cast<const char*>(&size), 4);
+      out.write(reinterpret_cast<const char*>(item.data()), std::streamsize(item.size()));
+    }
+    ASSERT_TRUE(out.good());
+  } else {
+    std::ifstream in(std::string(CLOTHDB_SOURCE_DIR) + "/tests/data/codec_v3_pinned.bin",
+                     std::ios::binary);
+    ASSERT_TRUE(in);
+    uint32_t size = 0;
+    while (in.read(reinterpret_cast<char*>(&size), 4)) {
+      items.emplace_back(size);
+      ASSERT_TRUE(in.read(reinterpret_cast<char*>(items.back().data()), size));
+    }
+    ASSERT_EQ(items.size(), 2 * std::size(specs));
+  }
+  DecodeScratch scratch;
+  Error err;
+  bool residual = false, none = false;
+  for (size_t b = 0; b < std::size(specs); ++b) {
+    SCOPED_TRACE("blob " + std::to_string(b));
+    const auto& blob = items[2 * b + 1];
+    Basis basis;
+    ASSERT_EQ(parse_basis(items[2 * b].data(), items[2 * b].size(), 7, &basis, &err), Status::Ok)
+        << err.message;
+    BlobInfo info;
+    ASSERT_EQ(read_info(blob.data(), blob.size(), &info, &err), Status::Ok) << err.message;
+    residual |= info.residual_interval > 0;
+    none |= info.residual_interval == 0;
+    std::vector<float> all;
+    ASSERT_EQ(decode_all(blob.data(), blob.size(), all, scratch, &err, &basis), Status::Ok)
+        << err.message;
+    const uint64_t hash = xxh64(all.data(), all.size() * sizeof(float));
+    if (std::getenv("CLOTHDB_WRITE_V3_PINNED")) {
+      std::printf("blob %zu: %zu bytes, %u frames, residual %u, decoded XXH64 0x%016llxull\n", b,
+                  blob.size(), info.frame_count, info.residual_interval, (unsigned long long)hash);
+      continue;
+    }
+    EXPECT_EQ(hash, kPinned[b]);
+    const size_t n = size_t(info.vertex_count) * 3;
+    std::vector<float> y(all.size(), -1.0f);
+    for (uint32_t f = 0; f < info.frame_count; f += info.key_interval) {
+      const uint32_t count = std::min(info.key_interval, info.frame_count - f);
+      ASSERT_EQ(decode_frames(blob.data(), blob.size(), f, count, y.data() + f * n, count * n,
+                              scratch, &err, &basis),
+                Status::Ok);
+    }
+    EXPECT_EQ(std::memcmp(y.data(), all.data(), all.size() * sizeof(float)), 0);
+    std::fill(y.begin(), y.end(), -1.0f);
+    for (uint32_t f = info.frame_count; f-- > 0;)
+      ASSERT_EQ(
+          decode_frames(blob.data(), blob.size(), f, 1, y.data() + f * n, n, scratch, &err, &basis),
+          Status::Ok);
+    EXPECT_EQ(std::memcmp(y.data(), all.data(), all.size() * sizeof(float)), 0);
+  }
+  EXPECT_TRUE(residual && none) << "the pinned blobs cover both kinds";
 }
 
 TEST(CodecV3, RefusesBadInputAndDamagedOrNewerBlobs) {

@@ -380,6 +380,7 @@ DecodeScratch::DecodeScratch(DecodeScratch&& other) noexcept
       coefficients_(std::move(other.coefficients_)),
       body_(std::move(other.body_)),
       v3_ints_(std::move(other.v3_ints_)),
+      v3_lanes_(std::move(other.v3_lanes_)),
       v3_key_(other.v3_key_),
       v3_segment_(other.v3_segment_),
       v3_valid_(other.v3_valid_),
@@ -397,6 +398,7 @@ DecodeScratch& DecodeScratch::operator=(DecodeScratch&& other) noexcept {
     std::swap(coefficients_, other.coefficients_);
     std::swap(body_, other.body_);
     std::swap(v3_ints_, other.v3_ints_);
+    std::swap(v3_lanes_, other.v3_lanes_);
     std::swap(v3_key_, other.v3_key_);
     std::swap(v3_segment_, other.v3_segment_);
     std::swap(v3_valid_, other.v3_valid_);
@@ -417,14 +419,17 @@ void DecodeScratch::reserve(uint32_t vertex_count, uint32_t key_interval, uint32
     if (coefficients_.size() < size_t(modes) * key_interval)
       coefficients_.resize(size_t(modes) * key_interval);
     if (body_.size() < size_t(12) * key_interval) body_.resize(size_t(12) * key_interval);
-    // Version 3: one segment of coefficients and residual as integers.
+    // Version 3: one segment of coefficients and residual as integers, and eight frames of the
+    // residual side by side for the spatial pass.
     if (v3_ints_.size() < (n + modes) * key_interval) v3_ints_.resize((n + modes) * key_interval);
+    if (v3_lanes_.size() < 8 * n) v3_lanes_.resize(8 * n);
   }
 }
 
 size_t DecodeScratch::memory_bytes() const {
-  size_t bytes = bytes_.capacity() + 4 * (subspace_.capacity() + coefficients_.capacity() +
-                                          body_.capacity() + v3_ints_.capacity());
+  size_t bytes =
+      bytes_.capacity() + 4 * (subspace_.capacity() + coefficients_.capacity() + body_.capacity() +
+                               v3_ints_.capacity() + v3_lanes_.capacity());
   for (const auto& q : q_) bytes += 4 * q.capacity();
   return bytes;
 }

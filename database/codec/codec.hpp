@@ -275,6 +275,7 @@ class DecodeScratch {
   // Version 3: the last segment decoded, as integers (coefficients, then residual), kept while
   // frames of the same segment of the same blob (header checksum, segment) are decoded again.
   std::vector<int32_t> v3_ints_;
+  std::vector<int32_t> v3_lanes_;  // 8 frames of residual, interleaved, for the spatial pass
   uint64_t v3_key_ = 0;
   uint32_t v3_segment_ = 0;
   bool v3_valid_ = false;
