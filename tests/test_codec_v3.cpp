@@ -20,14 +20,16 @@
 namespace clothdb::codec {
 namespace {
 
-// A waving sheet with some high-frequency detail no few modes hold (so the residual is needed).
-std::vector<float> waves(uint32_t frames, uint32_t side, double phase, double detail) {
-  std::vector<float> x(size_t(frames) * side * side * 3);
+// A waving sheet of side_i x side_j vertices with some high-frequency detail no few modes hold
+// (so the residual is needed).
+std::vector<float> waves(uint32_t frames, uint32_t side_i, uint32_t side_j, double phase,
+                         double detail) {
+  std::vector<float> x(size_t(frames) * side_i * side_j * 3);
   for (uint32_t f = 0; f < frames; ++f)
-    for (uint32_t i = 0; i < side; ++i)
-      for (uint32_t j = 0; j < side; ++j) {
-        const double t = f / 30.0 + phase, u = double(i) / side, w = double(j) / side;
-        float* p = x.data() + (size_t(f) * side * side + size_t(i) * side + j) * 3;
+    for (uint32_t i = 0; i < side_i; ++i)
+      for (uint32_t j = 0; j < side_j; ++j) {
+        const double t = f / 30.0 + phase, u = double(i) / side_i, w = double(j) / side_j;
+        float* p = x.data() + (size_t(f) * side_i * side_j + size_t(i) * side_j + j) * 3;
         p[0] = float(u + 0.05 * std::sin(3 * t + 4 * w) +
                      detail * std::sin(1.3 * t + 23.0 * u * w + 11 * w));
         p[1] = float(1.5 - w + 0.2 * std::sin(2.1 * t + 6 * u) * w);
@@ -35,6 +37,9 @@ std::vector<float> waves(uint32_t frames, uint32_t side, double phase, double de
                      detail * std::cos(2.3 * t + 17.0 * u - 9 * w * w));
       }
   return x;
+}
+std::vector<float> waves(uint32_t frames, uint32_t side, double phase, double detail) {
+  return waves(frames, side, side, phase, detail);
 }
 
 Basis basis_of(const std::vector<float>& frames, uint32_t vertices, uint32_t modes) {
@@ -240,20 +245,7 @@ TEST(CodecV3, DecodesBitForBitAsBeforeTheFastDecoder) {
     for (const Spec& sp : specs) {
       const uint32_t V = sp.side_i * sp.side_j;
       auto grid = [&](uint32_t frames, double phase, double detail) {
-        std::vector<float> x(size_t(frames) * V * 3);
-        for (uint32_t f = 0; f < frames; ++f)
-          for (uint32_t i = 0; i < sp.side_i; ++i)
-            for (uint32_t j = 0; j < sp.side_j; ++j) {
-              const double t = f / 30.0 + phase, u = double(i) / sp.side_i,
-                           w = double(j) / sp.side_j;
-              float* p = x.data() + (size_t(f) * V + size_t(i) * sp.side_j + j) * 3;
-              p[0] = float(u + 0.05 * std::sin(3 * t + 4 * w) +
-                           detail * std::sin(1.3 * t + 23.0 * u * w + 11 * w));
-              p[1] = float(1.5 - w + 0.2 * std::sin(2.1 * t + 6 * u) * w);
-              p[2] = float(0.2 * std::cos(1.7 * t + 5 * u + 3 * w) * w +
-                           detail * std::cos(2.3 * t + 17.0 * u - 9 * w * w));
-            }
-        return x;
+        return waves(frames, sp.side_i, sp.side_j, phase, detail);
       };
       std::vector<float> sample = grid(sp.frames, 0.0, 0.0);
       const auto more = grid(sp.frames, 1.1, 0.0);
