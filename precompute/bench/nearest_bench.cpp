@@ -37,7 +37,8 @@ struct Answers {
 };
 
 // Adds every state as the explorer and a resume do (nearest_state, then add_state).
-Answers replay(const StateSet& set, bool early_exit, bool coarse_first, NearestBenchSide* side) {
+Answers replay(const StateSet& set, bool early_exit, bool coarse_first, size_t motion_modes,
+               NearestBenchSide* side) {
   SecondaryGraph sg;
   sg.tau = set.tau;
   sg.out_edges.assign(size_t(set.nodes), {});
@@ -46,6 +47,7 @@ Answers replay(const StateSet& set, bool early_exit, bool coarse_first, NearestB
   sg.reducer = make_reducer(vertices, sg.tau);
   sg.early_exit = early_exit;
   sg.coarse_first = coarse_first;
+  sg.motion_modes = motion_modes;
   // Every state stays cached: the figure is the search's, not the file's reads.
   const StateSet* from = &set;
   sg.exact = std::make_shared<StateCache>(
@@ -68,7 +70,7 @@ Answers replay(const StateSet& set, bool early_exit, bool coarse_first, NearestB
   return a;
 }
 
-NearestBenchResult run(const StateSet& set) {
+NearestBenchResult run(const StateSet& set, size_t motion_modes) {
   if (set.exact.empty()) throw std::runtime_error("bench nearest: no states");
   NearestBenchResult r;
   r.states = set.exact.size();
@@ -77,19 +79,21 @@ NearestBenchResult run(const StateSet& set) {
   for (int n : set.node) ++per_node[size_t(n)];
   r.nodes = size_t(std::count_if(per_node.begin(), per_node.end(), [](size_t k) { return k > 0; }));
   r.largest_node = *std::max_element(per_node.begin(), per_node.end());
-  const Answers old = replay(set, false, false, &r.reduced_only);
-  const Answers early = replay(set, true, false, &r.early_exit);
-  const Answers coarse = replay(set, true, true, &r.coarse);
+  r.motion_modes = motion_modes;
+  const Answers old = replay(set, false, false, 0, &r.reduced_only);
+  const Answers early = replay(set, true, false, 0, &r.early_exit);
+  const Answers coarse = replay(set, true, true, 0, &r.coarse);
+  const Answers motion = replay(set, true, true, motion_modes, &r.motion);
   auto same = [](const Answers& a, const Answers& b) {
     return a.nearest == b.nearest && a.distance == b.distance && a.priority == b.priority;
   };
-  r.identical = same(old, early) && same(old, coarse);
+  r.identical = same(old, early) && same(old, coarse) && same(old, motion);
   return r;
 }
 
 }  // namespace
 
-NearestBenchResult bench_nearest_file(const std::string& path) {
+NearestBenchResult bench_nearest_file(const std::string& path, size_t motion_modes) {
   db::Reader reader;
   db::Error err;
   std::vector<db::StoredState> states;
@@ -117,11 +121,11 @@ NearestBenchResult bench_nearest_file(const std::string& path) {
     set.exact.push_back(std::move(e));
   }
   set.nodes = int(node_of.size());
-  return run(set);
+  return run(set, motion_modes);
 }
 
-NearestBenchResult bench_nearest_synthetic(size_t n, uint32_t vertices, int clusters,
-                                           uint32_t seed) {
+NearestBenchResult bench_nearest_synthetic(size_t n, uint32_t vertices, int clusters, uint32_t seed,
+                                           size_t motion_modes) {
   std::mt19937 rng(seed);
   std::normal_distribution<float> noise(0.0f, 1.0f);
   StateSet set;
@@ -154,7 +158,7 @@ NearestBenchResult bench_nearest_synthetic(size_t n, uint32_t vertices, int clus
     for (float& f : e.x) f += 0.0002f * noise(rng);
     set.exact.push_back(std::move(e));
   }
-  return run(set);
+  return run(set, motion_modes);
 }
 
 }  // namespace clothdb

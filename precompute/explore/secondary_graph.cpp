@@ -51,7 +51,8 @@ SecondaryGraph empty_secondary_graph(const ExploreGraph& graph, uint32_t vertice
 }
 
 size_t bytes_per_state(const SecondaryGraph& sg) {
-  return sizeof(StateRec) + sg.reducer.size() * sizeof(double) + sizeof(int);
+  return sizeof(StateRec) + sg.reducer.size() * sizeof(double) + sizeof(int) +
+         sg.motion_modes * sizeof(double);
 }
 
 SecondaryGraph load_secondary_graph(db::Reader& reader, const std::string& path,
@@ -167,6 +168,36 @@ double exact_distance(SecondaryGraph& sg, const std::vector<float>& x, const std
   return distance_within(x, v, other->x, other->v, sg.tau, limit);
 }
 
+// A new motion basis from kMotionSample states spread evenly over those (in the order added) at
+// nodes of kMotionNode states or more, then those states' coefficients in it. The states are read
+// one at a time (the cache's bound holds); the sample is copied as doubles while the basis is
+// built.
+void rebuild_motion_basis(SecondaryGraph& sg) {
+  std::vector<int> candidates;
+  for (size_t i = 0; i < sg.states.size(); ++i)
+    if (sg.states_at_node[size_t(sg.states[i].node)].size() >= kMotionNode)
+      candidates.push_back(int(i));
+  if (candidates.size() < 2) return;
+  const size_t take = std::min(kMotionSample, candidates.size());
+  std::vector<ExactState> sample;
+  std::vector<int> group;
+  for (size_t j = 0; j < take; ++j) {
+    const int i = candidates[j * candidates.size() / take];
+    sample.push_back(*sg.state(i));
+    group.push_back(sg.states[size_t(i)].node);
+  }
+  std::vector<const ExactState*> pointers;
+  for (const ExactState& e : sample) pointers.push_back(&e);
+  sg.basis = build_motion_basis(sg.reducer, pointers, group, sg.motion_modes);
+  sample.clear();
+  ++sg.basis_generation;
+  for (size_t i = 0; i < sg.states.size(); ++i) {
+    if (sg.states_at_node[size_t(sg.states[i].node)].size() < kMotionNode) continue;
+    const ExactStatePtr e = sg.state(int(i));
+    sg.states[i].motion = project(sg.basis, e->x.data(), e->v.data());
+  }
+}
+
 }  // namespace
 
 Nearest nearest_state(SecondaryGraph& sg, int node, const std::vector<float>& x,
@@ -186,13 +217,19 @@ Nearest nearest_state(SecondaryGraph& sg, int node, const std::vector<float>& x,
   // lower position, the older state) is the exhaustive search's.
   out.coarse = coarse_form(sg.reducer, out.reduced);
   std::vector<std::pair<double, size_t>> order(here.size());
+  if (here.size() >= kMotionNode) out.motion = project(sg.basis, x.data(), v.data());
+  out.basis_generation = sg.basis_generation;
   const auto fine = [&](size_t k) {
-    return reduced_distance(out.reduced.data(),
-                            sg.states[static_cast<size_t>(here[k])].reduced.data(), n);
+    const StateRec& s = sg.states[static_cast<size_t>(here[k])];
+    return motion_bound(sg.basis, reduced_distance(out.reduced.data(), s.reduced.data(), n),
+                        out.motion, s.motion);
   };
   for (size_t k = 0; k < here.size(); ++k)
     order[k] = {
-        sg.coarse_first ? coarse_distance(out.coarse, sg.states[size_t(here[k])].coarse) : fine(k),
+        sg.coarse_first
+            ? motion_bound(sg.basis, coarse_distance(out.coarse, sg.states[size_t(here[k])].coarse),
+                           out.motion, sg.states[size_t(here[k])].motion)
+            : fine(k),
         k};
   const auto later = [](const std::pair<double, size_t>& a, const std::pair<double, size_t>& b) {
     return a > b;  // a min-heap: the smallest bound, then the lowest position, first
@@ -232,6 +269,15 @@ int add_state(SecondaryGraph& sg, StateRec rec, ExactState exact, const Nearest&
                                         : nearest.reduced;
   rec.coarse = coarse_form(sg.reducer, rec.reduced);
   std::vector<int>& here = sg.states_at_node[static_cast<size_t>(rec.node)];
+  if (here.size() + 1 >= kMotionNode)
+    rec.motion = nearest.basis_generation == sg.basis_generation && !nearest.motion.c.empty()
+                     ? nearest.motion
+                     : project(sg.basis, exact.x.data(), exact.v.data());
+  if (here.size() + 1 == kMotionNode)  // the node is now large enough: its states projected
+    for (int i : here) {
+      const ExactStatePtr e = sg.state(i);
+      sg.states[size_t(i)].motion = project(sg.basis, e->x.data(), e->v.data());
+    }
   const size_t n = sg.reducer.size();
   for (size_t j = 0; j < here.size(); ++j) {
     StateRec& other = sg.states[static_cast<size_t>(here[j])];
@@ -244,10 +290,15 @@ int add_state(SecondaryGraph& sg, StateRec rec, ExactState exact, const Nearest&
     // Stopped early by the query beyond its priority: the distance cannot lower it.
     if (j < nearest.above.size() && nearest.above[j] > 0 && nearest.above[j] >= other.priority)
       continue;
-    if (sg.coarse_first && bound_exceeds(coarse_distance(rec.coarse, other.coarse), other.priority))
-      continue;
-    if (bound_exceeds(reduced_distance(rec.reduced.data(), other.reduced.data(), n),
+    if (sg.coarse_first &&
+        bound_exceeds(motion_bound(sg.basis, coarse_distance(rec.coarse, other.coarse), rec.motion,
+                                   other.motion),
                       other.priority))
+      continue;
+    if (bound_exceeds(
+            motion_bound(sg.basis, reduced_distance(rec.reduced.data(), other.reduced.data(), n),
+                         rec.motion, other.motion),
+            other.priority))
       continue;
     // Only a distance below its priority changes it: stopped early above that.
     other.priority =
@@ -257,6 +308,12 @@ int add_state(SecondaryGraph& sg, StateRec rec, ExactState exact, const Nearest&
   here.push_back(index);
   sg.exact->put(rec.id, std::move(exact));
   sg.states.push_back(std::move(rec));
+  if (here.size() >= kMotionNode)
+    sg.large_node_states += here.size() == kMotionNode ? here.size() : 1;
+  if (sg.motion_modes > 0 && sg.large_node_states >= sg.next_basis_at) {
+    rebuild_motion_basis(sg);
+    sg.next_basis_at *= 4;
+  }
   return index;
 }
 

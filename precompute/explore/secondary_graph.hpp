@@ -24,6 +24,15 @@ namespace clothdb {
 // error. It is not a distance: the curve counts such ways out as unexplored.
 inline constexpr double kNoNeighbour = 1e9;
 
+// The motion basis: its modes, the state count that builds the first one (then x4), and the
+// states its sample holds (docs/notebook/explorer.md, "The motion basis").
+inline constexpr size_t kMotionModes = 16;
+inline constexpr size_t kFirstMotionBasis = 128;
+inline constexpr size_t kMotionSample = 48;
+// States a node holds before its states are projected (a projection costs about as much as a
+// few state distances; at a node of a few states the reduced forms suffice).
+inline constexpr size_t kMotionNode = 32;
+
 struct StateRec {
   int64_t id = 0;
   int node = 0;
@@ -35,6 +44,9 @@ struct StateRec {
   // The reduced form's projection onto fields constant over the garment (mean position, tau x
   // mean velocity): a coarser lower bound, 6 doubles, that the search scans first.
   std::array<double, 6> coarse{};
+  // Its coefficients in the garment's motion basis (SecondaryGraph::basis; empty while there is
+  // none): with `reduced`, a much tighter lower bound (motion_bound).
+  Projection motion;
 };
 
 struct SecondaryGraph {
@@ -50,7 +62,17 @@ struct SecondaryGraph {
   // only for those popped; false (as before: every candidate's fine bound, then in its order)
   // only for `clothdb bench nearest`.
   bool coarse_first = true;
-  long clips = 0, linked = 0;  // clip ends so far, and those that linked back within epsilon
+  // The motion basis (explore/state_store.hpp): built from a sample of the states at nodes of
+  // kMotionNode states or more, in the order they were added, when their count reaches 64, 256,
+  // 1024, ... (x4), and those states projected again then; so a resume, adding the same states in
+  // the same order, builds the same bases.
+  // motion_modes = 0 (only `clothdb bench nearest`) never builds one: the answers are the same.
+  size_t motion_modes = kMotionModes;
+  MotionBasis basis;
+  long basis_generation = 0;  // bases built so far
+  size_t next_basis_at = kFirstMotionBasis;
+  size_t large_node_states = 0;  // states at nodes of kMotionNode states or more
+  long clips = 0, linked = 0;    // clip ends so far, and those that linked back within epsilon
   std::set<std::pair<int64_t, int>> done;              // (state id, edge) with a clip
   std::map<std::pair<int64_t, int>, int64_t> clip_of;  // (state id, edge) -> its cloth clip id
   StateReducer reducer;
@@ -87,6 +109,8 @@ struct Nearest {
   double distance = 0;
   std::vector<double> reduced;     // the query's reduced form
   std::array<double, 6> coarse{};  // the query's coarse form
+  Projection motion;               // the query's coefficients in the basis of basis_generation
+  long basis_generation = 0;
   // To each of states_at_node[node] whose distance was stopped early (as soon as it exceeded both
   // the best so far and the state's priority): the larger of the two, a lower bound of its
   // distance; 0 elsewhere.

@@ -66,6 +66,45 @@ PrunedNearest nearest_pruned(size_t n, const std::function<double(size_t)>& lowe
 struct ExactState {
   std::vector<float> x, v;  // character space, as stored (decoded)
 };
+
+// A basis adapted to the garment's motion (docs/notebook/explorer.md, "The motion basis"): the
+// principal directions of how states at one node differ from each other, pooled over the nodes,
+// taken orthogonal to the block-constant fields the reduced form already holds. With M = [B Q]
+// (B: the block-constant fields, Q: these modes), |B^T d|^2 + |Q^T d|^2 <= (1 + delta) |d|^2 for
+// every difference d of two states (delta: how far the computed M^T M is from the identity,
+// measured when it is built), so sqrt(reduced^2 + projected^2) / sqrt(1 + delta) is a lower bound
+// of the state distance like the reduced distance alone, but tight where the states at a node
+// vary in a few modes. Rounding of the coefficients is bounded per state (Projection::slack).
+struct MotionBasis {
+  uint32_t vertices = 0;
+  double tau = 0;
+  size_t modes = 0;         // 0: no basis (the bound is the reduced distance alone)
+  std::vector<double> ref;  // 6 x vertices: the sample's mean, (x, tau v) / sqrt(vertices) a vertex
+  std::vector<double> q;    // modes x 6 x vertices, row by row
+  double inflation = 1;     // sqrt(1 + delta)
+  double slack_per_norm = 0;  // a coefficient vector's rounding error per unit of |y| + |ref|
+};
+
+// The basis of at most `modes` modes from sample states grouped by `group` (their node): the
+// deviations from their group's mean (groups of one say nothing), block-constant fields removed,
+// their leading principal directions (Gram matrix, Eigen's self-adjoint solver), orthonormalised
+// twice. modes = 0 when the sample has no deviation.
+MotionBasis build_motion_basis(const StateReducer& reducer,
+                               const std::vector<const ExactState*>& sample,
+                               const std::vector<int>& group, size_t modes);
+
+// A state's coefficients in the basis (of (x, tau v)/sqrt(N) - ref) and a bound of their
+// rounding error: |computed - exact| <= slack (as a vector, Euclidean).
+struct Projection {
+  std::vector<double> c;
+  double slack = 0;
+};
+Projection project(const MotionBasis& basis, const float* x, const float* v);
+
+// The lower bound of the state distance from the reduced distance of two states (reduced_distance)
+// and their projections: at most their state distance.
+double motion_bound(const MotionBasis& basis, double reduced, const Projection& a,
+                    const Projection& b);
 using ExactStatePtr = std::shared_ptr<const ExactState>;
 
 // A state as the file stores it: its two one-frame blobs (database/format/reader.hpp state_blobs).
