@@ -214,10 +214,20 @@ template <uint32_t F>
 inline __attribute__((always_inline)) void reconstruct_frames(const Basis& b, uint32_t M,
                                                               const float* w, const int32_t* Q,
                                                               double rstep, float* out, size_t n,
-                                                              size_t lo, size_t hi) {
+                                                              size_t lo, size_t hi, size_t ahead) {
   float acc[kFrames][kCoords];
   size_t c = lo;
   for (; c + kCoords <= hi; c += kCoords) {
+    // The same block of the next chunk, `ahead` coordinates on, fetched into the cache now: the
+    // modes are read M rows apart (a different 4 KB page each), which the hardware prefetcher does
+    // not follow, and the first pass over a chunk otherwise waits on every one of those loads
+    // (docs/notebook/codec_v3.md, "Fifth session").
+    if (ahead != 0 && c + ahead < n)
+      for (uint32_t k = 0; k < M; ++k) {
+        const float* u = b.modes.data() + size_t(k) * n + c + ahead;
+        __builtin_prefetch(u);
+        __builtin_prefetch(u + kCoords - 1);
+      }
     sum_block<F>(b.modes.data() + c, n, M, w, b.mean.data() + c, acc);
     for (uint32_t j = 0; j < F; ++j)
       store(acc[j], Q ? Q + size_t(j) * n + c : nullptr, rstep, kCoords, out + size_t(j) * n + c);
@@ -240,6 +250,7 @@ void reconstruct(const Basis& b, uint32_t M, const int32_t* q, double cstep, con
     const size_t hi = std::min(n, lo + chunk);
     for (uint32_t j0 = 0; j0 < count; j0 += kFrames) {
       const uint32_t F = std::min(kFrames, count - j0);
+      const size_t ahead = j0 == 0 ? chunk : 0;  // the next chunk, during the first pass
       for (uint32_t j = 0; j < F; ++j)
         for (uint32_t k = 0; k < M; ++k)
           w[size_t(j) * M + k] = float(double(q[size_t(j0 + j) * M + k]) * cstep);
@@ -247,22 +258,22 @@ void reconstruct(const Basis& b, uint32_t M, const int32_t* q, double cstep, con
       float* oj = out + size_t(j0) * n;
       switch (F) {
         case 6:
-          reconstruct_frames<6>(b, M, w, Qj, rstep, oj, n, lo, hi);
+          reconstruct_frames<6>(b, M, w, Qj, rstep, oj, n, lo, hi, ahead);
           break;
         case 5:
-          reconstruct_frames<5>(b, M, w, Qj, rstep, oj, n, lo, hi);
+          reconstruct_frames<5>(b, M, w, Qj, rstep, oj, n, lo, hi, ahead);
           break;
         case 4:
-          reconstruct_frames<4>(b, M, w, Qj, rstep, oj, n, lo, hi);
+          reconstruct_frames<4>(b, M, w, Qj, rstep, oj, n, lo, hi, ahead);
           break;
         case 3:
-          reconstruct_frames<3>(b, M, w, Qj, rstep, oj, n, lo, hi);
+          reconstruct_frames<3>(b, M, w, Qj, rstep, oj, n, lo, hi, ahead);
           break;
         case 2:
-          reconstruct_frames<2>(b, M, w, Qj, rstep, oj, n, lo, hi);
+          reconstruct_frames<2>(b, M, w, Qj, rstep, oj, n, lo, hi, ahead);
           break;
         default:
-          reconstruct_frames<1>(b, M, w, Qj, rstep, oj, n, lo, hi);
+          reconstruct_frames<1>(b, M, w, Qj, rstep, oj, n, lo, hi, ahead);
           break;
       }
     }
