@@ -111,9 +111,12 @@ constexpr int kLeafTriangles = 8;
 // leaves room for the patch to bend between builds, where the list is reused. pi/5 before: of the
 // unions of two patches tested, three in four failed on the cone alone (the low-bending skirts
 // wrinkle at the scale of a leaf); pi/3 cut the 12k skirt's cost from 1.63x to 1.19-1.30x the run
-// without, with the same frames bit for bit over all of 01_01 on the 3k skirt
-// (docs/notebook/self_collision.md, "Sixth round"). That is evidence, not proof: a flat patch's
-// own pairs are not listed until the next build.
+// without, with the same frames bit for bit over all of 01_01 on the 3k skirt and all of boxing on
+// the cape; the 12k skirt's frames differ from the 75th of 01_01 on (a pair of a flat patch came
+// within the thickness), with no crossing through frame 300 (docs/notebook/self_collision.md,
+// "Sixth round"). A height field cannot pass through itself at any cone below pi/2; what the
+// margin keeps is the thickness between parts near each other on the sheet, whose pairs are not
+// listed until the next build finds the patch not flat.
 constexpr double kFlatAngle = 3.14159265358979323846 / 3.0;
 // Contours longer than this are not tested (the test is quadratic): such a patch is searched.
 constexpr int kMaxContour = 512;
