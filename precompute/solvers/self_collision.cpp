@@ -107,37 +107,143 @@ bool listed(const std::vector<int>& begin, const std::vector<int>& items, int ow
 
 constexpr int kLeafTriangles = 8;
 // Half-angle of the normal cone under which a patch (a disk with a simple projected contour) is
-// taken as flat. Below pi/2 it cannot pass through itself (Volino & Magnenat-Thalmann 1994); pi/5
-// leaves room for the patch to bend between builds, where the list is reused.
-constexpr double kFlatAngle = 3.14159265358979323846 / 5.0;
+// taken as flat. Below pi/2 it cannot pass through itself (Volino & Magnenat-Thalmann 1994); pi/3
+// leaves room for the patch to bend between builds, where the list is reused. pi/5 before: of the
+// unions of two patches tested, three in four failed on the cone alone (the low-bending skirts
+// wrinkle at the scale of a leaf); pi/3 cut the 12k skirt's cost from 1.63x to 1.19-1.30x the run
+// without, with the same frames bit for bit over all of 01_01 on the 3k skirt and all of boxing on
+// the cape; the 12k skirt's frames differ from the 75th of 01_01 on (a pair of a flat patch came
+// within the thickness), with no crossing through frame 300 (docs/notebook/self_collision.md,
+// "Sixth round"). A height field cannot pass through itself at any cone below pi/2; what the
+// margin keeps is the thickness between parts near each other on the sheet, whose pairs are not
+// listed until the next build finds the patch not flat.
+constexpr double kFlatAngle = 3.14159265358979323846 / 3.0;
 // Contours longer than this are not tested (the test is quadratic): such a patch is searched.
 constexpr int kMaxContour = 512;
 
-// Node `id` over tri_order[begin, end): split at the median of the triangles' rest centroids along
-// the longest axis of their box (ties by index: the same tree on every machine).
-int build_patch(std::vector<Patch>& patches, std::vector<int>& order,
-                const std::vector<Vec3>& centre, int begin, int end) {
+// Splitting a patch so that its halves stay edge-connected (docs/notebook/self_collision.md, "Sixth
+// round"): the median split alone left 32 % of the 12k skirt's leaves not edge-connected, so not
+// disks, which the flat test cannot skip. The median split is kept (its halves are compact, so
+// their boxes are tight) and repaired along the mesh: a half that falls into pieces keeps its
+// largest piece and hands the others to the other half, which they touch.
+struct PatchSplitter {
+  const std::vector<std::array<int, 3>>& neighbours;  // per triangle, across each edge; -1: none
+  const std::vector<Vec3>& centre;                    // rest centroids
+  std::vector<int> in_patch;  // per triangle, the patch being split that holds it (a stamp)
+  std::vector<int> side;  // per triangle of that patch: its half (1, 2), or -piece while counting
+  std::vector<int> seen;  // per triangle, the breadth-first walk that reached it (a stamp)
+  std::vector<int> queue;
+  int walks = 0;
+
+  // Labels the piece of triangles with side == label that holds t0 (breadth-first across edges
+  // within patch id) with a new walk stamp; returns its size.
+  int walk(int t0, int id, int label) {
+    const int stamp = ++walks;
+    queue.assign(1, t0);
+    seen[static_cast<std::size_t>(t0)] = stamp;
+    for (std::size_t head = 0; head < queue.size(); ++head)
+      for (int n : neighbours[static_cast<std::size_t>(queue[head])])
+        if (n >= 0 && in_patch[static_cast<std::size_t>(n)] == id &&
+            side[static_cast<std::size_t>(n)] == label &&
+            seen[static_cast<std::size_t>(n)] != stamp) {
+          seen[static_cast<std::size_t>(n)] = stamp;
+          queue.push_back(n);
+        }
+    return static_cast<int>(queue.size());
+  }
+
+  // Splits order[begin, end) (patch id) into halves, the first returned as order[begin, mid).
+  // A connected patch: at the median of the rest centroids along the longest axis of their box
+  // (ties by index), then each half in turn (first, then second) keeps its largest piece (the
+  // first found on a tie) and hands its other pieces to the other half. A piece handed over touches
+  // only the other half within the patch, so after the first half's turn it is one piece, and the
+  // second half's pieces join it: both halves are edge-connected. A patch of several pieces (a mesh
+  // of several parts): whole pieces, each to the smaller half. Deterministic: only the rest shape,
+  // the indices and the fixed order decide.
+  int split(std::vector<int>& order, int begin, int end, int id) {
+    auto at = [&](int k) { return order[static_cast<std::size_t>(k)]; };
+    for (int k = begin; k < end; ++k) {
+      in_patch[static_cast<std::size_t>(at(k))] = id;
+      side[static_cast<std::size_t>(at(k))] = 0;
+    }
+    // The patch's pieces, by their first triangle in order.
+    std::vector<int> pieces;  // first walk stamp of each piece, and its size
+    std::vector<int> sizes;
+    for (int k = begin; k < end; ++k) {
+      const int t = at(k);
+      if (!pieces.empty() && seen[static_cast<std::size_t>(t)] >= pieces.front()) continue;
+      sizes.push_back(walk(t, id, 0));
+      pieces.push_back(walks);
+    }
+    if (pieces.size() > 1) {
+      std::vector<int> half(pieces.size(), 1);
+      int size_a = 0, size_b = 0;
+      for (std::size_t c = 0; c < pieces.size(); ++c) {
+        half[c] = c == 0 || size_a <= size_b ? 1 : 2;
+        (half[c] == 1 ? size_a : size_b) += sizes[c];
+      }
+      if (size_b == 0) half.back() = 2;
+      for (int k = begin; k < end; ++k) {
+        const int stamp = seen[static_cast<std::size_t>(at(k))];
+        side[static_cast<std::size_t>(at(k))] = half[static_cast<std::size_t>(stamp - pieces[0])];
+      }
+    } else {
+      Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
+      for (int k = begin; k < end; ++k) {
+        lo = lo.cwiseMin(centre[static_cast<std::size_t>(at(k))]);
+        hi = hi.cwiseMax(centre[static_cast<std::size_t>(at(k))]);
+      }
+      int axis = 0;
+      (hi - lo).maxCoeff(&axis);
+      const int mid = begin + (end - begin) / 2;
+      std::nth_element(order.begin() + begin, order.begin() + mid, order.begin() + end,
+                       [&](int a, int b) {
+                         const double ca = centre[static_cast<std::size_t>(a)][axis];
+                         const double cb = centre[static_cast<std::size_t>(b)][axis];
+                         return ca < cb || (ca == cb && a < b);
+                       });
+      for (int k = begin; k < end; ++k) side[static_cast<std::size_t>(at(k))] = k < mid ? 1 : 2;
+      for (int label : {1, 2}) {
+        const int first = walks + 1;
+        int best = -1, best_size = 0;
+        for (int k = begin; k < end; ++k) {
+          const int t = at(k);
+          if (side[static_cast<std::size_t>(t)] != label ||
+              seen[static_cast<std::size_t>(t)] >= first)
+            continue;
+          const int size = walk(t, id, label);
+          if (size > best_size) {
+            best_size = size;
+            best = walks;
+          }
+        }
+        for (int k = begin; k < end; ++k) {
+          const auto t = static_cast<std::size_t>(at(k));
+          if (side[t] == label && seen[t] != best) side[t] = 3 - label;
+        }
+      }
+    }
+    // The first half's triangles first, each half in its old order.
+    const auto mid = std::stable_partition(order.begin() + begin, order.begin() + end, [&](int t) {
+      return side[static_cast<std::size_t>(t)] == 1;
+    });
+    return static_cast<int>(mid - order.begin());
+  }
+};
+
+// Node `id` over tri_order[begin, end), split along the mesh (PatchSplitter); leaves of at most
+// kLeafTriangles triangles.
+int build_patch(std::vector<Patch>& patches, std::vector<int>& order, PatchSplitter& splitter,
+                int begin, int end) {
   const int id = static_cast<int>(patches.size());
   patches.emplace_back();
   patches.back().tri_begin = begin;
   patches.back().tri_end = end;
   if (end - begin <= kLeafTriangles) return id;
-  Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
-  for (int k = begin; k < end; ++k) {
-    lo = lo.cwiseMin(centre[static_cast<std::size_t>(order[static_cast<std::size_t>(k)])]);
-    hi = hi.cwiseMax(centre[static_cast<std::size_t>(order[static_cast<std::size_t>(k)])]);
-  }
-  int axis = 0;
-  (hi - lo).maxCoeff(&axis);
-  const int mid = begin + (end - begin) / 2;
-  std::nth_element(order.begin() + begin, order.begin() + mid, order.begin() + end,
-                   [&](int a, int b) {
-                     const double ca = centre[static_cast<std::size_t>(a)][axis];
-                     const double cb = centre[static_cast<std::size_t>(b)][axis];
-                     return ca < cb || (ca == cb && a < b);
-                   });
-  const int left = build_patch(patches, order, centre, begin, mid);
-  const int right = build_patch(patches, order, centre, mid, end);
+  int mid = splitter.split(order, begin, end, id);
+  if (mid == begin || mid == end) mid = begin + (end - begin) / 2;  // never: a split has two sides
+  const int left = build_patch(patches, order, splitter, begin, mid);
+  const int right = build_patch(patches, order, splitter, mid, end);
   patches[static_cast<std::size_t>(id)].left = left;
   patches[static_cast<std::size_t>(id)].right = right;
   return id;
@@ -159,7 +265,6 @@ void make_patches(SelfCollision& sc, const ClothMesh& mesh) {
     sc.tri_order[static_cast<std::size_t>(t)] = t;
   }
   if (nt == 0) return;
-  build_patch(sc.patches, sc.tri_order, centre, 0, nt);
 
   // Each triangle's three edges (by the edges starting at each vertex).
   std::vector<int> from_begin(static_cast<std::size_t>(nv) + 1, 0);
@@ -187,6 +292,33 @@ void make_patches(SelfCollision& sc, const ClothMesh& mesh) {
     tri_edges[static_cast<std::size_t>(t)] = {edge_of(tri[0], tri[1]), edge_of(tri[1], tri[2]),
                                               edge_of(tri[2], tri[0])};
   }
+
+  // Neighbours across each edge (a manifold edge has at most two triangles), then the tree.
+  std::vector<std::array<int, 3>> neighbours(static_cast<std::size_t>(nt), {-1, -1, -1});
+  {
+    std::vector<int> first_of(static_cast<std::size_t>(ne), -1);
+    for (int t = 0; t < nt; ++t)
+      for (int j = 0; j < 3; ++j) {
+        const auto e = static_cast<std::size_t>(tri_edges[static_cast<std::size_t>(t)][j]);
+        const int other = first_of[e];
+        if (other < 0) {
+          first_of[e] = t;
+          continue;
+        }
+        neighbours[static_cast<std::size_t>(t)][j] = other;
+        for (int i = 0; i < 3; ++i)
+          if (tri_edges[static_cast<std::size_t>(other)][i] == static_cast<int>(e))
+            neighbours[static_cast<std::size_t>(other)][i] = t;
+      }
+  }
+  PatchSplitter splitter{neighbours,
+                         centre,
+                         std::vector<int>(static_cast<std::size_t>(nt), -1),
+                         std::vector<int>(static_cast<std::size_t>(nt), 0),
+                         std::vector<int>(static_cast<std::size_t>(nt), 0),
+                         {},
+                         0};
+  build_patch(sc.patches, sc.tri_order, splitter, 0, nt);
 
   // Owners: each vertex and edge belongs to the first triangle holding it in tri_order; sorted by
   // that position, a patch's own ones are a range.
@@ -347,9 +479,9 @@ bool segments_meet(const double* a, const double* b, const double* c, const doub
   return !(o1 * o2 > 0.0) && !(o3 * o4 > 0.0);
 }
 
-// Whether the contour edges `contour[0, k)`, projected onto the plane normal to `axis`, keep apart
-// (edges sharing a vertex excepted). A sweep along u: the edges sorted by their lowest u, each
-// tested only against those that start before it ends.
+// Whether the contour edges `contour[0, k)`, projected onto the plane normal to `axis`, keep
+// apart (edges sharing a vertex excepted). A sweep along u: the edges sorted by their lowest u,
+// each tested only against those that start before it ends.
 bool contour_is_simple(const ClothMesh& mesh, const Eigen::Matrix3Xd& x, const int* contour, int k,
                        const Vec3& axis, std::vector<std::array<double, 4>>& scratch,
                        std::vector<int>& sorted) {
@@ -389,8 +521,8 @@ bool contour_is_simple(const ClothMesh& mesh, const Eigen::Matrix3Xd& x, const i
 
 // Volino & Magnenat-Thalmann 1994's test: a disk whose normals lie within a cone of half-angle
 // below kFlatAngle (< pi/2, so it projects onto the plane normal to the axis without folding
-// locally) and whose contour projects onto that plane without crossing itself projects one to one:
-// a height field, which cannot pass through itself.
+// locally) and whose contour projects onto that plane without crossing itself projects one to
+// one: a height field, which cannot pass through itself.
 bool patch_is_flat(const SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix3Xd& x,
                    int id, std::vector<std::array<double, 4>>& scratch, std::vector<int>& sorted) {
   const Patch& p = sc.patches[static_cast<std::size_t>(id)];
@@ -415,7 +547,8 @@ struct PairSearch {
   std::vector<float>* vt_gap;
   std::vector<float>* ee_gap;
   std::vector<std::array<double, 4>> scratch;
-  // Scratch for the union of two patches (union_is_flat): stamps per vertex and edge, its contour.
+  // Scratch for the union of two patches (union_is_flat): stamps per vertex and edge, its
+  // contour.
   std::vector<int> vertex_stamp, edge_stamp, union_contour, sorted;
   int stamp = 0;
 
@@ -498,9 +631,9 @@ struct PairSearch {
     if (vt_gap) vt_gap->push_back(float_below(std::sqrt(d_sq) - thickness));
   }
 
-  // Triangles of leaf `tris` against the vertices owned by leaf `verts`: first the vertices within
-  // reach of the first leaf's box, then each triangle against those (at a pair of leaves that only
-  // border each other, most of both are out of reach of the other).
+  // Triangles of leaf `tris` against the vertices owned by leaf `verts`: first the vertices
+  // within reach of the first leaf's box, then each triangle against those (at a pair of leaves
+  // that only border each other, most of both are out of reach of the other).
   void triangles_vertices(int tris, int verts) {
     const Patch& pt = patch(tris);
     const Patch& pv = patch(verts);
@@ -545,7 +678,8 @@ struct PairSearch {
   }
 
   // Own edges of leaf a against own edges of leaf b (a == b: each unordered pair once): each
-  // side's edges within reach of the other's box first, with their boxes, then the pairs of those.
+  // side's edges within reach of the other's box first, with their boxes, then the pairs of
+  // those.
   struct NearEdge {
     int index;
     Vec3 lo, hi;
@@ -666,9 +800,9 @@ void to_rows(const std::vector<std::array<int, 2>>& pairs, int owners, std::vect
 }
 
 // Sorts pairs (and their gaps) by (first, second): a counting sort by the first index (owners of
-// them), then insertion sort within each owner's few pairs. The Gauss-Seidel order of the contacts
-// is then the pairs' own order, whatever order the grid found them in (the crossings left depend on
-// that order: docs/notebook/self_collision.md, "Fourth round").
+// them), then insertion sort within each owner's few pairs. The Gauss-Seidel order of the
+// contacts is then the pairs' own order, whatever order the grid found them in (the crossings
+// left depend on that order: docs/notebook/self_collision.md, "Fourth round").
 void sort_pairs(std::vector<std::array<int, 2>>& pairs, std::vector<float>& gaps, int owners,
                 std::vector<int>& begin, std::vector<std::array<int, 2>>& pairs_out,
                 std::vector<float>& gaps_out) {

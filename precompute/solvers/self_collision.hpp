@@ -15,19 +15,20 @@
 // The build searches a hierarchy of patches of the garment (Volino & Magnenat-Thalmann 1994,
 // "Efficient self-collision detection on smoothly discretized surface animations using geometrical
 // shape regularity"; Provot 1997): a binary tree over the triangles, made once from the rest shape,
-// whose boxes and normal cones are refit bottom-up at each build. A patch that is a topological
-// disk, whose normals lie within a cone of half-angle below pi/5 and whose contour, projected along
-// the cone's axis, does not cross itself is a height field over that plane: it cannot pass through
-// itself, and its parts are apart by about their distance on the sheet, so its own pairs are not
-// searched ("flat"); only pairs of patches whose boxes come within the reach are descended, and not
-// two bordering disks whose union is flat. This leaves out most of the flat sheet's near neighbours
-// (lists of 66 k pairs instead of 163 k on the 12k skirt's first frames, and the same simulation
-// bit for bit in the frames checked: docs/notebook/self_collision.md, "Fifth round"). A build's
-// lists are sorted by (first, second), so the contacts' Gauss-Seidel order does not depend on how
-// the search found them. Pairs nearer than the thickness in the rest shape (neighbours on the mesh)
-// are found once, in make_self_collision, and skipped by a scan of a short row
-// (docs/notebook/self_collision.md, "Cost, second round", also for why pairs up to thickness + skin
-// apart at rest must stay listed).
+// whose boxes and normal cones are refit bottom-up at each build; each split is a median split
+// repaired along the mesh, so every patch of a connected garment is edge-connected (and its leaves
+// disks). A patch that is a topological disk, whose normals lie within a cone of half-angle below
+// pi/3 and whose contour, projected along the cone's axis, does not cross itself is a height field
+// over that plane: it cannot pass through itself, and its parts are apart by about their distance
+// on the sheet, so its own pairs are not searched ("flat"); only pairs of patches whose boxes come
+// within the reach are descended, and not two bordering disks whose union is flat. This leaves out
+// most of the flat sheet's near neighbours (lists of 66 k pairs instead of 163 k on the 12k skirt's
+// first frames, and the same simulation bit for bit in the frames checked:
+// docs/notebook/self_collision.md, "Fifth round" and "Sixth round"). A build's lists are sorted by
+// (first, second), so the contacts' Gauss-Seidel order does not depend on how the search found
+// them. Pairs nearer than the thickness in the rest shape (neighbours on the mesh) are found once,
+// in make_self_collision, and skipped by a scan of a short row (docs/notebook/self_collision.md,
+// "Cost, second round", also for why pairs up to thickness + skin apart at rest must stay listed).
 //
 // Side: each contact is pushed to the side its pair was on at the start of the sub-step, so a
 // pair that went through within one sub-step is put back, not pushed further through.
