@@ -288,6 +288,46 @@ TEST(Xpbd, AccelerationSettingsRoundTripAndAreLeftOutWhenOff) {
   EXPECT_THROW(make_xpbd_solver(scene.model, s), std::invalid_argument);
 }
 
+// Strain-limit passes per sub-step the swung sheet needs until no edge is over the limit (the
+// cap far above what any sub-step uses), and the largest strain of the run.
+struct PassCount {
+  double per_substep = 0;
+  long capped = 0;
+  double strain = 0;
+};
+PassCount swung_sheet_passes(int resolution, int levels, double relaxation, int frames,
+                             int cap = 100000, int threads = 1) {
+  const ClothScene scene = make_hard_case("swung-sheet", resolution);
+  SolverSettings s = xpbd_settings(4, 1, threads);
+  s.strain_limit = 0.02;
+  s.strain_limit_iterations = cap;
+  s.strain_limit_relaxation = relaxation;
+  s.strain_limit_levels = levels;
+  auto solver = make_xpbd_solver(scene.model, s);
+  const RunResult run = run_scene(scene, *solver, frames);
+  EXPECT_TRUE(run.stable) << run.message;
+  PassCount out;
+  long passes = 0;
+  for (const FrameMetrics& m : run.metrics) {
+    passes += m.strain_limit_passes;
+    out.capped += m.strain_limit_capped;
+  }
+  out.per_substep = static_cast<double>(passes) / (4.0 * static_cast<double>(frames));
+  out.strain = largest_strain(run);
+  return out;
+}
+
+TEST(Xpbd, ProbeLevels) {
+  for (int res : {21, 42, 84})
+    for (int levels : {0, 3, 6})
+      for (double relax : {1.8}) {
+        const PassCount p = swung_sheet_passes(res, levels, relax, 20, 2000);
+        std::printf("res %d levels %d relax %.1f: passes/substep %.2f capped %ld strain %.4f\n",
+                    res, levels, relax, p.per_substep, p.capped, p.strain);
+        std::fflush(stdout);
+      }
+}
+
 // Chebyshev acceleration of the stretch sweeps (Wang 2015), on the two-corner hanging sheet: the
 // largest strain of a 10-frame run at 10 sub-steps.
 double hanging_sheet_strain(int resolution, int sweeps, double rho) {
