@@ -82,11 +82,6 @@ void register_bench_character(CLI::App& bench) {
                   "XPBD Chebyshev acceleration of the stretch sweeps (Wang 2015): spectral radius "
                   "estimate in [0, 1), 0: off; default: the scene's (docs/guide/resolution.md)")
       ->check(CLI::Range(0.0, 0.999));
-  cmd->add_option("--strain-limit-levels", args->options.strain_limit_levels,
-                  "XPBD levels of long-range strain limits (pairs 2, 4, ... 2^N edges apart along "
-                  "the mesh's edge lines), 0: off; default: the scene's "
-                  "(docs/notebook/resolution.md)")
-      ->check(CLI::Range(0, 12));
   cmd->add_option("--tethers", args->options.tethers,
                   "XPBD long-range attachments to the pins: 1 on, 0 off; default: the scene's")
       ->check(CLI::Range(0, 1));

@@ -63,8 +63,6 @@ void visit_solver_fields(SolverSettings& s, V& v) {
   v.integer("strain_limit_iterations", s.strain_limit_iterations, 1, kMaxIterations);
   // Below 2: projected over-relaxation converges for 0 < omega < 2 (Cryer 1971).
   v.optional_number("strain_limit_relaxation", s.strain_limit_relaxation, 1.0, 1.99, 1.0);
-  // Up to 12 levels: pairs 4,096 edges apart, longer than any garment's edge lines.
-  v.optional_integer("strain_limit_levels", s.strain_limit_levels, 0, 12, 0);
   v.integer("strain_limit_contact_rounds", s.strain_limit_contact_rounds, 0, kMaxIterations);
   // Below 1: at rho = 1 the weights grow without bound (omega -> 2).
   v.optional_number("chebyshev_rho", s.chebyshev_rho, 0.0, 0.999, 0.0);
@@ -133,7 +131,6 @@ struct Validator {
   void optional_number(const char* name, double& d, double lo, double hi, double) {
     number(name, d, lo, hi);
   }
-  void optional_integer(const char* name, int& i, int lo, int hi, int) { integer(name, i, lo, hi); }
   void grouped(const char* group, const char* name, double& d, double lo, double hi) {
     check_range(where, prefix + group + "." + name, d, lo, hi);
   }
@@ -158,9 +155,6 @@ struct ToJson {
   // that leave it off) are written byte-identically.
   void optional_number(const char* name, double& d, double, double, double off) {
     if (d != off) out[name] = d;
-  }
-  void optional_integer(const char* name, int& i, int, int, int off) {
-    if (i != off) out[name] = i;
   }
   // A group whose only field is 0 means off and is left out.
   void grouped(const char* group, const char* name, double& d, double, double) {
@@ -214,7 +208,6 @@ struct FromJson {
   void integer64(const char* name, long& i, long lo, long hi) {
     if (const json* v = get(name)) i = static_cast<long>(whole(name, v, lo, hi));
   }
-  void optional_integer(const char* name, int& i, int lo, int hi, int) { integer(name, i, lo, hi); }
   void boolean(const char* name, bool& b) {
     const json* v = get(name);
     if (!v) return;

@@ -117,13 +117,6 @@ struct SolverSettings {
   // correction that must travel along many edges takes fewer passes (docs/guide/resolution.md).
   // 1: off (shortened to the limit exactly).
   double strain_limit_relaxation = 1.0;
-  // XPBD: a hierarchy of long-range strain limits (docs/notebook/resolution.md, "Fourth round"):
-  // level k = 1 .. strain_limit_levels bounds |x_i - x_j| <= (1 + strain_limit) g_ij for vertices
-  // 2^k edges apart along the mesh's straight edge lines, g_ij the rest length of the edge path
-  // between them. Implied by the edge limits along that path, so it forbids nothing they allow;
-  // projected coarse level first before the edge passes, it moves a correction across 2^k edges
-  // at once (hierarchical PBD, Mueller 2008). 0: off.
-  int strain_limit_levels = 0;
   // XPBD with the strain limit on: after the collision pass, up to this many rounds of the
   // strain limit, with a frictionless collision projection between rounds, so edges the body
   // pushes on are shortened (by sliding along it) rather than left stretched

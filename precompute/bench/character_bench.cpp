@@ -194,8 +194,6 @@ std::vector<CharacterBenchRow> run_character_bench(
         settings.strain_limit_relaxation = options.strain_limit_relaxation;
       if (options.chebyshev_rho >= 0.0) settings.chebyshev_rho = options.chebyshev_rho;
       if (options.tethers >= 0) settings.tethers = options.tethers != 0;
-      if (options.strain_limit_levels >= 0)
-        settings.strain_limit_levels = options.strain_limit_levels;
       std::vector<double> self_mm = options.self_collision_mm;
       if (self_mm.empty()) {
         self_mm.push_back(file.settings.self_collision_thickness_mm);

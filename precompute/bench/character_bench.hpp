@@ -29,7 +29,6 @@ struct CharacterBenchOptions {
   double strain_limit_relaxation = 0.0;  // XPBD strain_limit_relaxation; 0: the scene's
   double chebyshev_rho = -1.0;           // XPBD chebyshev_rho; negative: the scene's (0: off)
   int tethers = -1;                      // XPBD tethers: 0 off, 1 on; negative: the scene's
-  int strain_limit_levels = -1;          // XPBD strain_limit_levels; negative: the scene's
   std::vector<int> threads{1};
   std::vector<ColliderMotion> collider_motions;  // empty: the scene's
   // XPBD self-collision thicknesses (mm) to run, 0 for off. Empty: the scene's, and when that is

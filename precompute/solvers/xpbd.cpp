@@ -15,8 +15,7 @@
 // strain limit clamps the edges that are still longer than (1 + limit) l0 before collisions.
 // For fine meshes (docs/guide/resolution.md) the strain limit's passes can be over-relaxed
 // (strain_limit_relaxation) and the stretch sweeps Chebyshev-accelerated (chebyshev_rho), both off
-// by default, and the strain limit can carry its corrections across many edges at once with a
-// hierarchy of long-range limits (strain_limit_levels, build_strain_levels).
+// by default.
 // Constraints, the strain limit and collisions run in parallel (each colour's constraints share no
 // vertex; collisions are per vertex): the result does not depend on the number of threads.
 #include <omp.h>
@@ -27,7 +26,6 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
-#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <numbers>
@@ -134,12 +132,9 @@ class XpbdSolver final : public Solver {
       throw std::invalid_argument("xpbd: strain_limit_relaxation must be in [1, 2) (1: off)");
     if (!(settings.chebyshev_rho >= 0.0 && settings.chebyshev_rho < 1.0))
       throw std::invalid_argument("xpbd: chebyshev_rho must be in [0, 1) (0: off)");
-    if (settings.strain_limit_levels < 0)
-      throw std::invalid_argument("xpbd: strain_limit_levels must be at least 0 (0: off)");
     build_constraints();
     if (settings.tethers) build_tethers();
     build_vertex_edges();
-    if (settings.strain_limit > 0.0 && settings.strain_limit_levels > 0) build_strain_levels();
     if (settings.self_collision_thickness_mm > 0.0)
       self_ = make_self_collision(model_, settings.self_collision_thickness_mm * 1e-3);
   }
@@ -161,8 +156,6 @@ class XpbdSolver final : public Solver {
         std::snprintf(buf, sizeof buf, " relaxation=%g", settings_.strain_limit_relaxation);
         out += buf;
       }
-      if (settings_.strain_limit_levels > 0)
-        out += " levels=" + std::to_string(settings_.strain_limit_levels);
       if (settings_.strain_limit_contact_rounds > 0)
         out += " contact_rounds=" + std::to_string(settings_.strain_limit_contact_rounds);
     }
@@ -203,10 +196,6 @@ class XpbdSolver final : public Solver {
   // needs dozens of passes, each of which would otherwise test all 9,000 edges of the skirt.
   // Returns whether the first pass shortened any edge.
   bool run_strain_limit(Eigen::Matrix3Xd& x, double max_stretch);
-  // One pass over the long-range limits of every level, coarsest first, each colour in parallel
-  // (build_strain_levels); marks the vertices it moves in limit_moved_ like limit_strain.
-  void limit_strain_levels(Eigen::Matrix3Xd& x, double max_stretch);
-  bool limit_strain_levels_serial(Eigen::Matrix3Xd& x, double max_stretch);
   // One pass over the dirty constraints in colour order, serial; returns whether it shortened any.
   bool limit_strain_dirty(Eigen::Matrix3Xd& x, double max_stretch);
   void mark_edges_dirty(int v) {
@@ -231,6 +220,11 @@ class XpbdSolver final : public Solver {
   }
   // Stretch constraints at each vertex (CSR): vertex_edges_[vertex_edge_begin_[v] ...].
   std::vector<int> vertex_edge_begin_, vertex_edges_;
+  // Strain-limit passes run (the first full pass and the dirty passes after it) and runs that
+  // stopped at the cap with a pass that still shortened an edge, since the step began
+  // (StepReport::strain_limit_passes, strain_limit_capped).
+  long limit_passes_ = 0;
+  int limit_capped_ = 0;
   void solve_bend(int begin, int end, Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_prev,
                   double alpha_scale, double gamma);
 
@@ -245,17 +239,6 @@ class XpbdSolver final : public Solver {
   std::vector<double> tether_length_;
   void build_tethers();
   void build_vertex_edges();
-  // Long-range strain limits: strain_levels_[k - 1] holds level k's vertex pairs, 2^k edges apart
-  // along a straight edge line, with `rest` the rest length of the edge path between them (the
-  // bound is (1 + strain_limit) times that) and `compliance` their rest distance (the floor of an
-  // over-relaxed projection). Sorted by colour.
-  std::vector<ConstraintSet<2>> strain_levels_;
-  void build_strain_levels();
-  // Strain-limit passes run (the first full pass and the dirty passes after it) and runs that
-  // stopped at the cap with a pass that still shortened an edge, since the step began
-  // (StepReport::strain_limit_passes, strain_limit_capped).
-  long limit_passes_ = 0;
-  int limit_capped_ = 0;
   // Cloth self-collision (solvers/self_collision.hpp); thickness 0 when off.
   SelfCollision self_;
 };
@@ -278,117 +261,6 @@ void XpbdSolver::build_vertex_edges() {
   limit_moved_.assign(n, 0);
   edge_dirty_.assign(stretch_.vertices.size(), 0);
   limit_touched_.assign(n, 0);
-}
-
-// The hierarchy of long-range strain limits (SolverSettings::strain_limit_levels). A pair of
-// vertices joined by an edge path of rest length g can be no farther apart than (1 + limit) g
-// when every edge of the path is within the limit (triangle inequality), so these bounds forbid
-// nothing the edge limits allow; projected before the edge passes, one projection moves a
-// correction across the whole path where the edge passes move it about one edge per pass (the
-// long-range idea of hierarchical PBD, Mueller 2008, with the coarse constraints as unilateral
-// distance bounds rather than coarse particles). The paths are the mesh's straight edge lines,
-// on which the bound is tight (g is the rest distance when the line is straight at rest): at
-// every vertex the incident edges are paired, straightest pair first, when they continue each
-// other within 25 degrees; the chains of paired edges are the lines (the rings and the columns
-// of the garments' grids, whose alternating diagonals make no line). Along a line of vertices
-// p_0 .. p_m, level k joins p_t and p_t+2^k for t = 0, 2^k, 2 2^k, ..., and the last such p_t to
-// p_m (the coarse levels' vertices are the finer levels' every other one, as in a multigrid
-// hierarchy). Everything is in index order: the same pairs and order for any thread count.
-void XpbdSolver::build_strain_levels() {
-  const int levels = settings_.strain_limit_levels;
-  const Eigen::Matrix3Xd& rest = model_.mesh.rest;
-  const std::size_t edges = stretch_.vertices.size();
-  const double min_cos = std::cos(25.0 * std::numbers::pi / 180.0);
-  // continuation[2 e + s]: the edge continuing edge e straight on at its end s (-1: none).
-  std::vector<int> continuation(2 * edges, -1);
-  const auto end_of = [&](int e, int v) {
-    return stretch_.vertices[static_cast<std::size_t>(e)][0] == v ? 0 : 1;
-  };
-  const auto other = [&](int e, int v) {
-    const auto& ev = stretch_.vertices[static_cast<std::size_t>(e)];
-    return ev[0] == v ? ev[1] : ev[0];
-  };
-  struct Candidate {
-    double straightness;
-    int a, b;
-  };
-  std::vector<Candidate> candidates;
-  const int n = model_.vertex_count();
-  for (int v = 0; v < n; ++v) {
-    const std::size_t vu = static_cast<std::size_t>(v);
-    candidates.clear();
-    for (int p = vertex_edge_begin_[vu]; p < vertex_edge_begin_[vu + 1]; ++p) {
-      const int a = vertex_edges_[static_cast<std::size_t>(p)];
-      const Vec3 da = (rest.col(other(a, v)) - rest.col(v)).normalized();
-      for (int q = p + 1; q < vertex_edge_begin_[vu + 1]; ++q) {
-        const int b = vertex_edges_[static_cast<std::size_t>(q)];
-        const double straightness = -da.dot((rest.col(other(b, v)) - rest.col(v)).normalized());
-        if (straightness >= min_cos) candidates.push_back({straightness, a, b});
-      }
-    }
-    std::sort(candidates.begin(), candidates.end(), [](const Candidate& l, const Candidate& r) {
-      if (l.straightness != r.straightness) return l.straightness > r.straightness;
-      return l.a != r.a ? l.a < r.a : l.b < r.b;
-    });
-    for (const Candidate& c : candidates) {
-      int& ca = continuation[2 * static_cast<std::size_t>(c.a) +
-                             static_cast<std::size_t>(end_of(c.a, v))];
-      int& cb = continuation[2 * static_cast<std::size_t>(c.b) +
-                             static_cast<std::size_t>(end_of(c.b, v))];
-      if (ca >= 0 || cb >= 0) continue;
-      ca = c.b;
-      cb = c.a;
-    }
-  }
-  strain_levels_.assign(static_cast<std::size_t>(levels), {});
-  std::vector<unsigned char> used(edges, 0);
-  std::vector<int> line;         // p_0 .. p_m
-  std::vector<double> distance;  // rest length along the line from p_0
-  const double* w = model_.inv_mass.data();
-  const auto add_line = [&]() {
-    const int m = static_cast<int>(line.size()) - 1;
-    for (int k = 1; k <= levels; ++k) {
-      const int step = 1 << k;
-      if (m < step) break;
-      ConstraintSet<2>& set = strain_levels_[static_cast<std::size_t>(k - 1)];
-      for (int t = 0; t < m; t += step) {
-        const int u = std::min(t + step, m);
-        // A short last piece is left to the finer levels.
-        if (u - t < std::max(2, step / 2)) break;
-        const int i = line[static_cast<std::size_t>(t)], j = line[static_cast<std::size_t>(u)];
-        if (i == j || (w[i] <= 0.0 && w[j] <= 0.0)) continue;
-        set.vertices.push_back({i, j});
-        set.rest.push_back(distance[static_cast<std::size_t>(u)] -
-                           distance[static_cast<std::size_t>(t)]);
-        set.compliance.push_back((rest.col(i) - rest.col(j)).norm());
-      }
-    }
-  };
-  // Walks the line from vertex v along edge e, marking its edges used.
-  const auto walk = [&](int e, int v) {
-    line.assign(1, v);
-    distance.assign(1, 0.0);
-    while (e >= 0 && used[static_cast<std::size_t>(e)] == 0) {
-      used[static_cast<std::size_t>(e)] = 1;
-      v = other(e, v);
-      line.push_back(v);
-      distance.push_back(distance.back() + stretch_.rest[static_cast<std::size_t>(e)]);
-      e = continuation[2 * static_cast<std::size_t>(e) + static_cast<std::size_t>(end_of(e, v))];
-    }
-    add_line();
-  };
-  // Open lines from their free end first, then the closed ones (rings), from their lowest edge.
-  for (std::size_t e = 0; e < edges; ++e) {
-    if (used[e] != 0) continue;
-    const int ei = static_cast<int>(e);
-    if (continuation[2 * e] < 0)
-      walk(ei, stretch_.vertices[e][0]);
-    else if (continuation[2 * e + 1] < 0)
-      walk(ei, stretch_.vertices[e][1]);
-  }
-  for (std::size_t e = 0; e < edges; ++e)
-    if (used[e] == 0) walk(static_cast<int>(e), stretch_.vertices[e][0]);
-  for (ConstraintSet<2>& set : strain_levels_) set.sort_by_color();
 }
 
 void XpbdSolver::build_tethers() {
@@ -546,17 +418,6 @@ void XpbdSolver::chebyshev_extrapolate(int sweep, double omega, Eigen::Matrix3Xd
 // quadratic programming problem using systematic overrelaxation") of the unilateral constraints,
 // so a correction that must travel along many edges (a ring pushed out by a limb) takes fewer
 // passes (docs/notebook/resolution.md).
-double probe_tolerance() {
-  static const double t = [] {
-    const char* e = std::getenv("CLOTHDB_PROBE_TOL");
-    return e ? std::atof(e) : 1e-9;
-  }();
-  return t;
-}
-bool probe_cycles() {
-  static const bool t = std::getenv("CLOTHDB_PROBE_CYCLES") != nullptr;
-  return t;
-}
 bool shorten_edge(Eigen::Matrix3Xd& x, const double* w, int i, int j, double limit, double floor,
                   double relax) {
   const double wi = w[i], wj = w[j];
@@ -565,7 +426,7 @@ bool shorten_edge(Eigen::Matrix3Xd& x, const double* w, int i, int j, double lim
   Vec xi(x.col(i).data()), xj(x.col(j).data());
   const Vec3 diff = xi - xj;
   const double len_sq = diff.squaredNorm();
-  if (len_sq <= limit * limit * (1.0 + probe_tolerance())) return false;
+  if (len_sq <= limit * limit * (1.0 + 1e-9)) return false;
   const double len = std::sqrt(len_sq);
   const double target = std::max(limit - (relax - 1.0) * (len - limit), floor);
   const Vec3 correction = diff * ((len - target) / (len * w_sum));
@@ -592,48 +453,6 @@ void XpbdSolver::limit_strain(int begin, int end, Eigen::Matrix3Xd& x, double ma
     limit_moved_[static_cast<std::size_t>(i)] = 1;
     limit_moved_[static_cast<std::size_t>(j)] = 1;
   }
-}
-
-void XpbdSolver::limit_strain_levels(Eigen::Matrix3Xd& x, double max_stretch) {
-  const double* w = model_.inv_mass.data();
-  for (std::size_t level = strain_levels_.size(); level-- > 0;) {
-    const ConstraintSet<2>& set = strain_levels_[level];
-    for (int col = 0; col < set.color_count(); ++col) {
-#pragma omp for schedule(static)
-      for (int c = set.color_begin[static_cast<std::size_t>(col)];
-           c < set.color_begin[static_cast<std::size_t>(col) + 1]; ++c) {
-        const std::size_t cu = static_cast<std::size_t>(c);
-        const int i = set.vertices[cu][0], j = set.vertices[cu][1];
-        if (!shorten_edge(x, w, i, j, max_stretch * set.rest[cu], set.compliance[cu],
-                          settings_.strain_limit_relaxation))
-          continue;
-#pragma omp atomic write
-        limit_corrected_ = 1;
-        limit_moved_[static_cast<std::size_t>(i)] = 1;
-        limit_moved_[static_cast<std::size_t>(j)] = 1;
-      }
-    }
-  }
-}
-
-bool XpbdSolver::limit_strain_levels_serial(Eigen::Matrix3Xd& x, double max_stretch) {
-  const double* w = model_.inv_mass.data();
-  bool any = false;
-  for (std::size_t level = strain_levels_.size(); level-- > 0;) {
-    const ConstraintSet<2>& set = strain_levels_[level];
-    for (std::size_t c = 0; c < set.vertices.size(); ++c) {
-      const int i = set.vertices[c][0], j = set.vertices[c][1];
-      if (!shorten_edge(x, w, i, j, max_stretch * set.rest[c], set.compliance[c],
-                        settings_.strain_limit_relaxation))
-        continue;
-      any = true;
-      for (int v : {i, j}) {
-        touch(v);
-        mark_edges_dirty(v);
-      }
-    }
-  }
-  return any;
 }
 
 bool XpbdSolver::limit_strain_dirty(Eigen::Matrix3Xd& x, double max_stretch) {
@@ -672,9 +491,6 @@ bool XpbdSolver::limit_strain_dirty(Eigen::Matrix3Xd& x, double max_stretch) {
 }
 
 bool XpbdSolver::run_strain_limit(Eigen::Matrix3Xd& x, double max_stretch) {
-  // The long-range levels first (coarsest first), then the edges: the first full pass sees every
-  // edge after the levels moved their vertices.
-  if (!strain_levels_.empty()) limit_strain_levels(x, max_stretch);
   for (int col = 0; col < stretch_.color_count(); ++col) {
     limit_strain(stretch_.color_begin[static_cast<std::size_t>(col)],
                  stretch_.color_begin[static_cast<std::size_t>(col) + 1], x, max_stretch);
@@ -700,14 +516,8 @@ bool XpbdSolver::run_strain_limit(Eigen::Matrix3Xd& x, double max_stretch) {
       }
       bool again = true;
       int pass = 1;
-      for (; pass < settings_.strain_limit_iterations && again; ++pass) {
-        // The levels again before every edge pass (a V-cycle per pass), so a correction the edge
-        // passes leave to travel is carried across 2^k edges at once in every pass, not only the
-        // first.
-        const bool coarse =
-            !strain_levels_.empty() && probe_cycles() && limit_strain_levels_serial(x, max_stretch);
-        again = limit_strain_dirty(x, max_stretch) || coarse;
-      }
+      for (; pass < settings_.strain_limit_iterations && again; ++pass)
+        again = limit_strain_dirty(x, max_stretch);
       limit_passes_ += pass;
       if (again) ++limit_capped_;
       std::fill(edge_dirty_.begin(), edge_dirty_.end(), 0);
