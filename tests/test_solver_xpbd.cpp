@@ -288,6 +288,57 @@ TEST(Xpbd, AccelerationSettingsRoundTripAndAreLeftOutWhenOff) {
   EXPECT_THROW(make_xpbd_solver(scene.model, s), std::invalid_argument);
 }
 
+// Strain-limit passes per sub-step the swung sheet (limit 2 %, relaxation 1.8) runs with at most
+// `cap` passes (StepReport::strain_limit_passes), the runs stopped at the cap, and the largest
+// strain of the run.
+struct PassCount {
+  double per_substep = 0;
+  long capped = 0;
+  double strain = 0;
+};
+PassCount swung_sheet_passes(int resolution, int frames, int cap) {
+  const ClothScene scene = make_hard_case("swung-sheet", resolution);
+  SolverSettings s = xpbd_settings(4, 1);
+  s.strain_limit = 0.02;
+  s.strain_limit_iterations = cap;
+  s.strain_limit_relaxation = 1.8;
+  auto solver = make_xpbd_solver(scene.model, s);
+  const RunResult run = run_scene(scene, *solver, frames);
+  EXPECT_TRUE(run.stable) << run.message;
+  PassCount out;
+  long passes = 0;
+  for (const FrameMetrics& m : run.metrics) {
+    passes += m.strain_limit_passes;
+    out.capped += m.strain_limit_capped;
+  }
+  out.per_substep = static_cast<double>(passes) / (4.0 * static_cast<double>(frames));
+  out.strain = largest_strain(run);
+  return out;
+}
+
+// The passes the strain limit needs until no edge is over it grow with the resolution, faster
+// than the vertices: at twice the nodes a side the swung sheet needed 8.7x the passes per
+// sub-step (34.7 at 21 a side, 300.0 at 42, measured 2026-12-04), so the work per vertex grows.
+// This is the figure a resolution-independent method must bring down (docs/notebook/resolution.md,
+// "Fourth round": long-range levels along the edge lines did not: 4.4-4.8x with them). The
+// counter must count the dirty passes (a count of the full passes only would be 1 per sub-step)
+// and report a run stopped at its cap.
+TEST(Xpbd, StrainLimitPassesNeededGrowWithTheResolution) {
+  const PassCount coarse = swung_sheet_passes(21, 20, 2000);
+  const PassCount fine = swung_sheet_passes(42, 20, 2000);
+  EXPECT_EQ(coarse.capped, 0);
+  EXPECT_EQ(fine.capped, 0);
+  // Converged: no colliders here, so the limit has the last word.
+  EXPECT_LE(coarse.strain, 0.02 + 1e-6);
+  EXPECT_LE(fine.strain, 0.02 + 1e-6);
+  EXPECT_GT(coarse.per_substep, 4.0);
+  EXPECT_GT(fine.per_substep, 4.0 * coarse.per_substep);
+  const PassCount capped = swung_sheet_passes(42, 20, 16);
+  EXPECT_GT(capped.capped, 0);
+  EXPECT_LE(capped.per_substep, 16.0);
+  EXPECT_GT(capped.strain, 0.02 + 1e-3);
+}
+
 // Chebyshev acceleration of the stretch sweeps (Wang 2015), on the two-corner hanging sheet: the
 // largest strain of a 10-frame run at 10 sub-steps.
 double hanging_sheet_strain(int resolution, int sweeps, double rho) {

@@ -81,7 +81,7 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
   row.capsules = static_cast<int>(scene.body.capsules.size());
   ClothState state = settle_garment(scene, *solver, clip_pose(clip, 0));
   double wall = 0, cpu = 0;
-  long iterations = 0, factorizations = 0;
+  long iterations = 0, factorizations = 0, limit_passes = 0;
   std::vector<double> strains;  // every edge at every frame, for the percentile
   const auto start = std::chrono::steady_clock::now();
   for (int f = 1; f < frames; ++f) {
@@ -101,6 +101,8 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
     const FrameMetrics& m = run.metrics.front();
     iterations += m.iterations;
     factorizations += m.factorizations;
+    limit_passes += m.strain_limit_passes;
+    row.strain_limit_capped += m.strain_limit_capped;
     row.max_strain = std::max(row.max_strain, m.max_strain);
     const EdgeStrainMax frame_worst = append_edge_strains(scene.model, state.x, strains);
     if (frame_worst.strain >= row.max_strain && frame_worst.strain > 0.0) {
@@ -143,6 +145,8 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
     row.cpu_ms_per_frame = 1e3 * cpu / row.frames;
     row.iterations_per_frame = static_cast<double>(iterations) / row.frames;
     row.factorizations_per_frame = static_cast<double>(factorizations) / row.frames;
+    row.strain_limit_passes_per_substep =
+        static_cast<double>(limit_passes) / (static_cast<double>(row.frames) * settings.substeps);
   }
   return row;
 }
@@ -214,6 +218,11 @@ std::vector<CharacterBenchRow> run_character_bench(
                        worst_edge_text(r) + ", self-intersections max " +
                        std::to_string(r.self_intersections) + " in " +
                        std::to_string(r.self_intersection_frames) + " frames" +
+                       (settings.strain_limit > 0.0
+                            ? ", strain-limit passes per sub-step " +
+                                  fixed(r.strain_limit_passes_per_substep, 2) + " (capped " +
+                                  std::to_string(r.strain_limit_capped) + ")"
+                            : std::string()) +
                        (r.stable ? "" : ", UNSTABLE: " + r.message));
           }
         }

@@ -52,6 +52,10 @@ struct CharacterBenchRow {
   // Per frame: the solver's iterations (Newton's, or constraint iterations) and Newton's
   // factorisations, which tell a cheaper factorisation from fewer of them.
   double iterations_per_frame = 0, factorizations_per_frame = 0;
+  // XPBD strain limit: passes per sub-step (mean over the run, StepReport::strain_limit_passes)
+  // and the runs of it that stopped at the cap with an edge still being shortened.
+  double strain_limit_passes_per_substep = 0;
+  long strain_limit_capped = 0;
   double max_penetration = 0;   // deepest vertex below a capsule surface at a frame's end, m
   double mean_penetration = 0;  // largest per-frame mean over penetrating vertices, m
   // Vertex-frames whose straight path over the frame, relative to a capsule moving with the body,

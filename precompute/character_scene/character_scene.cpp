@@ -432,6 +432,8 @@ PoseRun simulate_poses(const CharacterScene& scene, Solver& solver,
     m.step_halvings = report.step_halvings;
     m.iterations = report.iterations;
     m.factorizations = report.factorizations;
+    m.strain_limit_passes = report.strain_limit_passes;
+    m.strain_limit_capped = report.strain_limit_capped;
     run.metrics.push_back(m);
     run.frames.push_back(state.x);
   }

@@ -375,6 +375,8 @@ RunResult run_scene(const ClothScene& scene, Solver& solver, int frames, bool ke
       m.step_halvings = report->step_halvings;
       m.iterations = report->iterations;
       m.factorizations = report->factorizations;
+      m.strain_limit_passes = report->strain_limit_passes;
+      m.strain_limit_capped = report->strain_limit_capped;
       m.stable = report->stable;
     }
     result.metrics.push_back(m);

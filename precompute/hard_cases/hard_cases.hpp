@@ -64,6 +64,9 @@ struct FrameMetrics {
   int step_halvings = 0;
   int iterations = 0;      // the solver's StepReport::iterations for the frame
   int factorizations = 0;  // Newton's StepReport::factorizations for the frame
+  // XPBD's StepReport::strain_limit_passes and strain_limit_capped for the frame.
+  long strain_limit_passes = 0;
+  int strain_limit_capped = 0;
   // Edges crossing a triangle they do not touch (cloth/self_intersection.hpp).
   int self_intersections = 0;
   bool stable = true;

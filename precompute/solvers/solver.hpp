@@ -37,7 +37,12 @@ struct StepReport {
   int unconverged =
       0;  // Newton: sub-steps kept unconverged (SolverSettings::newton_accept_decrease)
   double residual = 0.0;  // Newton: final force residual (N); others: 0
-  std::string message;    // why it was unstable or halved, for the user
+  // XPBD with a strain limit: its passes run in this step (every run: after the constraint
+  // sweeps and in each contact round; a pass that corrects nothing ends a run and counts), and
+  // the runs that stopped at strain_limit_iterations with an edge still being shortened.
+  long strain_limit_passes = 0;
+  int strain_limit_capped = 0;
+  std::string message;  // why it was unstable or halved, for the user
 };
 
 class Solver {

@@ -220,6 +220,11 @@ class XpbdSolver final : public Solver {
   }
   // Stretch constraints at each vertex (CSR): vertex_edges_[vertex_edge_begin_[v] ...].
   std::vector<int> vertex_edge_begin_, vertex_edges_;
+  // Strain-limit passes run (the first full pass and the dirty passes after it) and runs that
+  // stopped at the cap with a pass that still shortened an edge, since the step began
+  // (StepReport::strain_limit_passes, strain_limit_capped).
+  long limit_passes_ = 0;
+  int limit_capped_ = 0;
   void solve_bend(int begin, int end, Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_prev,
                   double alpha_scale, double gamma);
 
@@ -510,9 +515,14 @@ bool XpbdSolver::run_strain_limit(Eigen::Matrix3Xd& x, double max_stretch) {
         mark_edges_dirty(static_cast<int>(v));
       }
       bool again = true;
-      for (int pass = 1; pass < settings_.strain_limit_iterations && again; ++pass)
+      int pass = 1;
+      for (; pass < settings_.strain_limit_iterations && again; ++pass)
         again = limit_strain_dirty(x, max_stretch);
+      limit_passes_ += pass;
+      if (again) ++limit_capped_;
       std::fill(edge_dirty_.begin(), edge_dirty_.end(), 0);
+    } else {
+      ++limit_passes_;
     }
   }
   return corrected != 0;
@@ -570,6 +580,8 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
   }
   const Environment& env = *inputs.env;
   const ClothState saved = state;
+  limit_passes_ = 0;
+  limit_capped_ = 0;
   const Eigen::Matrix3Xd kin_start = kinematic_positions(model_, state.x);
 
   const int substeps = settings_.substeps;
@@ -746,6 +758,8 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
 
   StepReport report;
   report.iterations = substeps * sweeps;
+  report.strain_limit_passes = limit_passes_;
+  report.strain_limit_capped = limit_capped_;
   if (!state_is_sane(state)) {
     state = saved;
     report.stable = false;
