@@ -107,17 +107,13 @@ bool listed(const std::vector<int>& begin, const std::vector<int>& items, int ow
 
 constexpr int kLeafTriangles = 8;
 // Half-angle of the normal cone under which a patch (a disk with a simple projected contour) is
-// taken as flat. Below pi/2 it cannot pass through itself (Volino & Magnenat-Thalmann 1994); pi/3
-// leaves room for the patch to bend between builds, where the list is reused. pi/5 before: of the
-// unions of two patches tested, three in four failed on the cone alone (the low-bending skirts
-// wrinkle at the scale of a leaf); pi/3 cut the 12k skirt's cost from 1.63x to 1.19-1.30x the run
-// without, with the same frames bit for bit over all of 01_01 on the 3k skirt and all of boxing on
-// the cape; the 12k skirt's frames differ from the 75th of 01_01 on (a pair of a flat patch came
-// within the thickness), with no crossing through frame 300 (docs/notebook/self_collision.md,
-// "Sixth round"). A height field cannot pass through itself at any cone below pi/2; what the
-// margin keeps is the thickness between parts near each other on the sheet, whose pairs are not
-// listed until the next build finds the patch not flat.
-constexpr double kFlatAngle = 3.14159265358979323846 / 3.0;
+// taken as flat. Below pi/2 it cannot pass through itself (Volino & Magnenat-Thalmann 1994); pi/5
+// leaves room for the patch to bend between builds, where the list is reused. pi/3 was tried
+// (1.35x instead of about 1.6x the run without on the 12k skirt's frames 1-39) and put back: over
+// all of 01_01 the 12k skirt then crossed itself (2 crossings at worst, frame 340, in 14 frames;
+// none at pi/5), because a flat patch's own pairs are not listed until the next build
+// (docs/notebook/self_collision.md, "Sixth round" and after).
+constexpr double kFlatAngle = 3.14159265358979323846 / 5.0;
 // Contours longer than this are not tested (the test is quadratic): such a patch is searched.
 constexpr int kMaxContour = 512;
 

@@ -18,7 +18,7 @@
 // whose boxes and normal cones are refit bottom-up at each build; each split is a median split
 // repaired along the mesh, so every patch of a connected garment is edge-connected (and its leaves
 // disks). A patch that is a topological disk, whose normals lie within a cone of half-angle below
-// pi/3 and whose contour, projected along the cone's axis, does not cross itself is a height field
+// pi/5 and whose contour, projected along the cone's axis, does not cross itself is a height field
 // over that plane: it cannot pass through itself, and its parts are apart by about their distance
 // on the sheet, so its own pairs are not searched ("flat"); only pairs of patches whose boxes come
 // within the reach are descended, and not two bordering disks whose union is flat. This leaves out
