@@ -63,10 +63,10 @@ struct SecondaryGraph {
   // only for `clothdb bench nearest`.
   bool coarse_first = true;
   // The motion basis (explore/state_store.hpp): built from a sample of the states at nodes of
-  // kMotionNode states or more, in the order they were added, when their count reaches 64, 256,
-  // 1024, ... (x4), and those states projected again then; so a resume, adding the same states in
-  // the same order, builds the same bases.
-  // motion_modes = 0 (only `clothdb bench nearest`) never builds one: the answers are the same.
+  // kMotionNode states or more, in the order they were added, when their count reaches
+  // kFirstMotionBasis (128), then 512, 2048, ... (x4), and those states projected again then; so a
+  // resume, adding the same states in the same order, builds the same bases. motion_modes = 0 (only
+  // `clothdb bench nearest`) never builds one: the answers are the same.
   size_t motion_modes = kMotionModes;
   MotionBasis basis;
   long basis_generation = 0;  // bases built so far

@@ -178,7 +178,6 @@ struct PatchSplitter {
         half[c] = c == 0 || size_a <= size_b ? 1 : 2;
         (half[c] == 1 ? size_a : size_b) += sizes[c];
       }
-      if (size_b == 0) half.back() = 2;
       for (int k = begin; k < end; ++k) {
         const int stamp = seen[static_cast<std::size_t>(at(k))];
         side[static_cast<std::size_t>(at(k))] = half[static_cast<std::size_t>(stamp - pieces[0])];
