@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "database/store/writer.hpp"
+#include "database/store/writer_lock.hpp"
 #include "support/cli.hpp"
 #include "support/db_rows.hpp"
 
@@ -227,12 +228,18 @@ TEST(PrecomputeCli, SecondWriterIsRefusedAndTheDatabaseEqualsOneRun) {
   };
   run(precompute(one), log);
 
+  std::filesystem::remove(two + ".lock");  // a lock file left by a killed earlier run of the test
   const pid_t first = start(precompute(two), log);
-  // The first run holds the lock from its start (database/writer_lock.hpp).
-  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
-  while (!std::filesystem::exists(two + ".lock") && std::chrono::steady_clock::now() < deadline)
+  // The first run holds the lock from its start (database/store/writer_lock.hpp). Wait for the
+  // holder's text, not the file: the file exists from the open, before the flock and the text,
+  // and a run stopped between those would leave the second run a lock to take or no holder to
+  // name (seen once on a loaded machine).
+  const std::string holder = "pid " + std::to_string(first) + " on host ";
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(120);
+  while (clothdb::db::WriterLock::holder(two).find(holder) == std::string::npos &&
+         std::chrono::steady_clock::now() < deadline)
     std::this_thread::sleep_for(std::chrono::milliseconds(5));
-  ASSERT_TRUE(std::filesystem::exists(two + ".lock")) << read_file(log);
+  ASSERT_NE(clothdb::db::WriterLock::holder(two).find(holder), std::string::npos) << read_file(log);
   // Stopped (SIGSTOP) while the second runs: the first is certainly still there, holding the
   // lock, whatever the machine's speed.
   kill(first, SIGSTOP);
