@@ -61,8 +61,9 @@ function showError(message) {
   $('error').textContent = message;
 }
 
-async function getJson(url, options) {
-  const r = await fetch(url, options);
+// `response`: a request already made (index.html starts the first ones), else fetch(url, options).
+async function getJson(url, options, response = null) {
+  const r = await (response || fetch(url, options));
   const body = await r.json().catch(() => ({}));
   if (!r.ok) throw new Error(`${url}: ${r.status} ${body.error || r.statusText}`);
   return body;
@@ -159,10 +160,12 @@ function frameRate(id) {
 // Frames received and not yet shown, oldest first.
 const queue = [];
 
-async function request(dt, n, wait) {
+// `response`: the request already made for these frames (the first one, from index.html).
+async function request(dt, n, wait, response = null) {
   state.inflight = true;
   try {
-    const r = await fetch(`/api/frames?dt=${dt.toFixed(6)}&n=${n}&wait=${Math.round(wait)}`);
+    const r =
+        await (response || fetch(`/api/frames?dt=${dt.toFixed(6)}&n=${n}&wait=${Math.round(wait)}`));
     if (!r.ok) throw new Error(`/api/frames: ${r.status} ${await r.text()}`);
     const states = JSON.parse(r.headers.get('X-Clothdb-Frames'));
     const all = await r.arrayBuffer();
@@ -395,7 +398,10 @@ function animate(t) {
   renderer.render(scene, camera);
   if (!state.clothFrames) return;
   ++state.framesDrawn;
-  if (state.loadMs === null) state.loadMs = performance.now();
+  if (state.loadMs === null) {
+    state.loadMs = performance.now();
+    loadClips();  // after the first cloth frame: the table is not needed to see the cloth
+  }
   if (!secondStart) {
     secondStart = t;
     secondCloth = state.clothFrames;
@@ -414,17 +420,23 @@ function animate(t) {
 }
 
 async function main() {
-  state.info = await getJson('/api/info');
+  // Made by index.html while three.js loaded: the random walk on, the info, the triangles, the
+  // first frame.
+  const start = window.clothdbStart;
+  state.info = await getJson('/api/info', undefined, start.info);
   document.title = `clothdb view: ${state.info.file}`;
   $('title').textContent = `${state.info.file}: ${state.info.vertices} vertices, ` +
       `${state.info.triangles} triangles`;
   $('body-note').textContent = state.info.body ? '' : state.info.body_note;
-  const tris = new Uint32Array(await (await fetch('/api/triangles')).arrayBuffer());
+  const tris = new Uint32Array(await (await start.triangles).arrayBuffer());
   geometry.setIndex(new THREE.BufferAttribute(tris, 1));
   for (const m of state.info.metrics) $('metric').add(new Option(m.name, m.name));
   $('metric').onchange = loadClips;
-  await setRandom(true);
-  loadClips();
+  $('random').classList.add('on');  // state.random is true from the start
+  await getJson('/api/control', undefined, start.random);
+  // The first frame before the first draw: the first draw is then the cloth's, not an empty
+  // scene's (each first draw costs a few hundred ms in SwiftShader, docs/notebook/viewer.md).
+  await request(0, 1, 0, start.frame);
   requestAnimationFrame(animate);
 }
 main().catch((e) => showError(e.message));
