@@ -629,5 +629,17 @@ TEST(Xpbd, TethersKeepVerticesWithinTheirRestPathFromThePins) {
   EXPECT_LT(bottom_without, bottom_with - 0.01);  // while the soft membrane alone sags further
 }
 
+TEST(XpbdProbe, LinesPasses) {
+  for (int mode : {1, 5}) {
+    setenv("CLOTHDB_PROBE_LINES", std::to_string(mode).c_str(), 1);
+    for (int res : {21, 42}) {
+      const PassCount pc = swung_sheet_passes(res, 20, 2000);
+      std::printf("mode %d res %d passes/substep %.2f capped %ld strain %.4f\n", mode, res,
+                  pc.per_substep, pc.capped, pc.strain);
+    }
+  }
+  unsetenv("CLOTHDB_PROBE_LINES");
+}
+
 }  // namespace
 }  // namespace clothdb
