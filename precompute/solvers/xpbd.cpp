@@ -136,7 +136,7 @@ class XpbdSolver final : public Solver {
     build_constraints();
     if (settings.tethers) build_tethers();
     build_vertex_edges();
-    if (strain_lines_on()) build_strain_lines();
+    if (strain_chains_on()) build_strain_chains();
     if (settings.self_collision_thickness_mm > 0.0)
       self_ = make_self_collision(model_, settings.self_collision_thickness_mm * 1e-3);
   }
@@ -158,6 +158,7 @@ class XpbdSolver final : public Solver {
         std::snprintf(buf, sizeof buf, " relaxation=%g", settings_.strain_limit_relaxation);
         out += buf;
       }
+      if (settings_.strain_limit_lines) out += " lines";
       if (settings_.strain_limit_contact_rounds > 0)
         out += " contact_rounds=" + std::to_string(settings_.strain_limit_contact_rounds);
     }
@@ -241,22 +242,19 @@ class XpbdSolver final : public Solver {
   std::vector<double> tether_length_;
   void build_tethers();
   void build_vertex_edges();
-  // Strain-limit lines (SolverSettings::strain_limit_lines): the mesh's straight edge lines,
-  // line l being the vertices line_vertex_[line_begin_[l] .. line_begin_[l + 1]) (a closed line,
-  // a ring, repeats its first vertex last) and line_edge_[k] the constraint from line_vertex_[k]
-  // to line_vertex_[k + 1] (-1 at a line's last vertex).
-  std::vector<int> line_begin_, line_vertex_, line_edge_;
-  void build_strain_lines();
-  // Projects every line onto its edge limits at once (serial, in line order); see the definition.
-  bool project_strain_lines(Eigen::Matrix3Xd& x, double max_stretch);
-  bool line_mark_dirty_ = false;
-  bool project_strain_line(int l, Eigen::Matrix3Xd& x, double max_stretch);
-  std::vector<Vec3> line_d_;  // per edge of the line being projected: its clamped vector
-  std::vector<Vec3> line_x_;  // per vertex: its new position
-  std::vector<int> pins_scratch_;
-  int lines_mode_ =
-      std::getenv("CLOTHDB_PROBE_LINES") ? std::atoi(std::getenv("CLOTHDB_PROBE_LINES")) : 0;
-  bool strain_lines_on() const { return lines_mode_ > 0 && settings_.strain_limit > 0.0; }
+  // Strain-limit chains (SolverSettings::strain_limit_lines): pieces of the mesh's straight edge
+  // lines that hang from a pin, chain q being the vertices chain_vertex_[chain_begin_[q] ..
+  // chain_begin_[q + 1]) from the pin to the line's free end, and chain_edge_[k] the stretch
+  // constraint from chain_vertex_[k] to chain_vertex_[k + 1] (-1 at a chain's last vertex).
+  std::vector<int> chain_begin_, chain_vertex_, chain_edge_;
+  bool chains_this_run_ = true;
+  void build_strain_chains();
+  // Projects every chain onto its edge limits at once (serial, in chain order); returns whether
+  // it moved a vertex (marked in limit_moved_).
+  bool project_strain_chains(Eigen::Matrix3Xd& x, double max_stretch);
+  bool strain_chains_on() const {
+    return settings_.strain_limit_lines && settings_.strain_limit > 0.0;
+  }
   // Cloth self-collision (solvers/self_collision.hpp); thickness 0 when off.
   SelfCollision self_;
 };
@@ -281,12 +279,24 @@ void XpbdSolver::build_vertex_edges() {
   limit_touched_.assign(n, 0);
 }
 
-// The strain-limit lines (SolverSettings::strain_limit_lines): at every vertex the incident edges
-// are paired, straightest pair first, when they continue each other within 25 degrees at rest; the
-// chains of paired edges are the lines (on the garments' ring grids the rings and the columns, on
-// the sheets the rows and the columns; the alternating diagonals make no line). Everything is in
-// index order, so the lines do not depend on the thread count.
-void XpbdSolver::build_strain_lines() {
+// The strain-limit chains (SolverSettings::strain_limit_lines). A line of edges is a chain, and
+// the strain limit's inequalities along a chain, |x_k+1 - x_k| <= (1 + limit) l0_k, can all be met
+// in one sweep from a pinned end, as a tether chain or follow-the-leader hair (Mueller, Kim &
+// Chentanez 2012, "Fast simulation of inextensible hair and fur", sec. 4: each vertex moved to
+// within its limit of the one before, which the sweep has already placed): where a Gauss-Seidel
+// pass over the edges carries a correction about one edge, the sweep carries it to the free end,
+// whatever the line's length (docs/notebook/resolution.md, "Fifth round").
+// The lines: at every vertex the incident edges are paired, straightest pair first, when they
+// continue each other within 25 degrees at rest; the chains of paired edges are the lines (on the
+// garments' ring grids the rings and the columns, on the sheets the rows and the columns; the
+// alternating diagonals make no line). Only the pieces of open lines that hang from a pin are
+// kept: from the pin nearest a free end to that end (on the skirts the columns, from the waist
+// band to the hem). A line without a pin (a ring, a free row) or a piece between two pins has no
+// end to sweep from; built with the rebuilt chain placed by its centroid or closed by spreading
+// its gap, those moved whole rings by centimetres against their neighbours and tore the 3k skirt
+// (max strain 1,331 % in 30 frames), so they are left to the edge passes.
+// Everything is in index order, so the chains do not depend on the thread count.
+void XpbdSolver::build_strain_chains() {
   const Eigen::Matrix3Xd& rest = model_.mesh.rest;
   const std::size_t edges = stretch_.vertices.size();
   const double min_cos = std::cos(25.0 * std::numbers::pi / 180.0);
@@ -331,30 +341,49 @@ void XpbdSolver::build_strain_lines() {
       cb = c.a;
     }
   }
+  const double* w = model_.inv_mass.data();
   std::vector<unsigned char> used(edges, 0);
-  line_begin_.assign(1, 0);
-  line_vertex_.clear();
-  line_edge_.clear();
-  // Walks the line from vertex v along edge e, marking its edges used.
+  std::vector<int> line, line_edges;  // a line's vertices p_0 .. p_m and its edges
+  chain_begin_.assign(1, 0);
+  chain_vertex_.clear();
+  chain_edge_.clear();
+  // Appends the piece of the line from index `from` (a pin) in direction `dir` to its end.
+  const auto add_chain = [&](int from, int dir) {
+    const int m = static_cast<int>(line_edges.size());
+    const int to = dir > 0 ? m : 0;
+    if (std::abs(to - from) < 2) return;  // a single edge: the edge passes do it
+    for (int k = from; k != to; k += dir) {
+      chain_vertex_.push_back(line[static_cast<std::size_t>(k)]);
+      chain_edge_.push_back(line_edges[static_cast<std::size_t>(dir > 0 ? k : k - 1)]);
+    }
+    chain_vertex_.push_back(line[static_cast<std::size_t>(to)]);
+    chain_edge_.push_back(-1);
+    chain_begin_.push_back(static_cast<int>(chain_vertex_.size()));
+  };
+  // Walks the open line from its free end v along edge e, marking its edges used, and keeps its
+  // hanging pieces.
   const auto walk = [&](int e, int v) {
-    const std::size_t start = line_vertex_.size();
-    line_vertex_.push_back(v);
+    line.assign(1, v);
+    line_edges.clear();
     while (e >= 0 && used[static_cast<std::size_t>(e)] == 0) {
       used[static_cast<std::size_t>(e)] = 1;
-      line_edge_.push_back(e);
+      line_edges.push_back(e);
       v = other(e, v);
-      line_vertex_.push_back(v);
+      line.push_back(v);
       e = continuation[2 * static_cast<std::size_t>(e) + static_cast<std::size_t>(end_of(e, v))];
     }
-    line_edge_.push_back(-1);
-    if (line_vertex_.size() - start < 3) {  // a single edge: the edge passes do it
-      line_vertex_.resize(start);
-      line_edge_.resize(start);
-      return;
+    if (line.front() == line.back()) return;  // closed after all
+    int first = -1, last = -1;
+    for (int k = 0; k < static_cast<int>(line.size()); ++k) {
+      if (w[line[static_cast<std::size_t>(k)]] > 0.0) continue;
+      if (first < 0) first = k;
+      last = k;
     }
-    line_begin_.push_back(static_cast<int>(line_vertex_.size()));
+    if (first < 0) return;
+    add_chain(first, -1);
+    add_chain(last, +1);
   };
-  // Open lines from their free end first, then the closed ones (rings), from their lowest edge.
+  // Open lines only, from a free end (the closed ones, rings, have no end).
   for (std::size_t e = 0; e < edges; ++e) {
     if (used[e] != 0) continue;
     const int ei = static_cast<int>(e);
@@ -363,154 +392,74 @@ void XpbdSolver::build_strain_lines() {
     else if (continuation[2 * e + 1] < 0)
       walk(ei, stretch_.vertices[e][1]);
   }
-  for (std::size_t e = 0; e < edges; ++e)
-    if (used[e] == 0) walk(static_cast<int>(e), stretch_.vertices[e][0]);
+  if (std::getenv("CLOTHDB_PROBE_DEBUG")) {
+    std::size_t total = 0;
+    const int nc = static_cast<int>(chain_begin_.size()) - 1;
+    for (int q = 0; q < nc; ++q)
+      total += static_cast<std::size_t>(chain_begin_[q + 1] - chain_begin_[q] - 1);
+    std::fprintf(stderr, "chains %d, chain edges %zu of %zu edges\n", nc, total, edges);
+    for (int q = 0; q < nc && q < 3; ++q) {
+      std::fprintf(stderr, "chain %d:", q);
+      for (int k = chain_begin_[q]; k < chain_begin_[q + 1]; ++k) {
+        const int v = chain_vertex_[k];
+        std::fprintf(stderr, " %d(%.3f,%.3f,%.3f)%s", v, rest(0, v), rest(1, v), rest(2, v),
+                     w[v] <= 0 ? "P" : "");
+      }
+      std::fprintf(stderr, "\n");
+    }
+  }
 }
 
-// One line's edge limits |x_k+1 - x_k| <= (1 + limit) l0_k solved at once, as a chain (like a
-// tether chain or follow-the-leader, Mueller, Kim & Chentanez 2012 "Fast simulation of
-// inextensible hair and fur", but along every edge line of the mesh): each edge vector longer
-// than its limit is scaled to the limit in its own direction (d_k), and the positions are rebuilt
-// from them, x'_k+1 = x'_k + d_k, so every edge of the line is within its limit after one
-// projection whatever the line's length, where a Gauss-Seidel pass moves a correction about one
-// edge. The rebuilt chain is then placed by what holds it:
-//  * a piece between two pinned vertices, or a closed line (a ring) without pins, must close:
-//    the gap g = (x_b - x_a) - sum d_k (0 for a closed line) is spread over its edges in proportion
-//    to their lengths (the least change of sum |d_k - d'_k|^2 / |d_k| that closes it), which may
-//    leave an edge over its limit for the edge passes;
-//  * a piece with one pinned end hangs from it (the rest of the piece translated with the edge
-//    that was shortened, as a tether would);
-//  * a free piece keeps its mass-weighted centroid (no net momentum from the projection).
-// Returns whether it moved anything.
-bool XpbdSolver::project_strain_line(int l, Eigen::Matrix3Xd& x, double max_stretch) {
-  const double* w = model_.inv_mass.data();
-  const int b = line_begin_[static_cast<std::size_t>(l)];
-  const int e = line_begin_[static_cast<std::size_t>(l) + 1];
-  const int m = e - b - 1;  // edges
-  const int* p = line_vertex_.data() + b;
-  const int* c = line_edge_.data() + b;
+// The sweep down every chain from its pin: x'_0 = x_0 and x'_k+1 = x'_k + d'_k, d_k = x_k+1 - x_k
+// taken before the sweep and d'_k = d_k scaled to (1 + limit) l0_k if longer, so every edge of the
+// chain ends within its limit in its own direction and the rest of the chain below a shortened
+// edge moves with it (as under a tether). Kept as an offset, delta = x'_k - x_k, so a chain with
+// no edge over its limit is left bit-identical. Serial: chains may share vertices.
+bool XpbdSolver::project_strain_chains(Eigen::Matrix3Xd& x, double max_stretch) {
   const double* rest = stretch_.rest.data();
-  bool over = false;
-  for (int k = 0; k < m && !over; ++k) {
-    const double lim = max_stretch * rest[c[k]];
-    over = (x.col(p[k + 1]) - x.col(p[k])).squaredNorm() > lim * lim * (1.0 + 1e-9);
-  }
-  if (!over) return false;
-  const bool closed = p[0] == p[m];
-  line_d_.resize(static_cast<std::size_t>(m));
-  line_x_.resize(static_cast<std::size_t>(m) + 1);
-  for (int k = 0; k < m; ++k) {
-    const Vec3 d = x.col(p[k + 1]) - x.col(p[k]);
-    const double len = d.norm(), lim = max_stretch * rest[c[k]];
-    line_d_[static_cast<std::size_t>(k)] = len > lim ? Vec3(d * (lim / len)) : d;
-  }
-  // The pieces: between consecutive pinned vertices (index order along the line; a closed line's
-  // pieces wrap around), and the free ends of an open line.
-  std::vector<int>& pins = pins_scratch_;
-  pins.clear();
-  for (int k = 0; k < (closed ? m : m + 1); ++k)
-    if (w[p[k]] <= 0.0) pins.push_back(k);
-  // Rebuilds the vertices of the piece from index s over `len` edges (indices mod m for a closed
-  // line), placing it as described above.
-  static const int kind =
-      std::getenv("CLOTHDB_PROBE_LINEKIND") ? std::atoi(std::getenv("CLOTHDB_PROBE_LINEKIND")) : 0;
-  const auto place = [&](int s, int len, bool pinned_start, bool pinned_end) {
-    if (kind >= 1 && !pinned_start && !pinned_end) return;
-    if (kind == 1 && pinned_start && pinned_end) return;
-    const auto at = [&](int k) { return closed ? k % m : k; };
-    Vec3 gap = Vec3::Zero();
-    if ((pinned_start && pinned_end) || (closed && !pinned_start)) {
-      Vec3 sum = Vec3::Zero();
-      double total = 0.0;
-      for (int k = 0; k < len; ++k) {
-        sum += line_d_[static_cast<std::size_t>(at(s + k))];
-        total += line_d_[static_cast<std::size_t>(at(s + k))].norm();
+  bool any = false;
+  const int chains = static_cast<int>(chain_begin_.size()) - 1;
+  for (int q = 0; q < chains; ++q) {
+    const int b = chain_begin_[static_cast<std::size_t>(q)];
+    const int e = chain_begin_[static_cast<std::size_t>(q) + 1];
+    static const bool ftl = std::getenv("CLOTHDB_PROBE_FTL") != nullptr;
+    if (ftl) {
+      bool moved_ftl = false;
+      for (int k = b; k + 1 < e; ++k) {
+        const int u = chain_vertex_[static_cast<std::size_t>(k)];
+        const int v = chain_vertex_[static_cast<std::size_t>(k) + 1];
+        const Vec3 d = x.col(v) - x.col(u);
+        const double lim = max_stretch * rest[chain_edge_[static_cast<std::size_t>(k)]];
+        const double len_sq = d.squaredNorm();
+        if (len_sq > lim * lim * (1.0 + 1e-9)) {
+          x.col(v) = x.col(u) + d * (lim / std::sqrt(len_sq));
+          limit_moved_[static_cast<std::size_t>(v)] = 1;
+          moved_ftl = true;
+        }
       }
-      const Vec3 span = pinned_start ? Vec3(x.col(p[at(s + len)]) - x.col(p[at(s)])) : Vec3::Zero();
-      if (total > 0.0) gap = (span - sum) / total;
+      any = any || moved_ftl;
+      continue;
     }
-    Vec3 pos = x.col(p[at(s)]);
-    line_x_[0] = pos;
-    for (int k = 0; k < len; ++k) {
-      const Vec3& d = line_d_[static_cast<std::size_t>(at(s + k))];
-      pos += d + gap * d.norm();
-      line_x_[static_cast<std::size_t>(k) + 1] = pos;
-    }
-    Vec3 shift = Vec3::Zero();
-    if (pinned_end && !pinned_start) {
-      shift = x.col(p[at(s + len)]) - line_x_[static_cast<std::size_t>(len)];
-    } else if (!pinned_start) {
-      // Free: keep the mass-weighted centroid (a closed line's first vertex once).
-      Vec3 moved = Vec3::Zero();
-      double mass = 0.0;
-      for (int k = 0; k < (closed ? len : len + 1); ++k) {
-        const double mk = 1.0 / w[p[at(s + k)]];
-        moved += mk * (x.col(p[at(s + k)]) - line_x_[static_cast<std::size_t>(k)]);
-        mass += mk;
+    Vec3 delta = Vec3::Zero();
+    bool moved = false;
+    Vec3 above = x.col(chain_vertex_[static_cast<std::size_t>(b)]);  // x_k before the sweep
+    for (int k = b; k + 1 < e; ++k) {
+      const int v = chain_vertex_[static_cast<std::size_t>(k) + 1];
+      const Vec3 below = x.col(v);
+      const Vec3 d = below - above;
+      const double lim = max_stretch * rest[chain_edge_[static_cast<std::size_t>(k)]];
+      const double len_sq = d.squaredNorm();
+      if (len_sq > lim * lim * (1.0 + 1e-9)) {
+        delta -= d * (1.0 - lim / std::sqrt(len_sq));
+        moved = true;
       }
-      shift = moved / mass;
-    }
-    for (int k = 0; k <= len; ++k) {
-      const int v = p[at(s + k)];
-      if (w[v] <= 0.0) continue;
-      const Vec3 to = line_x_[static_cast<std::size_t>(k)] + shift;
-      if (to == x.col(v)) continue;
-      x.col(v) = to;
-      // For the first edge pass (a full one) and the contact rounds, as if a pass had moved it;
-      // between the dirty passes its edges must be tested again.
-      if (line_mark_dirty_) {
-        touch(v);
-        mark_edges_dirty(v);
-      } else {
+      above = below;
+      if (moved) {
+        x.col(v) += delta;
         limit_moved_[static_cast<std::size_t>(v)] = 1;
       }
     }
-  };
-  if (pins.empty()) {
-    place(0, m, false, false);
-  } else if (closed) {
-    for (std::size_t i = 0; i < pins.size(); ++i) {
-      const int s = pins[i];
-      const int t = i + 1 < pins.size() ? pins[i + 1] : pins[0] + m;
-      if (t - s > 1) place(s, t - s, true, true);
-    }
-  } else {
-    if (pins.front() > 0) place(0, pins.front(), false, true);
-    for (std::size_t i = 0; i + 1 < pins.size(); ++i)
-      if (pins[i + 1] - pins[i] > 1) place(pins[i], pins[i + 1] - pins[i], true, true);
-    if (pins.back() < m) place(pins.back(), m - pins.back(), true, false);
-  }
-  return true;
-}
-
-bool XpbdSolver::project_strain_lines(Eigen::Matrix3Xd& x, double max_stretch) {
-  const int lines = static_cast<int>(line_begin_.size()) - 1;
-  bool any = false;
-  static const bool debug = std::getenv("CLOTHDB_PROBE_DEBUG") != nullptr;
-  Eigen::Matrix3Xd before;
-  if (debug) before = x;
-  for (int l = 0; l < lines; ++l) {
-    Eigen::Matrix3Xd lb;
-    if (debug) lb = x;
-    any = project_strain_line(l, x, max_stretch) || any;
-    if (debug) {
-      const double mv = (x - lb).colwise().norm().maxCoeff();
-      if (mv > 0.05) {
-        const int b = line_begin_[static_cast<std::size_t>(l)],
-                  e = line_begin_[static_cast<std::size_t>(l) + 1];
-        std::fprintf(stderr, "line %d verts %d closed %d moved %.4f:", l, e - b,
-                     line_vertex_[b] == line_vertex_[e - 1] ? 1 : 0, mv);
-        for (int k = b; k < e; ++k)
-          std::fprintf(stderr, " %d%s", line_vertex_[k],
-                       model_.inv_mass[line_vertex_[k]] <= 0 ? "P" : "");
-        std::fprintf(stderr, "\n");
-      }
-    }
-  }
-  if (debug) {
-    std::fprintf(stderr, "lines: max move %.4f, max strain before %.4f after %.4f\n",
-                 (x - before).colwise().norm().maxCoeff(), max_edge_strain(model_, before),
-                 max_edge_strain(model_, x));
+    any = any || moved;
   }
   return any;
 }
@@ -743,9 +692,11 @@ bool XpbdSolver::limit_strain_dirty(Eigen::Matrix3Xd& x, double max_stretch) {
 }
 
 bool XpbdSolver::run_strain_limit(Eigen::Matrix3Xd& x, double max_stretch) {
-  if (strain_lines_on()) {
+  // The chains first: they carry a correction down a whole line at once, and the full pass below
+  // then sees (and the dirty passes revisit) the edges across the chains that they moved.
+  if (strain_chains_on() && chains_this_run_) {
 #pragma omp single
-    if (project_strain_lines(x, max_stretch)) limit_corrected_ = 1;
+    if (project_strain_chains(x, max_stretch)) limit_corrected_ = 1;
   }
   for (int col = 0; col < stretch_.color_count(); ++col) {
     limit_strain(stretch_.color_begin[static_cast<std::size_t>(col)],
@@ -772,15 +723,8 @@ bool XpbdSolver::run_strain_limit(Eigen::Matrix3Xd& x, double max_stretch) {
       }
       bool again = true;
       int pass = 1;
-      const int line_every = lines_mode_ >= 2 ? lines_mode_ - 1 : 0;
-      for (; pass < settings_.strain_limit_iterations && again; ++pass) {
-        if (line_every > 0 && pass % line_every == 0) {
-          line_mark_dirty_ = true;
-          project_strain_lines(x, max_stretch);
-          line_mark_dirty_ = false;
-        }
+      for (; pass < settings_.strain_limit_iterations && again; ++pass)
         again = limit_strain_dirty(x, max_stretch);
-      }
       limit_passes_ += pass;
       if (again) ++limit_capped_;
       std::fill(edge_dirty_.begin(), edge_dirty_.end(), 0);
@@ -953,7 +897,9 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
 #pragma omp for schedule(static)
         for (Eigen::Index i = 0; i < n; ++i)
           resolve_vertex_collisions(state.x, x_prev, model_.inv_mass, i, env, s_end, s_start);
+        chains_this_run_ = true;
         run_strain_limit(state.x, max_stretch);
+        chains_this_run_ = !std::getenv("CLOTHDB_PROBE_FIRSTONLY");
       }
       // Colliders at this sub-step's pose; friction measured against the surface's own motion
       // over the sub-step. Each vertex is resolved on its own, so the vertices are shared out.
