@@ -78,10 +78,6 @@ void register_bench_character(CLI::App& bench) {
                   "XPBD over-relaxation of the strain limit's passes in [1, 2), 1: off; default: "
                   "the scene's (docs/guide/resolution.md)")
       ->check(CLI::Range(1.0, 1.99));
-  cmd->add_option("--strain-limit-lines", args->options.strain_limit_lines,
-                  "XPBD strain-limit sweeps down the edge lines hanging from a pin: 1 on, 0 off; "
-                  "default: the scene's (docs/guide/resolution.md)")
-      ->check(CLI::Range(0, 1));
   cmd->add_option("--chebyshev-rho", args->options.chebyshev_rho,
                   "XPBD Chebyshev acceleration of the stretch sweeps (Wang 2015): spectral radius "
                   "estimate in [0, 1), 0: off; default: the scene's (docs/guide/resolution.md)")

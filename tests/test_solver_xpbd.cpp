@@ -296,13 +296,12 @@ struct PassCount {
   long capped = 0;
   double strain = 0;
 };
-PassCount swung_sheet_passes(int resolution, int frames, int cap, bool lines = false) {
+PassCount swung_sheet_passes(int resolution, int frames, int cap) {
   const ClothScene scene = make_hard_case("swung-sheet", resolution);
   SolverSettings s = xpbd_settings(4, 1);
   s.strain_limit = 0.02;
   s.strain_limit_iterations = cap;
   s.strain_limit_relaxation = 1.8;
-  s.strain_limit_lines = lines;
   auto solver = make_xpbd_solver(scene.model, s);
   const RunResult run = run_scene(scene, *solver, frames);
   EXPECT_TRUE(run.stable) << run.message;
@@ -338,48 +337,6 @@ TEST(Xpbd, StrainLimitPassesNeededGrowWithTheResolution) {
   EXPECT_GT(capped.capped, 0);
   EXPECT_LE(capped.per_substep, 16.0);
   EXPECT_GT(capped.strain, 0.02 + 1e-3);
-}
-
-// With the sweeps down the edge lines that hang from the pins (SolverSettings::strain_limit_lines:
-// the sheet's columns, from its pinned top edge) the passes until no edge is over the limit grow
-// more slowly than the vertices: 16.5 per sub-step at 21 a side and 49.6 at 42, 3.0x at 4x the
-// vertices, against 34.7 and 300.0 (8.7x) without (measured 2026-12-04,
-// docs/notebook/resolution.md "Fifth round"). Without the sweeps this ratio is the 8.7x of the
-// test above; a sweep that did not carry its correction down the whole column would leave the
-// edge passes to do it and the ratio near that. The sweeps keep the limit's last word: the run
-// converges within it.
-TEST(Xpbd, StrainLimitLinesTurnThePassesNeededAround) {
-  const PassCount coarse = swung_sheet_passes(21, 20, 2000, true);
-  const PassCount fine = swung_sheet_passes(42, 20, 2000, true);
-  EXPECT_EQ(coarse.capped, 0);
-  EXPECT_EQ(fine.capped, 0);
-  EXPECT_LE(coarse.strain, 0.02 + 1e-6);
-  EXPECT_LE(fine.strain, 0.02 + 1e-6);
-  EXPECT_LT(fine.per_substep, 4.0 * coarse.per_substep);
-  // And fewer passes than without them at both resolutions (34.7 and 300.0).
-  EXPECT_LT(coarse.per_substep, 0.75 * swung_sheet_passes(21, 20, 2000).per_substep);
-  EXPECT_LT(fine.per_substep, 0.25 * swung_sheet_passes(42, 20, 2000).per_substep);
-}
-
-// The setting travels in the solver block, is left out when off (records made without it read and
-// write byte-identically) and names itself in the solver's description.
-TEST(Xpbd, StrainLimitLinesRoundTripAndAreLeftOutWhenOff) {
-  EXPECT_EQ(solver_settings_json(SolverKind::Xpbd, SolverSettings{}).find("strain_limit_lines"),
-            std::string::npos);
-  SolverSettings on;
-  on.strain_limit_lines = true;
-  SolverKind kind = SolverKind::Newton;
-  SolverSettings back;
-  parse_solver_settings_json(solver_settings_json(SolverKind::Xpbd, on), "test", &kind, &back);
-  EXPECT_TRUE(back.strain_limit_lines);
-  EXPECT_THROW(parse_solver_settings_json(R"({"strain_limit_lines": 1})", "scene.json", &kind,
-                                          &back, "solver."),
-               SettingsError);
-  const ClothScene scene = make_hard_case("swung-sheet");
-  SolverSettings s = xpbd_settings(4, 1);
-  s.strain_limit = 0.02;
-  s.strain_limit_lines = true;
-  EXPECT_NE(make_xpbd_solver(scene.model, s)->describe().find(" lines"), std::string::npos);
 }
 
 // Chebyshev acceleration of the stretch sweeps (Wang 2015), on the two-corner hanging sheet: the
@@ -539,8 +496,6 @@ TEST(Xpbd, OneAndTwoThreadsGiveBitIdenticalResults) {
     if (accelerated) {
       s1.strain_limit_relaxation = s2.strain_limit_relaxation = 1.8;
       s1.chebyshev_rho = s2.chebyshev_rho = 0.9;
-      // The sweeps down the lines hanging from the pins run serially, before the parallel passes.
-      s1.strain_limit_lines = s2.strain_limit_lines = true;
     }
     auto one = make_xpbd_solver(scene.model, s1);
     auto two = make_xpbd_solver(scene.model, s2);

@@ -63,7 +63,6 @@ void visit_solver_fields(SolverSettings& s, V& v) {
   v.integer("strain_limit_iterations", s.strain_limit_iterations, 1, kMaxIterations);
   // Below 2: projected over-relaxation converges for 0 < omega < 2 (Cryer 1971).
   v.optional_number("strain_limit_relaxation", s.strain_limit_relaxation, 1.0, 1.99, 1.0);
-  v.optional_boolean("strain_limit_lines", s.strain_limit_lines);
   v.integer("strain_limit_contact_rounds", s.strain_limit_contact_rounds, 0, kMaxIterations);
   // Below 1: at rho = 1 the weights grow without bound (omega -> 2).
   v.optional_number("chebyshev_rho", s.chebyshev_rho, 0.0, 0.999, 0.0);
@@ -129,7 +128,6 @@ struct Validator {
     check_range(where, prefix + name, static_cast<long long>(i), lo, hi);
   }
   void boolean(const char*, bool&) {}
-  void optional_boolean(const char*, bool&) {}
   void optional_number(const char* name, double& d, double lo, double hi, double) {
     number(name, d, lo, hi);
   }
@@ -153,10 +151,6 @@ struct ToJson {
   }
   void integer64(const char* name, long& i, long, long) { out[name] = i; }
   void boolean(const char* name, bool& b) { out[name] = b; }
-  // Written only when on (see optional_number).
-  void optional_boolean(const char* name, bool& b) {
-    if (b) out[name] = b;
-  }
   // A field at its `off` value is left out, so records made before it existed (and settings
   // that leave it off) are written byte-identically.
   void optional_number(const char* name, double& d, double, double, double off) {
@@ -220,7 +214,6 @@ struct FromJson {
     if (!v->is_boolean()) refuse(where, prefix + name, "expected true or false, got " + v->dump());
     b = v->get<bool>();
   }
-  void optional_boolean(const char* name, bool& b) { boolean(name, b); }
   void grouped(const char* group, const char* name, double& d, double lo, double hi) {
     const json* g = get(group);
     if (!g) return;

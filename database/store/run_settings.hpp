@@ -117,11 +117,6 @@ struct SolverSettings {
   // correction that must travel along many edges takes fewer passes (docs/guide/resolution.md).
   // 1: off (shortened to the limit exactly).
   double strain_limit_relaxation = 1.0;
-  // XPBD: before the strain limit's passes, sweep every straight edge line that hangs from a pin
-  // (on a skirt the columns, from the waist band to the hem) from its pin, moving each vertex to
-  // within the limit of the one above it, so a correction travels the whole line at once instead
-  // of about an edge per pass (docs/guide/resolution.md). false: off.
-  bool strain_limit_lines = false;
   // XPBD with the strain limit on: after the collision pass, up to this many rounds of the
   // strain limit, with a frictionless collision projection between rounds, so edges the body
   // pushes on are shortened (by sliding along it) rather than left stretched

@@ -193,8 +193,6 @@ std::vector<CharacterBenchRow> run_character_bench(
       if (options.strain_limit_relaxation > 0.0)
         settings.strain_limit_relaxation = options.strain_limit_relaxation;
       if (options.chebyshev_rho >= 0.0) settings.chebyshev_rho = options.chebyshev_rho;
-      if (options.strain_limit_lines >= 0)
-        settings.strain_limit_lines = options.strain_limit_lines != 0;
       if (options.tethers >= 0) settings.tethers = options.tethers != 0;
       std::vector<double> self_mm = options.self_collision_mm;
       if (self_mm.empty()) {

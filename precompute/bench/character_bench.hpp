@@ -27,7 +27,6 @@ struct CharacterBenchOptions {
   int strain_limit_iterations = 0;       // XPBD strain-limit passes; 0: the scene's
   int contact_rounds = -1;               // XPBD strain_limit_contact_rounds; negative: the scene's
   double strain_limit_relaxation = 0.0;  // XPBD strain_limit_relaxation; 0: the scene's
-  int strain_limit_lines = -1;           // XPBD strain_limit_lines: 1 on, 0 off; -1: the scene's
   double chebyshev_rho = -1.0;           // XPBD chebyshev_rho; negative: the scene's (0: off)
   int tethers = -1;                      // XPBD tethers: 0 off, 1 on; negative: the scene's
   std::vector<int> threads{1};

@@ -26,7 +26,6 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
-#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <numbers>
@@ -136,7 +135,6 @@ class XpbdSolver final : public Solver {
     build_constraints();
     if (settings.tethers) build_tethers();
     build_vertex_edges();
-    if (strain_chains_on()) build_strain_chains();
     if (settings.self_collision_thickness_mm > 0.0)
       self_ = make_self_collision(model_, settings.self_collision_thickness_mm * 1e-3);
   }
@@ -158,7 +156,6 @@ class XpbdSolver final : public Solver {
         std::snprintf(buf, sizeof buf, " relaxation=%g", settings_.strain_limit_relaxation);
         out += buf;
       }
-      if (settings_.strain_limit_lines) out += " lines";
       if (settings_.strain_limit_contact_rounds > 0)
         out += " contact_rounds=" + std::to_string(settings_.strain_limit_contact_rounds);
     }
@@ -242,19 +239,6 @@ class XpbdSolver final : public Solver {
   std::vector<double> tether_length_;
   void build_tethers();
   void build_vertex_edges();
-  // Strain-limit chains (SolverSettings::strain_limit_lines): pieces of the mesh's straight edge
-  // lines that hang from a pin, chain q being the vertices chain_vertex_[chain_begin_[q] ..
-  // chain_begin_[q + 1]) from the pin to the line's free end, and chain_edge_[k] the stretch
-  // constraint from chain_vertex_[k] to chain_vertex_[k + 1] (-1 at a chain's last vertex).
-  std::vector<int> chain_begin_, chain_vertex_, chain_edge_;
-  bool chains_this_run_ = true;
-  void build_strain_chains();
-  // Projects every chain onto its edge limits at once (serial, in chain order); returns whether
-  // it moved a vertex (marked in limit_moved_).
-  bool project_strain_chains(Eigen::Matrix3Xd& x, double max_stretch);
-  bool strain_chains_on() const {
-    return settings_.strain_limit_lines && settings_.strain_limit > 0.0;
-  }
   // Cloth self-collision (solvers/self_collision.hpp); thickness 0 when off.
   SelfCollision self_;
 };
@@ -277,191 +261,6 @@ void XpbdSolver::build_vertex_edges() {
   limit_moved_.assign(n, 0);
   edge_dirty_.assign(stretch_.vertices.size(), 0);
   limit_touched_.assign(n, 0);
-}
-
-// The strain-limit chains (SolverSettings::strain_limit_lines). A line of edges is a chain, and
-// the strain limit's inequalities along a chain, |x_k+1 - x_k| <= (1 + limit) l0_k, can all be met
-// in one sweep from a pinned end, as a tether chain or follow-the-leader hair (Mueller, Kim &
-// Chentanez 2012, "Fast simulation of inextensible hair and fur", sec. 4: each vertex moved to
-// within its limit of the one before, which the sweep has already placed): where a Gauss-Seidel
-// pass over the edges carries a correction about one edge, the sweep carries it to the free end,
-// whatever the line's length (docs/notebook/resolution.md, "Fifth round").
-// The lines: at every vertex the incident edges are paired, straightest pair first, when they
-// continue each other within 25 degrees at rest; the chains of paired edges are the lines (on the
-// garments' ring grids the rings and the columns, on the sheets the rows and the columns; the
-// alternating diagonals make no line). Only the pieces of open lines that hang from a pin are
-// kept: from the pin nearest a free end to that end (on the skirts the columns, from the waist
-// band to the hem). A line without a pin (a ring, a free row) or a piece between two pins has no
-// end to sweep from; built with the rebuilt chain placed by its centroid or closed by spreading
-// its gap, those moved whole rings by centimetres against their neighbours and tore the 3k skirt
-// (max strain 1,331 % in 30 frames), so they are left to the edge passes.
-// Everything is in index order, so the chains do not depend on the thread count.
-void XpbdSolver::build_strain_chains() {
-  const Eigen::Matrix3Xd& rest = model_.mesh.rest;
-  const std::size_t edges = stretch_.vertices.size();
-  const double min_cos = std::cos(25.0 * std::numbers::pi / 180.0);
-  // continuation[2 e + s]: the edge continuing edge e straight on at its end s (-1: none).
-  std::vector<int> continuation(2 * edges, -1);
-  const auto end_of = [&](int e, int v) {
-    return stretch_.vertices[static_cast<std::size_t>(e)][0] == v ? 0 : 1;
-  };
-  const auto other = [&](int e, int v) {
-    const auto& ev = stretch_.vertices[static_cast<std::size_t>(e)];
-    return ev[0] == v ? ev[1] : ev[0];
-  };
-  struct Candidate {
-    double straightness;
-    int a, b;
-  };
-  std::vector<Candidate> candidates;
-  const int n = model_.vertex_count();
-  for (int v = 0; v < n; ++v) {
-    const std::size_t vu = static_cast<std::size_t>(v);
-    candidates.clear();
-    for (int p = vertex_edge_begin_[vu]; p < vertex_edge_begin_[vu + 1]; ++p) {
-      const int a = vertex_edges_[static_cast<std::size_t>(p)];
-      const Vec3 da = (rest.col(other(a, v)) - rest.col(v)).normalized();
-      for (int q = p + 1; q < vertex_edge_begin_[vu + 1]; ++q) {
-        const int b = vertex_edges_[static_cast<std::size_t>(q)];
-        const double straightness = -da.dot((rest.col(other(b, v)) - rest.col(v)).normalized());
-        if (straightness >= min_cos) candidates.push_back({straightness, a, b});
-      }
-    }
-    std::sort(candidates.begin(), candidates.end(), [](const Candidate& l, const Candidate& r) {
-      if (l.straightness != r.straightness) return l.straightness > r.straightness;
-      return l.a != r.a ? l.a < r.a : l.b < r.b;
-    });
-    for (const Candidate& c : candidates) {
-      int& ca = continuation[2 * static_cast<std::size_t>(c.a) +
-                             static_cast<std::size_t>(end_of(c.a, v))];
-      int& cb = continuation[2 * static_cast<std::size_t>(c.b) +
-                             static_cast<std::size_t>(end_of(c.b, v))];
-      if (ca >= 0 || cb >= 0) continue;
-      ca = c.b;
-      cb = c.a;
-    }
-  }
-  const double* w = model_.inv_mass.data();
-  std::vector<unsigned char> used(edges, 0);
-  std::vector<int> line, line_edges;  // a line's vertices p_0 .. p_m and its edges
-  chain_begin_.assign(1, 0);
-  chain_vertex_.clear();
-  chain_edge_.clear();
-  // Appends the piece of the line from index `from` (a pin) in direction `dir` to its end.
-  const auto add_chain = [&](int from, int dir) {
-    const int m = static_cast<int>(line_edges.size());
-    const int to = dir > 0 ? m : 0;
-    if (std::abs(to - from) < 2) return;  // a single edge: the edge passes do it
-    for (int k = from; k != to; k += dir) {
-      chain_vertex_.push_back(line[static_cast<std::size_t>(k)]);
-      chain_edge_.push_back(line_edges[static_cast<std::size_t>(dir > 0 ? k : k - 1)]);
-    }
-    chain_vertex_.push_back(line[static_cast<std::size_t>(to)]);
-    chain_edge_.push_back(-1);
-    chain_begin_.push_back(static_cast<int>(chain_vertex_.size()));
-  };
-  // Walks the open line from its free end v along edge e, marking its edges used, and keeps its
-  // hanging pieces.
-  const auto walk = [&](int e, int v) {
-    line.assign(1, v);
-    line_edges.clear();
-    while (e >= 0 && used[static_cast<std::size_t>(e)] == 0) {
-      used[static_cast<std::size_t>(e)] = 1;
-      line_edges.push_back(e);
-      v = other(e, v);
-      line.push_back(v);
-      e = continuation[2 * static_cast<std::size_t>(e) + static_cast<std::size_t>(end_of(e, v))];
-    }
-    if (line.front() == line.back()) return;  // closed after all
-    int first = -1, last = -1;
-    for (int k = 0; k < static_cast<int>(line.size()); ++k) {
-      if (w[line[static_cast<std::size_t>(k)]] > 0.0) continue;
-      if (first < 0) first = k;
-      last = k;
-    }
-    if (first < 0) return;
-    add_chain(first, -1);
-    add_chain(last, +1);
-  };
-  // Open lines only, from a free end (the closed ones, rings, have no end).
-  for (std::size_t e = 0; e < edges; ++e) {
-    if (used[e] != 0) continue;
-    const int ei = static_cast<int>(e);
-    if (continuation[2 * e] < 0)
-      walk(ei, stretch_.vertices[e][0]);
-    else if (continuation[2 * e + 1] < 0)
-      walk(ei, stretch_.vertices[e][1]);
-  }
-  if (std::getenv("CLOTHDB_PROBE_DEBUG")) {
-    std::size_t total = 0;
-    const int nc = static_cast<int>(chain_begin_.size()) - 1;
-    for (int q = 0; q < nc; ++q)
-      total += static_cast<std::size_t>(chain_begin_[q + 1] - chain_begin_[q] - 1);
-    std::fprintf(stderr, "chains %d, chain edges %zu of %zu edges\n", nc, total, edges);
-    for (int q = 0; q < nc && q < 3; ++q) {
-      std::fprintf(stderr, "chain %d:", q);
-      for (int k = chain_begin_[q]; k < chain_begin_[q + 1]; ++k) {
-        const int v = chain_vertex_[k];
-        std::fprintf(stderr, " %d(%.3f,%.3f,%.3f)%s", v, rest(0, v), rest(1, v), rest(2, v),
-                     w[v] <= 0 ? "P" : "");
-      }
-      std::fprintf(stderr, "\n");
-    }
-  }
-}
-
-// The sweep down every chain from its pin: x'_0 = x_0 and x'_k+1 = x'_k + d'_k, d_k = x_k+1 - x_k
-// taken before the sweep and d'_k = d_k scaled to (1 + limit) l0_k if longer, so every edge of the
-// chain ends within its limit in its own direction and the rest of the chain below a shortened
-// edge moves with it (as under a tether). Kept as an offset, delta = x'_k - x_k, so a chain with
-// no edge over its limit is left bit-identical. Serial: chains may share vertices.
-bool XpbdSolver::project_strain_chains(Eigen::Matrix3Xd& x, double max_stretch) {
-  const double* rest = stretch_.rest.data();
-  bool any = false;
-  const int chains = static_cast<int>(chain_begin_.size()) - 1;
-  for (int q = 0; q < chains; ++q) {
-    const int b = chain_begin_[static_cast<std::size_t>(q)];
-    const int e = chain_begin_[static_cast<std::size_t>(q) + 1];
-    static const bool ftl = std::getenv("CLOTHDB_PROBE_FTL") != nullptr;
-    if (ftl) {
-      bool moved_ftl = false;
-      for (int k = b; k + 1 < e; ++k) {
-        const int u = chain_vertex_[static_cast<std::size_t>(k)];
-        const int v = chain_vertex_[static_cast<std::size_t>(k) + 1];
-        const Vec3 d = x.col(v) - x.col(u);
-        const double lim = max_stretch * rest[chain_edge_[static_cast<std::size_t>(k)]];
-        const double len_sq = d.squaredNorm();
-        if (len_sq > lim * lim * (1.0 + 1e-9)) {
-          x.col(v) = x.col(u) + d * (lim / std::sqrt(len_sq));
-          limit_moved_[static_cast<std::size_t>(v)] = 1;
-          moved_ftl = true;
-        }
-      }
-      any = any || moved_ftl;
-      continue;
-    }
-    Vec3 delta = Vec3::Zero();
-    bool moved = false;
-    Vec3 above = x.col(chain_vertex_[static_cast<std::size_t>(b)]);  // x_k before the sweep
-    for (int k = b; k + 1 < e; ++k) {
-      const int v = chain_vertex_[static_cast<std::size_t>(k) + 1];
-      const Vec3 below = x.col(v);
-      const Vec3 d = below - above;
-      const double lim = max_stretch * rest[chain_edge_[static_cast<std::size_t>(k)]];
-      const double len_sq = d.squaredNorm();
-      if (len_sq > lim * lim * (1.0 + 1e-9)) {
-        delta -= d * (1.0 - lim / std::sqrt(len_sq));
-        moved = true;
-      }
-      above = below;
-      if (moved) {
-        x.col(v) += delta;
-        limit_moved_[static_cast<std::size_t>(v)] = 1;
-      }
-    }
-    any = any || moved;
-  }
-  return any;
 }
 
 void XpbdSolver::build_tethers() {
@@ -692,12 +491,6 @@ bool XpbdSolver::limit_strain_dirty(Eigen::Matrix3Xd& x, double max_stretch) {
 }
 
 bool XpbdSolver::run_strain_limit(Eigen::Matrix3Xd& x, double max_stretch) {
-  // The chains first: they carry a correction down a whole line at once, and the full pass below
-  // then sees (and the dirty passes revisit) the edges across the chains that they moved.
-  if (strain_chains_on() && chains_this_run_) {
-#pragma omp single
-    if (project_strain_chains(x, max_stretch)) limit_corrected_ = 1;
-  }
   for (int col = 0; col < stretch_.color_count(); ++col) {
     limit_strain(stretch_.color_begin[static_cast<std::size_t>(col)],
                  stretch_.color_begin[static_cast<std::size_t>(col) + 1], x, max_stretch);
@@ -897,9 +690,7 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
 #pragma omp for schedule(static)
         for (Eigen::Index i = 0; i < n; ++i)
           resolve_vertex_collisions(state.x, x_prev, model_.inv_mass, i, env, s_end, s_start);
-        chains_this_run_ = true;
         run_strain_limit(state.x, max_stretch);
-        chains_this_run_ = !std::getenv("CLOTHDB_PROBE_FIRSTONLY");
       }
       // Colliders at this sub-step's pose; friction measured against the surface's own motion
       // over the sub-step. Each vertex is resolved on its own, so the vertices are shared out.
