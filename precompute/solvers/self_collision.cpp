@@ -1082,15 +1082,15 @@ int plan_untangle(SelfCollision& sc, const ClothModel& model, const Eigen::Matri
     UntangleConstraint u;
     u.triangle = c[1];
     // Both ends on one side of the plane at the step's start: the crossing formed in this step, and
-    // the end that changed side went through (both changed: the triangle went through the edge,
-    // and the end nearer the plane goes back). Otherwise the pieces decide.
+    // the end that is now on the other side (exactly one is, the edge straddling the plane now)
+    // goes back to the side both had, whether it moved or the triangle did. Otherwise the pieces
+    // decide.
     const Vec3 n_start = unit_normal(x_start, t), o_start = x_start.col(t[0]);
     const double s0 = (x_start.col(e[0]) - o_start).dot(n_start);
     const double s1 = (x_start.col(e[1]) - o_start).dot(n_start);
     int end = 0;
     if (s0 * s1 > 0.0 && !n_start.isZero()) {
-      const bool changed0 = s0 * d0 < 0.0, changed1 = s1 * d1 < 0.0;
-      end = changed0 != changed1 ? (changed0 ? 0 : 1) : (std::abs(d0) <= std::abs(d1) ? 0 : 1);
+      end = s0 * d0 < 0.0 ? 0 : 1;
       u.side = s0 > 0.0 ? 1.0 : -1.0;
     } else {
       const int p0 = size[static_cast<std::size_t>(find_root(parent, e[0]))];

@@ -138,13 +138,13 @@ int project_self_collision(SelfCollision& sc, const ClothModel& model, Eigen::Ma
 // projected after the contacts in every sub-step (project_untangle), so stretch, bending and the
 // strain limit act on the corrected positions. Which end went through, and to which side it goes
 // back: if both ends were on one side of the plane at the step's start (x_start), the crossing
-// formed in this step: the end that changed side goes back to that side (the triangle went
-// through: the end nearer the plane). Otherwise (a crossing older than the step, or an edge that
-// came in over the triangle's border) the crossing edges cut the mesh along the intersection
-// contour, and the end in the smaller piece went through (BWK's rule; a piece holding a fixed
-// vertex counts as the largest) and goes to the other end's side; both ends in one piece (the
-// contour does not close on that side): the end nearer the plane. Serial, in the crossings' order:
-// the same for any thread count.
+// formed in this step: the end now on the other side goes back (whether it moved or the triangle
+// did). Otherwise (a crossing older than the step, or an edge that came in over the triangle's
+// border) the crossing edges cut the mesh along the intersection contour, and the end in the
+// smaller piece went through (BWK's rule; a piece holding a fixed vertex counts as the largest) and
+// goes to the other end's side; both ends in one piece (the contour does not close on that side):
+// the end nearer the plane. Serial, in the crossings' order: the same for any thread count.
+//
 // How many times a step that ends with crossings is run again (each adding the constraints for the
 // crossings its end still has).
 constexpr int kUntangleRedos = 3;
