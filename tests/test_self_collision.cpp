@@ -423,6 +423,90 @@ TEST(SelfCollision, SameResultForOneAndTwoThreads) {
   EXPECT_FALSE(a.frames.back() == c.frames.back());
 }
 
+// ---- Untangling (self_collision.hpp, untangle_self_collision) ----
+
+// The folded U (two layers 4 cm apart) with a bump of its upper layer pushed 2 cm through the
+// lower one: a closed intersection contour, the state a crossing the contacts let through leaves.
+Eigen::Matrix3Xd tangled_u(const ClothMesh& mesh) {
+  Eigen::Matrix3Xd x = folded_u(mesh);
+  for (int i = 0; i < mesh.vertex_count(); ++i) {
+    if (!upper(mesh, i)) continue;
+    const double dx = x(0, i) - 0.3, dy = x(1, i) - 0.5;
+    x(2, i) -= 0.06 * std::exp(-(dx * dx + dy * dy) / (0.08 * 0.08));
+  }
+  return x;
+}
+
+// The contacts alone keep a crossing (each pair is pushed to the side it is on at the sub-step's
+// start, which for a crossed pair is the wrong one); untangling removes every one, and moves only
+// what it must (the sheet away from the bump stays where it was).
+TEST(SelfCollisionUntangle, UndoesABumpPushedThroughTheOtherLayer) {
+  Material m;
+  const ClothModel model = make_model(make_quad_grid(16, 16, 1.0, 1.0), m, {});
+  const Eigen::Matrix3Xd tangled = tangled_u(model.mesh);
+  const int crossings = count_self_intersections(model.mesh, tangled);
+  ASSERT_GE(crossings, 8) << "the bump does not pass through the lower layer";
+
+  SelfCollision contacts_only = make_self_collision(model, 0.005);
+  Eigen::Matrix3Xd x = tangled;
+  for (int pass = 0; pass < 20; ++pass) {
+    const Eigen::Matrix3Xd start = x;
+    refresh_self_collision(contacts_only, model, x, start);
+    project_self_collision(contacts_only, model, x, start);
+  }
+  EXPECT_GE(count_self_intersections(model.mesh, x), crossings / 2)
+      << "the contacts alone undid the crossing: this test would not show the untangling";
+
+  SelfCollision sc = make_self_collision(model, 0.005);
+  Eigen::Matrix3Xd y = tangled;
+  EXPECT_EQ(plan_untangle(sc, model, y, tangled), crossings);
+  ASSERT_FALSE(sc.untangle.empty());
+  // Projected and planned again (as the solver's repeated steps do), without the stretch or
+  // bending constraints: the constraints alone take the bump back through.
+  for (int round = 0; round < 20 && count_self_intersections(model.mesh, y) > 0; ++round) {
+    project_untangle(sc, model, y);
+    plan_untangle(sc, model, y, tangled);
+  }
+  EXPECT_EQ(count_self_intersections(model.mesh, y), 0);
+  double far_moved = 0.0;
+  for (int i = 0; i < model.vertex_count(); ++i) {
+    const double dx = tangled(0, i) - 0.3, dy = tangled(1, i) - 0.5;
+    if (dx * dx + dy * dy > 0.25 * 0.25)
+      far_moved = std::max(far_moved, (y.col(i) - tangled.col(i)).norm());
+  }
+  EXPECT_EQ(far_moved, 0.0);
+  // Untangled: nothing more to plan.
+  const std::size_t planned = sc.untangle.size();
+  EXPECT_EQ(plan_untangle(sc, model, y, tangled), 0);
+  EXPECT_EQ(sc.untangle.size(), planned);
+}
+
+// The solver started in the tangled state: no crossing in any frame with self-collision, the same
+// frames for 1 and 2 threads. Without untangling (main before it) every frame kept the crossings.
+TEST(SelfCollisionUntangle, SolverStartedTangledEndsEveryFrameWithoutCrossings) {
+  Material m;
+  const ClothModel model = make_model(make_quad_grid(16, 16, 1.0, 1.0), m, {});
+  Environment env;
+  env.gravity = Vec3(0, 0, -9.81);
+  StepInputs inputs;
+  inputs.env = &env;
+  std::vector<Eigen::Matrix3Xd> frames[2];
+  for (int threads : {1, 2}) {
+    auto solver = make_solver(SolverKind::Xpbd, model, xpbd(5.0, threads));
+    ClothState state = rest_state(model);
+    state.x = tangled_u(model.mesh);
+    for (int f = 0; f < 10; ++f) {
+      const StepReport report = solver->step(state, 1.0 / 30.0, inputs);
+      ASSERT_TRUE(report.stable) << report.message;
+      EXPECT_EQ(count_self_intersections(model.mesh, state.x), 0)
+          << "frame " << f << ", " << threads << " thread(s)";
+      frames[threads - 1].push_back(state.x);
+    }
+  }
+  for (size_t f = 0; f < frames[0].size(); ++f)
+    ASSERT_TRUE(frames[0][f] == frames[1][f]) << "frame " << f << " differs";
+}
+
 TEST(SelfCollision, SettingTravelsAsJsonAndOnlyXpbdTakesIt) {
   SolverSettings s = xpbd(4.0);
   const std::string text = solver_settings_json(SolverKind::Xpbd, s);

@@ -1,9 +1,12 @@
 #include "solvers/self_collision.hpp"
 
 #include <algorithm>
+#include <climits>
 #include <cmath>
 #include <stdexcept>
 #include <string>
+
+#include "cloth/self_intersection.hpp"
 
 namespace clothdb {
 
@@ -1028,6 +1031,123 @@ int project_self_collision(SelfCollision& sc, const ClothModel& model, Eigen::Ma
     ++contacts;
   }
   return contacts;
+}
+
+namespace {
+
+int find_root(std::vector<int>& parent, int i) {
+  while (parent[static_cast<std::size_t>(i)] != i) {
+    int& p = parent[static_cast<std::size_t>(i)];
+    p = parent[static_cast<std::size_t>(p)];  // path halving
+    i = p;
+  }
+  return i;
+}
+
+}  // namespace
+
+int plan_untangle(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
+                  const Eigen::Matrix3Xd& x_start) {
+  const ClothMesh& mesh = model.mesh;
+  const double* w = model.inv_mass.data();
+  const std::size_t n = static_cast<std::size_t>(x.cols());
+  const std::vector<std::array<int, 2>> crossings = edge_triangle_crossings(mesh, x);
+  if (crossings.empty()) return 0;
+  // The pieces the crossing edges cut the mesh into (BWK 2003 sec. 4: the intersection contour
+  // bounds a region on each side; the one that went through is the smaller). Union-find over the
+  // edges that cross nothing; a piece with a fixed vertex cannot have gone through.
+  std::vector<char> cut(mesh.edges.size(), 0);
+  for (const auto& c : crossings) cut[static_cast<std::size_t>(c[0])] = 1;
+  std::vector<int> parent(n);
+  for (std::size_t i = 0; i < n; ++i) parent[i] = static_cast<int>(i);
+  for (std::size_t e = 0; e < mesh.edges.size(); ++e) {
+    if (cut[e]) continue;
+    const int ra = find_root(parent, mesh.edges[e][0]), rb = find_root(parent, mesh.edges[e][1]);
+    if (ra != rb) parent[static_cast<std::size_t>(std::max(ra, rb))] = std::min(ra, rb);
+  }
+  std::vector<int> size(n, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    int& s = size[static_cast<std::size_t>(find_root(parent, static_cast<int>(i)))];
+    if (s == INT_MAX) continue;
+    s = w[i] > 0.0 ? s + 1 : INT_MAX;
+  }
+  for (const auto& c : crossings) {
+    const std::array<int, 2>& e = mesh.edges[static_cast<std::size_t>(c[0])];
+    const std::array<int, 3>& t = mesh.triangles[static_cast<std::size_t>(c[1])];
+    const Vec3 nrm = unit_normal(x, t);
+    if (nrm.isZero()) continue;
+    const Vec3 o = x.col(t[0]);
+    const double d0 = (x.col(e[0]) - o).dot(nrm), d1 = (x.col(e[1]) - o).dot(nrm);
+    if (!(d0 * d1 < 0.0)) continue;
+    UntangleConstraint u;
+    u.triangle = c[1];
+    // Both ends on one side of the plane at the step's start: the crossing formed in this step, and
+    // the end that is now on the other side (exactly one is, the edge straddling the plane now)
+    // goes back to the side both had, whether it moved or the triangle did. Otherwise the pieces
+    // decide.
+    const Vec3 n_start = unit_normal(x_start, t), o_start = x_start.col(t[0]);
+    const double s0 = (x_start.col(e[0]) - o_start).dot(n_start);
+    const double s1 = (x_start.col(e[1]) - o_start).dot(n_start);
+    int end = 0;
+    if (s0 * s1 > 0.0 && !n_start.isZero()) {
+      end = s0 * d0 < 0.0 ? 0 : 1;
+      u.side = s0 > 0.0 ? 1.0 : -1.0;
+    } else {
+      const int p0 = size[static_cast<std::size_t>(find_root(parent, e[0]))];
+      const int p1 = size[static_cast<std::size_t>(find_root(parent, e[1]))];
+      end = p0 != p1 ? (p0 < p1 ? 0 : 1) : (std::abs(d0) <= std::abs(d1) ? 0 : 1);
+      u.side = (end == 0 ? d0 : d1) < 0.0 ? 1.0 : -1.0;  // the other end's side
+    }
+    u.vertex = e[static_cast<std::size_t>(end)];
+    // Barycentric coordinates of the point where the edge meets the plane (Ericson 2005 sec.
+    // 3.4), clamped into the triangle.
+    const Vec3 at = x.col(e[0]) + (d0 / (d0 - d1)) * (x.col(e[1]) - x.col(e[0]));
+    const Vec3 e0 = x.col(t[1]) - o, e1 = x.col(t[2]) - o, ep = at - o;
+    const double d00 = e0.dot(e0), d01 = e0.dot(e1), d11 = e1.dot(e1);
+    const double d20 = ep.dot(e0), d21 = ep.dot(e1);
+    const double det = d00 * d11 - d01 * d01;
+    if (!(det > 0.0)) continue;
+    const double b1 = std::max(0.0, (d11 * d20 - d01 * d21) / det);
+    const double b2 = std::max(0.0, (d00 * d21 - d01 * d20) / det);
+    const double b0 = std::max(0.0, 1.0 - b1 - b2), sum = b0 + b1 + b2;
+    u.weight = {b0 / sum, b1 / sum, b2 / sum};
+    u.reach = model.edge_rest_length[static_cast<std::size_t>(c[0])];
+    bool known = false;
+    for (UntangleConstraint& old : sc.untangle)
+      if (old.vertex == u.vertex && old.triangle == u.triangle) old = u, known = true;
+    if (!known) sc.untangle.push_back(u);
+  }
+  return static_cast<int>(crossings.size());
+}
+
+int project_untangle(SelfCollision& sc, const ClothModel& model, Eigen::Matrix3Xd& x) {
+  const double* w = model.inv_mass.data();
+  int projected = 0;
+  for (const UntangleConstraint& u : sc.untangle) {
+    const std::array<int, 3>& t = model.mesh.triangles[static_cast<std::size_t>(u.triangle)];
+    const Vec3 nrm = unit_normal(x, t);
+    if (nrm.isZero()) continue;
+    const double b0 = u.weight[0], b1 = u.weight[1], b2 = u.weight[2];
+    const Vec3 q = b0 * x.col(t[0]) + b1 * x.col(t[1]) + b2 * x.col(t[2]);
+    if ((x.col(u.vertex) - q).squaredNorm() > u.reach * u.reach) continue;
+    // As the vertex-triangle contact (project_self_collision), with the side from the plan.
+    const double c = u.side * (x.col(u.vertex) - q).dot(nrm) - sc.thickness;
+    if (c >= 0.0) continue;
+    const double wv = w[u.vertex], w0 = w[t[0]], w1 = w[t[1]], w2 = w[t[2]];
+    const double denom = wv + w0 * b0 * b0 + w1 * b1 * b1 + w2 * b2 * b2;
+    if (!(denom > 0.0)) continue;
+    const Vec3 step = (-c / denom * u.side) * nrm;
+    const Vec3 moves[4] = {wv * step, -(w0 * b0) * step, -(w1 * b1) * step, -(w2 * b2) * step};
+    const int who[4] = {u.vertex, t[0], t[1], t[2]};
+    for (int k = 0; k < 4; ++k) {
+      x.col(who[k]) += moves[k];
+      // The contacts' motion bounds (SelfCollision::moved) cover this move too.
+      if (static_cast<std::size_t>(who[k]) < sc.moved.size())
+        sc.moved[static_cast<std::size_t>(who[k])] += moves[k].norm();
+    }
+    ++projected;
+  }
+  return projected;
 }
 
 void find_self_collision_pairs(SelfCollision& sc, const ClothModel& model,

@@ -31,7 +31,8 @@
 // "Cost, second round", also for why pairs up to thickness + skin apart at rest must stay listed).
 //
 // Side: each contact is pushed to the side its pair was on at the start of the sub-step, so a
-// pair that went through within one sub-step is put back, not pushed further through.
+// pair that went through within one sub-step is put back, not pushed further through. A crossing
+// the contacts let through anyway is undone by running the step again (untangling, below).
 //
 // Determinism: the build and the projection are serial, in index order (Gauss-Seidel over the
 // contact list), so the result does not depend on the thread count. The rest neighbours left out
@@ -68,6 +69,17 @@ struct PatchBounds {
   double angle;     // cone half-angle (rad) about axis holding every triangle normal; pi if none
 };
 
+// Holds `vertex` to `side` of `triangle`'s plane (plan_untangle, below).
+struct UntangleConstraint {
+  int vertex, triangle;
+  double side;                   // +1 or -1 along the triangle's normal
+  std::array<double, 3> weight;  // barycentric coordinates of where the edge met the triangle
+  // m: the crossing edge's rest length. The constraint holds only while the vertex is that near
+  // the point it crossed at: the triangle's plane says nothing about a vertex that has gone far
+  // from it (held to a plane the whole step, such a vertex was thrown across the twisted skirt).
+  double reach;
+};
+
 struct SelfCollision {
   double thickness = 0.0;  // m
   double skin = 0.0;       // m: how much farther than thickness a listed pair may be at build
@@ -95,6 +107,8 @@ struct SelfCollision {
   // of the passes): a pair whose gap exceeds the sum of its parts' bounds cannot be in contact and
   // is skipped (docs/notebook/self_collision.md, "Fourth round").
   std::vector<double> moved;
+  // Untangling constraints of the step being run again (plan_untangle); empty otherwise.
+  std::vector<UntangleConstraint> untangle;
   long builds = 0;  // how many builds so far (reported by describe / benchmarks)
 };
 
@@ -114,6 +128,35 @@ bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Ei
 // contacts projected.
 int project_self_collision(SelfCollision& sc, const ClothModel& model, Eigen::Matrix3Xd& x,
                            const Eigen::Matrix3Xd& x_start);
+
+// Untangling (Baraff, Witkin & Kass 2003, "Untangling cloth", sec. 3-4): the contacts push each
+// pair to the side it was on at the sub-step's start, so a crossing that one sub-step lets through
+// is kept by every later one (docs/notebook/self_collision.md, "Seventh round"). plan_untangle
+// finds the edge-triangle crossings of x (the crossing metric, cloth/self_intersection.hpp) and,
+// for each, holds the crossing edge's end that went through to its side of the triangle's plane
+// (`untangle`); the solver then runs the step again from its start with those constraints
+// projected after the contacts in every sub-step (project_untangle), so stretch, bending and the
+// strain limit act on the corrected positions. Which end went through, and to which side it goes
+// back: if both ends were on one side of the plane at the step's start (x_start), the crossing
+// formed in this step: the end now on the other side goes back (whether it moved or the triangle
+// did). Otherwise (a crossing older than the step, or an edge that came in over the triangle's
+// border) the crossing edges cut the mesh along the intersection contour, and the end in the
+// smaller piece went through (BWK's rule; a piece holding a fixed vertex counts as the largest) and
+// goes to the other end's side; both ends in one piece (the contour does not close on that side):
+// the end nearer the plane. Serial, in the crossings' order: the same for any thread count.
+//
+// How many times a step that ends with crossings is run again (each adding the constraints for the
+// crossings its end still has).
+constexpr int kUntangleRedos = 3;
+// Appends constraints for the crossings of x to sc.untangle (one per vertex and triangle; a later
+// plan replaces an earlier one's), x_start the positions at the step's start. Returns the number of
+// crossings found (0: nothing appended).
+int plan_untangle(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
+                  const Eigen::Matrix3Xd& x_start);
+// One Gauss-Seidel pass over sc.untangle: C = side (x_v - q) . n - thickness >= 0, q the point of
+// the triangle at `weight`, with inverse-mass weights as the vertex-triangle contacts. Returns the
+// constraints projected.
+int project_untangle(SelfCollision& sc, const ClothModel& model, Eigen::Matrix3Xd& x);
 
 // Every vertex-triangle (triangle, vertex) and edge-edge (first, second edge, first < second) pair
 // nearer than `reach` at positions x, except pairs that share a vertex, pairs of only fixed

@@ -711,6 +711,8 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
           // sub-step's start), docs/notebook/self_collision.md, "Third round".
           for (int pass = 0; pass < 3; ++pass)
             if (project_self_collision(self_, model_, state.x, x_prev) == 0) break;
+          // A step run again to undo crossings: their ends held to their sides (below).
+          if (!self_.untangle.empty()) project_untangle(self_, model_, state.x);
         }
       }
       // Contact rounds (docs/notebook/BENCHMARKS.md, "Contact rounds"): the collision pass above
@@ -749,11 +751,22 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
   // Single-threaded and outside any parallel region, the `omp for`/`omp single` constructs run
   // inline with no barriers (a team of one would still pay a futex system call per barrier). Inside
   // a caller's parallel region they would bind to the caller's team, so open our own team then.
-  if (threads > 1 || omp_in_parallel()) {
+  // A step that ends with the cloth through itself is run again from its start with the crossings'
+  // ends held to their sides, up to kUntangleRedos times (self_collision.hpp, plan_untangle): the
+  // contacts alone keep a crossing once it forms.
+  self_.untangle.clear();
+  for (int redo = 0;; ++redo) {
+    if (threads > 1 || omp_in_parallel()) {
 #pragma omp parallel num_threads(threads)
-    substep_loop();
-  } else {
-    substep_loop();
+      substep_loop();
+    } else {
+      substep_loop();
+    }
+    if (!(self_.thickness > 0.0) || redo == kUntangleRedos ||
+        plan_untangle(self_, model_, state.x, saved.x) == 0)
+      break;
+    state = saved;
+    self_.built_at.resize(3, 0);  // rebuild: the motion bounds do not cover the step's start
   }
 
   StepReport report;
