@@ -383,6 +383,7 @@ DecodeScratch::DecodeScratch(DecodeScratch&& other) noexcept
       v3_lanes_(std::move(other.v3_lanes_)),
       v3_key_(other.v3_key_),
       v3_segment_(other.v3_segment_),
+      v3_segments_(other.v3_segments_),
       v3_valid_(other.v3_valid_),
       frames_reconstructed_(other.frames_reconstructed_) {
   other.v3_valid_ = false;
@@ -401,6 +402,7 @@ DecodeScratch& DecodeScratch::operator=(DecodeScratch&& other) noexcept {
     std::swap(v3_lanes_, other.v3_lanes_);
     std::swap(v3_key_, other.v3_key_);
     std::swap(v3_segment_, other.v3_segment_);
+    std::swap(v3_segments_, other.v3_segments_);
     std::swap(v3_valid_, other.v3_valid_);
     frames_reconstructed_ = other.frames_reconstructed_;
   }
@@ -419,9 +421,10 @@ void DecodeScratch::reserve(uint32_t vertex_count, uint32_t key_interval, uint32
     if (coefficients_.size() < size_t(modes) * key_interval)
       coefficients_.resize(size_t(modes) * key_interval);
     if (body_.size() < size_t(12) * key_interval) body_.resize(size_t(12) * key_interval);
-    // Version 3: one segment of coefficients and residual as integers, and eight frames of the
-    // residual side by side for the spatial pass.
-    if (v3_ints_.size() < (n + modes) * key_interval) v3_ints_.resize((n + modes) * key_interval);
+    // Version 3: two segments of coefficients and residual as integers (decoded in one pass over
+    // the basis), and eight frames of the residual side by side for the spatial pass.
+    if (v3_ints_.size() < 2 * (n + modes) * key_interval)
+      v3_ints_.resize(2 * (n + modes) * key_interval);
     if (v3_lanes_.size() < 8 * n) v3_lanes_.resize(8 * n);
   }
 }

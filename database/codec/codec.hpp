@@ -272,12 +272,14 @@ class DecodeScratch {
   std::vector<float> subspace_;
   std::vector<int32_t> coefficients_;
   std::vector<float> body_;  // version 2: one chunk's body transforms
-  // Version 3: the last segment decoded, as integers (coefficients, then residual), kept while
-  // frames of the same segment of the same blob (header checksum, segment) are decoded again.
+  // Version 3: the last segments decoded (up to two, consecutive: one pass over the basis makes
+  // the frames of both), as integers (the coefficients of both, then their residuals), kept while
+  // frames of the same segments of the same blob (header checksum, segments) are decoded again.
   std::vector<int32_t> v3_ints_;
   std::vector<int32_t> v3_lanes_;  // 8 frames of residual, interleaved, for the spatial pass
   uint64_t v3_key_ = 0;
-  uint32_t v3_segment_ = 0;
+  uint32_t v3_segment_ = 0;   // the first segment held
+  uint32_t v3_segments_ = 0;  // how many are held
   bool v3_valid_ = false;
   uint64_t frames_reconstructed_ = 0;
 };

@@ -56,12 +56,13 @@ constexpr int32_t kMaxInt = (1 << 27) - 1;  // so 2 a - b never overflows int32
 constexpr double kMaxStep = 1e3;
 constexpr uint32_t kMaxSegmentFrames = 4096;
 
-// The decoder's kernels (reconstruct, add_spatial_prediction8) are built for AVX2 as well as the
-// x86-64 baseline, picked at load time (as version 2's predict and the runtime's playback kernels):
-// without FMA (and with -ffp-contract=off) both round every operation alike, and integer code is
-// exact, so the frames are bit-identical whichever runs.
+// The decoder's kernels (reconstruct, add_spatial_prediction8) are built for AVX-512 (x86-64-v4:
+// the mode sum's 16-float vectors one register each) and AVX2 as well as the x86-64 baseline,
+// picked at load time (as version 2's predict and the runtime's playback kernels): without FMA
+// (and with -ffp-contract=off) all round every operation alike, and integer code is exact, so the
+// frames are bit-identical whichever runs.
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define CLOTHDB_V3_MULTIVERSION __attribute__((target_clones("avx2", "default")))
+#define CLOTHDB_V3_MULTIVERSION __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
 #else
 #define CLOTHDB_V3_MULTIVERSION
 #endif
@@ -162,10 +163,12 @@ constexpr uint32_t kFrames = 6;
 constexpr size_t kCoords = 16;
 constexpr size_t kChunkBytes = 128 * 1024;
 
-// Eight floats as one value (GCC and Clang vector extensions): element by element the same IEEE
+// Sixteen floats as one value (GCC and Clang vector extensions): element by element the same IEEE
 // multiply and add as scalar code, but the register block below stays in registers, which the
 // plain loops' auto-vectorised form did not (it shuffled and spilled: 2.7x slower than before).
-typedef float Floats8 __attribute__((vector_size(32)));
+// One register under AVX-512 (whose 512-bit operations the mode sum is bound by on a core that
+// runs them at full width: docs/notebook/codec_v3.md, "Sixth session"), two under AVX2.
+typedef float Floats16 __attribute__((vector_size(64)));
 
 // One register block: frames [0, F) (F <= kFrames) of coordinates [lo, lo + kCoords). w: F x M
 // weights (stride M); u: the modes from coordinate lo (stride n).
@@ -174,21 +177,19 @@ inline __attribute__((always_inline)) void sum_block(const float* __restrict u, 
                                                      uint32_t M, const float* __restrict w,
                                                      const float* __restrict mean,
                                                      float (&out)[kFrames][kCoords]) {
-  static_assert(kCoords == 16, "two Floats8 per frame");
-  Floats8 acc[F][2];
-  for (uint32_t j = 0; j < F; ++j) std::memcpy(acc[j], mean, sizeof acc[j]);
+  static_assert(kCoords == 16, "one Floats16 per frame");
+  Floats16 acc[F];
+  for (uint32_t j = 0; j < F; ++j) std::memcpy(&acc[j], mean, sizeof acc[j]);
   for (uint32_t k = 0; k < M; ++k) {
-    Floats8 u0, u1;
-    std::memcpy(&u0, u + size_t(k) * n, sizeof u0);
-    std::memcpy(&u1, u + size_t(k) * n + 8, sizeof u1);
+    Floats16 uk;
+    std::memcpy(&uk, u + size_t(k) * n, sizeof uk);
     for (uint32_t j = 0; j < F; ++j) {
       const float x = w[size_t(j) * M + k];
-      const Floats8 wj = {x, x, x, x, x, x, x, x};
-      acc[j][0] += wj * u0;
-      acc[j][1] += wj * u1;
+      const Floats16 wj = {x, x, x, x, x, x, x, x, x, x, x, x, x, x, x, x};
+      acc[j] += wj * uk;
     }
   }
-  for (uint32_t j = 0; j < F; ++j) std::memcpy(out[j], acc[j], sizeof acc[j]);
+  for (uint32_t j = 0; j < F; ++j) std::memcpy(out[j], &acc[j], sizeof acc[j]);
 }
 
 // The same sum for `len` (< kCoords) coordinates of one frame: the chunk's last partial block.
@@ -405,18 +406,38 @@ bool add_time_prediction(int32_t* v, uint32_t f, size_t width, const int32_t* sr
 }  // namespace
 
 struct DecoderV3Access {
-  // Decompresses and checks segment s into s.v3_ints_ (coefficients k x M, then the residual
-  // k x 3V), unless the scratch already holds it.
-  static Status load(const uint8_t* blob, const Header& h, uint32_t seg, DecodeScratch& s,
-                     Error* err) {
+  // The scratch holds up to kPass consecutive segments: one pass of the mode sum over the basis
+  // makes the frames of all of them (the basis, 7.7 MB at 10,000 vertices and 64 modes, is read
+  // from memory once per call of reconstruct: docs/notebook/codec_v3.md, "Sixth session"). Slot i
+  // holds frames [i K, i K + k) of the scratch's `held` frames: coefficients at v3_ints_ + i K M,
+  // the residual at v3_ints_ + held M + i K 3V, so the frames of consecutive segments follow one
+  // another. Segments of more than kPairedInts integers are decoded one at a time, so a hostile
+  // header cannot ask for more than one segment's worth (kMaxChunkFloats) as before; 10,000
+  // vertices in segments of 32 frames need 1 M.
+  static constexpr uint32_t kPass = 2;
+  static constexpr size_t kPairedInts = size_t(1) << 24;
+  static uint32_t pass(const Header& h) {
+    return h.S > 1 && size_t(h.K) * h.ints_per_frame() <= kPairedInts ? kPass : 1;
+  }
+  static size_t held(const Header& h) { return h.S > 1 ? size_t(pass(h)) * h.K : h.F; }
+
+  // Where slot i's coefficients and residual go.
+  static int32_t* coefficients(DecodeScratch& s, const Header& h, uint32_t i) {
+    return s.v3_ints_.data() + size_t(i) * h.K * h.modes;
+  }
+  static int32_t* residual(DecodeScratch& s, const Header& h, uint32_t i) {
+    return s.v3_ints_.data() + held(h) * h.modes + size_t(i) * h.K * h.V * 3;
+  }
+
+  // Decompresses and checks segment seg into slot i of the scratch (coefficients k x M, residual
+  // k x 3V). The caller marks what the scratch holds.
+  static Status load(const uint8_t* blob, const Header& h, uint32_t seg, uint32_t slot,
+                     DecodeScratch& s, Error* err) {
     const uint8_t* entry = blob + kHeaderSize + size_t(seg) * kEntrySize;
     const uint32_t csize = get_u32(entry + 8), raw = get_u32(entry + 12);
     const uint8_t* src = blob + segment_offset(blob, h, seg);
-    const uint64_t key = get_u64(blob + kChecksumOffset);
-    if (s.v3_valid_ && s.v3_key_ == key && s.v3_segment_ == seg) return Status::Ok;
     if (xxh64(src, csize) != get_u64(entry))
       return fail(err, Status::ChecksumMismatch, "frame blob segment %u checksum mismatch", seg);
-    s.v3_valid_ = false;
     const unsigned long long declared = ZSTD_getFrameContentSize(src, csize);
     if (declared != raw)
       return fail(err, Status::Corrupt,
@@ -431,10 +452,12 @@ struct DecoderV3Access {
     if (got != raw)
       return fail(err, Status::Corrupt, "frame blob segment %u: %zu bytes decompressed of %u", seg,
                   got, raw);
+    // Room for pass(h) segments (once for the largest blob: decoding allocates nothing after).
+    const size_t ints = held(h) * h.ints_per_frame();
+    if (s.v3_ints_.size() < ints) s.v3_ints_.resize(ints);
     const uint32_t k = h.frames_in(seg);
     const size_t N = raw / 4;
-    if (s.v3_ints_.size() < N) s.v3_ints_.resize(N);
-    int32_t* v = s.v3_ints_.data();
+    int32_t* v = coefficients(s, h, slot);
     const uint8_t* b = s.bytes_.data();
     // Two parts, each in 4 byte planes: the coefficients (k x M), then the residual (k x 3V).
     const size_t Nc = size_t(k) * h.modes, n = N - Nc;
@@ -447,7 +470,7 @@ struct DecoderV3Access {
       // Eight frames at a time: unpacked, their spatial passes side by side in eight lanes
       // (add_spatial_prediction8), then each frame's time pass (from the two frames before it).
       const size_t width = size_t(h.V) * 3;
-      int32_t* r = v + Nc;
+      int32_t* r = residual(s, h, slot);
       if (s.v3_lanes_.size() < 8 * width) s.v3_lanes_.resize(8 * width);
       int32_t* lanes = s.v3_lanes_.data();
       for (uint32_t f0 = 0; f0 < k; f0 += 8) {
@@ -464,9 +487,6 @@ struct DecoderV3Access {
             return fail(err, Status::Corrupt, "frame blob segment %u: residual out of range", seg);
       }
     }
-    s.v3_key_ = key;
-    s.v3_segment_ = seg;
-    s.v3_valid_ = true;
     return Status::Ok;
   }
 
@@ -490,11 +510,10 @@ struct DecoderV3Access {
                   "%u modes)",
                   h.V, h.modes, (long long)basis->id, basis->vertex_count, basis->mode_count);
     if (count == 0 && out != nullptr) return Status::Ok;
-    if (out == nullptr) {  // verify: every segment, no output
-      for (uint32_t seg = 0; seg < h.S; ++seg) {
-        s.v3_valid_ = false;  // verify checks the bytes even when a segment is cached
-        if (Status st = load(blob, h, seg, s, err); st != Status::Ok) return st;
-      }
+    if (out == nullptr) {   // verify: every segment, no output
+      s.v3_valid_ = false;  // verify checks the bytes even when a segment is cached
+      for (uint32_t seg = 0; seg < h.S; ++seg)
+        if (Status st = load(blob, h, seg, 0, s, err); st != Status::Ok) return st;
       return Status::Ok;
     }
     if (first >= h.F || count > h.F - first)
@@ -503,13 +522,26 @@ struct DecoderV3Access {
     if (out_floats < size_t(count) * n)
       return fail(err, Status::OutputTooSmall, "output holds %zu floats, %u frames need %zu",
                   out_floats, count, size_t(count) * n);
-    for (uint32_t f = first; f < first + count;) {
-      const uint32_t seg = f / h.K, k = h.frames_in(seg), at = f - seg * h.K;
-      const uint32_t take = std::min(first + count - f, k - at);
-      if (Status st = load(blob, h, seg, s, err); st != Status::Ok) return st;
-      const int32_t* q = s.v3_ints_.data();
-      const int32_t* Q = h.residual() ? q + size_t(k) * h.modes + size_t(at) * n : nullptr;
-      reconstruct(*basis, h.modes, q + size_t(at) * h.modes, h.cstep, Q, h.rstep, take,
+    const uint64_t key = get_u64(blob + kChecksumOffset);
+    const uint32_t end = first + count;
+    for (uint32_t f = first; f < end;) {
+      // Segments seg..last (at most kPass) hold the next frames asked for; each but the blob's
+      // last has K frames, so their frames follow one another in the scratch.
+      const uint32_t seg = f / h.K, last = std::min((end - 1) / h.K, seg + pass(h) - 1);
+      if (!(s.v3_valid_ && s.v3_key_ == key && s.v3_segment_ <= seg &&
+            last < s.v3_segment_ + s.v3_segments_)) {
+        s.v3_valid_ = false;
+        for (uint32_t i = 0; i <= last - seg; ++i)
+          if (Status st = load(blob, h, seg + i, i, s, err); st != Status::Ok) return st;
+        s.v3_key_ = key;
+        s.v3_segment_ = seg;
+        s.v3_segments_ = last - seg + 1;
+        s.v3_valid_ = true;
+      }
+      const uint32_t take = std::min(end, last * h.K + h.frames_in(last)) - f;
+      const size_t row = size_t(f) - size_t(s.v3_segment_) * h.K;  // the scratch's frame
+      const int32_t* Q = h.residual() ? residual(s, h, 0) + row * n : nullptr;
+      reconstruct(*basis, h.modes, coefficients(s, h, 0) + row * h.modes, h.cstep, Q, h.rstep, take,
                   out + size_t(f - first) * n, n);
       s.frames_reconstructed_ += take;
       f += take;
