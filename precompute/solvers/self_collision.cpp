@@ -92,6 +92,38 @@ Vec3 unit_normal(const Eigen::Matrix3Xd& x, const std::array<int, 3>& t) {
   return len > 0.0 ? Vec3(n / len) : Vec3::Zero();
 }
 
+// Barycentric coordinates b1, b2 (b0 = 1 - b1 - b2) of the point a + ep in the plane of the
+// triangle (a, a + e0, a + e1) (Ericson 2005 sec. 3.4); false for a degenerate triangle.
+bool barycentric(const Vec3& e0, const Vec3& e1, const Vec3& ep, double& b1, double& b2) {
+  const double d00 = e0.dot(e0), d01 = e0.dot(e1), d11 = e1.dot(e1);
+  const double d20 = ep.dot(e0), d21 = ep.dot(e1);
+  const double det = d00 * d11 - d01 * d01;
+  if (!(det > 0.0)) return false;
+  b1 = (d11 * d20 - d01 * d21) / det;
+  b2 = (d00 * d21 - d01 * d20) / det;
+  return true;
+}
+
+// One vertex-triangle PBD step (Mueller 2007 eq. 4-5) for C = sigma (x_v - q) . n - h < 0, q =
+// sum b_k x_k: gradients sigma n for v and -sigma b_k n for the corners (the normal's own
+// derivative left out, as usual for contacts). `moved` (the contacts' motion bounds; null before
+// the first refresh) grows by each vertex's move. False when nothing can move.
+bool push_vertex_off_triangle(Eigen::Matrix3Xd& x, const double* w, double* moved, int v,
+                              const std::array<int, 3>& t, double b0, double b1, double b2,
+                              const Vec3& n, double sigma, double c) {
+  const double wv = w[v], w0 = w[t[0]], w1 = w[t[1]], w2 = w[t[2]];
+  const double denom = wv + w0 * b0 * b0 + w1 * b1 * b1 + w2 * b2 * b2;
+  if (!(denom > 0.0)) return false;
+  const Vec3 step = (-c / denom * sigma) * n;
+  const Vec3 moves[4] = {wv * step, -(w0 * b0) * step, -(w1 * b1) * step, -(w2 * b2) * step};
+  const int who[4] = {v, t[0], t[1], t[2]};
+  for (int k = 0; k < 4; ++k) {
+    x.col(who[k]) += moves[k];
+    if (moved) moved[who[k]] += moves[k].norm();
+  }
+  return true;
+}
+
 // Largest float not above d, and smallest not below it (gaps and boxes must not overstate a
 // distance).
 float float_below(double d) {
@@ -964,23 +996,11 @@ int project_self_collision(SelfCollision& sc, const ClothModel& model, Eigen::Ma
     if (c >= 0.0 || n.isZero()) continue;
     // Barycentric coordinates of the projection (Ericson 2005 sec. 3.4); only a vertex over the
     // triangle's interior touches its face (the edges' own pairs take the rest).
-    const Vec3 e0 = x.col(t[1]) - a, e1 = x.col(t[2]) - a, ep = x.col(v) - dist * n - a;
-    const double d00 = e0.dot(e0), d01 = e0.dot(e1), d11 = e1.dot(e1);
-    const double d20 = ep.dot(e0), d21 = ep.dot(e1);
-    const double det = d00 * d11 - d01 * d01;
-    if (!(det > 0.0)) continue;
-    const double b1 = (d11 * d20 - d01 * d21) / det, b2 = (d00 * d21 - d01 * d20) / det;
+    double b1 = 0.0, b2 = 0.0;
+    if (!barycentric(x.col(t[1]) - a, x.col(t[2]) - a, x.col(v) - dist * n - a, b1, b2)) continue;
     const double b0 = 1.0 - b1 - b2;
     if (b0 < 0.0 || b1 < 0.0 || b2 < 0.0) continue;
-    const double wv = w[v], w0 = w[t[0]], w1 = w[t[1]], w2 = w[t[2]];
-    const double denom = wv + w0 * b0 * b0 + w1 * b1 * b1 + w2 * b2 * b2;
-    if (!(denom > 0.0)) continue;
-    const Vec3 step = (-c / denom * sigma) * n;
-    move(v, wv * step);
-    move(t[0], -(w0 * b0) * step);
-    move(t[1], -(w1 * b1) * step);
-    move(t[2], -(w2 * b2) * step);
-    ++contacts;
+    if (push_vertex_off_triangle(x, w, moved, v, t, b0, b1, b2, n, sigma, c)) ++contacts;
   }
   // Edge-edge: C = (P - Q) . n - h >= 0 with P, Q the closest points, n their unit direction, or,
   // when the interior closest points have swapped sides since the sub-step's start (the edges
@@ -1102,13 +1122,10 @@ int plan_untangle(SelfCollision& sc, const ClothModel& model, const Eigen::Matri
     // Barycentric coordinates of the point where the edge meets the plane (Ericson 2005 sec.
     // 3.4), clamped into the triangle.
     const Vec3 at = x.col(e[0]) + (d0 / (d0 - d1)) * (x.col(e[1]) - x.col(e[0]));
-    const Vec3 e0 = x.col(t[1]) - o, e1 = x.col(t[2]) - o, ep = at - o;
-    const double d00 = e0.dot(e0), d01 = e0.dot(e1), d11 = e1.dot(e1);
-    const double d20 = ep.dot(e0), d21 = ep.dot(e1);
-    const double det = d00 * d11 - d01 * d01;
-    if (!(det > 0.0)) continue;
-    const double b1 = std::max(0.0, (d11 * d20 - d01 * d21) / det);
-    const double b2 = std::max(0.0, (d00 * d21 - d01 * d20) / det);
+    double b1 = 0.0, b2 = 0.0;
+    if (!barycentric(x.col(t[1]) - o, x.col(t[2]) - o, at - o, b1, b2)) continue;
+    b1 = std::max(0.0, b1);
+    b2 = std::max(0.0, b2);
     const double b0 = std::max(0.0, 1.0 - b1 - b2), sum = b0 + b1 + b2;
     u.weight = {b0 / sum, b1 / sum, b2 / sum};
     u.reach = model.edge_rest_length[static_cast<std::size_t>(c[0])];
@@ -1133,19 +1150,9 @@ int project_untangle(SelfCollision& sc, const ClothModel& model, Eigen::Matrix3X
     // As the vertex-triangle contact (project_self_collision), with the side from the plan.
     const double c = u.side * (x.col(u.vertex) - q).dot(nrm) - sc.thickness;
     if (c >= 0.0) continue;
-    const double wv = w[u.vertex], w0 = w[t[0]], w1 = w[t[1]], w2 = w[t[2]];
-    const double denom = wv + w0 * b0 * b0 + w1 * b1 * b1 + w2 * b2 * b2;
-    if (!(denom > 0.0)) continue;
-    const Vec3 step = (-c / denom * u.side) * nrm;
-    const Vec3 moves[4] = {wv * step, -(w0 * b0) * step, -(w1 * b1) * step, -(w2 * b2) * step};
-    const int who[4] = {u.vertex, t[0], t[1], t[2]};
-    for (int k = 0; k < 4; ++k) {
-      x.col(who[k]) += moves[k];
-      // The contacts' motion bounds (SelfCollision::moved) cover this move too.
-      if (static_cast<std::size_t>(who[k]) < sc.moved.size())
-        sc.moved[static_cast<std::size_t>(who[k])] += moves[k].norm();
-    }
-    ++projected;
+    // The contacts' motion bounds (SelfCollision::moved) cover this move too.
+    double* moved = sc.moved.size() == std::size_t(x.cols()) ? sc.moved.data() : nullptr;
+    if (push_vertex_off_triangle(x, w, moved, u.vertex, t, b0, b1, b2, nrm, u.side, c)) ++projected;
   }
   return projected;
 }
