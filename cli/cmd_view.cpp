@@ -661,6 +661,20 @@ void serve_file(const fs::path& root, const std::string& rel, httplib::Response&
   reply(res, text.str(), content_type(p));
 }
 
+// The page's module, relative to the page's folder: dist/viewer.js (viewer.js with the parts of
+// three.js it uses, bundled and minified by esbuild: scripts/setup.sh) while it is at least as new
+// as viewer.js; else viewer.js itself, which imports three.js through index.html's import map. The
+// bundle is about a quarter of three.js's bytes, which the browser compiles before anything is
+// drawn: about 0.2 s of a page load here (docs/notebook/viewer.md). Checked at every request, so
+// an edited viewer.js is served as it is until the bundle is made again.
+std::string page_module(const fs::path& assets) {
+  std::error_code ec;
+  const auto bundle = fs::last_write_time(assets / "dist" / "viewer.js", ec);
+  if (ec) return "viewer.js";
+  const auto source = fs::last_write_time(assets / "viewer.js", ec);
+  return !ec && bundle >= source ? "dist/viewer.js" : "viewer.js";
+}
+
 std::string missing_three_page() {
   return "<!doctype html><meta charset=utf-8><title>clothdb view: three.js is missing</title>"
          "<h1>three.js is missing</h1><p id=error>The viewer draws with three.js, installed from "
@@ -747,9 +761,11 @@ void add_routes(httplib::Server& svr, Viewer& v) {
             }
             serve_file(v.assets, "index.html", res);
           }));
-  svr.Get(R"(/(viewer\.js|viewer\.css))",
-          guarded([&v](const httplib::Request& req, httplib::Response& res) {
-            serve_file(v.assets, req.matches[1].str(), res);
+  svr.Get("/viewer.js", guarded([&v](const httplib::Request&, httplib::Response& res) {
+            serve_file(v.assets, page_module(v.assets), res);
+          }));
+  svr.Get("/viewer.css", guarded([&v](const httplib::Request&, httplib::Response& res) {
+            serve_file(v.assets, "viewer.css", res);
           }));
   svr.Get(R"(/three/(.*))", guarded([&v](const httplib::Request& req, httplib::Response& res) {
             serve_file(v.three_root, req.matches[1].str(), res);
@@ -849,6 +865,11 @@ void run_view(const ViewArgs& a) {
     std::fprintf(stderr,
                  "view: three.js is missing in %s/node_modules (run scripts/setup.sh); the page "
                  "says so\n",
+                 v.assets.string().c_str());
+  if (page_module(v.assets) == "viewer.js")
+    std::fprintf(stderr,
+                 "view: %s/dist/viewer.js is missing or older than viewer.js: serving viewer.js "
+                 "unbundled, which loads slower (scripts/setup.sh bundles it)\n",
                  v.assets.string().c_str());
 
   // One request per connection (cpp-httplib answers with "Connection: close"). Between two

@@ -7,6 +7,7 @@
 //
 //   node viewer/bench.mjs CLOTHDB DB [--seconds 10] [--width 1280] [--height 720] [--png FILE]
 //                         [--batch N (frames per request; the page's default 8)] [--paused]
+//                         [--assets DIR (another page folder, e.g. a copy of viewer/ to compare)]
 //   node viewer/bench.mjs CLOTHDB DB --no-browser [--batch N] [--wait MS] [--frames 1200]
 // The second form measures the server alone: one client asking for the frames the way the page
 // does (N per request, each held MS ms; one connection per request, as the server closes each),
@@ -24,7 +25,8 @@ const width = Number(opt('width', 1280)), height = Number(opt('height', 720));
 const png = opt('png', '');
 const batch = opt('batch', '');
 
-const viewer = await startViewer(clothdb, db);
+const assets = opt('assets', '');
+const viewer = await startViewer(clothdb, db, assets ? ['--assets', assets] : []);
 if (args.includes('--no-browser')) {
   const n = Number(batch || 8), wait = Number(opt('wait', 0)), frames = Number(opt('frames', 1200));
   const stats = async () => (await fetch(viewer.url + 'api/stats')).json();

@@ -400,6 +400,7 @@ function animate(t) {
   ++state.framesDrawn;
   if (state.loadMs === null) {
     state.loadMs = performance.now();
+    renderer.domElement.style.visibility = 'visible';  // index.html: hidden until now
     loadClips();  // after the first cloth frame: the table is not needed to see the cloth
   }
   if (!secondStart) {

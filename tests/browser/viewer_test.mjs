@@ -67,6 +67,38 @@ for (const [bad, make] of [[path.join(work, 'missing.clothdb'), null],
   check(await stopViewer(v) === 0, 'SIGINT stops the server with exit 0');
 }
 
+// 2b. The page's module: the bundle (dist/viewer.js) while it is at least as new as viewer.js, else
+// viewer.js itself (cli/cmd_view.cpp, page_module), so an edited page is never hidden by an old
+// bundle.
+{
+  const page = path.join(work, 'bundle_assets');
+  fs.mkdirSync(path.join(page, 'dist'), {recursive: true});
+  for (const f of ['index.html', 'viewer.js', 'viewer.css'])
+    fs.copyFileSync(path.join(viewerDir, f), path.join(page, f));
+  const bundle = '// a bundle made after viewer.js\n';
+  fs.writeFileSync(path.join(page, 'dist', 'viewer.js'), bundle);
+  const at = (f, s) => fs.utimesSync(path.join(page, f), s, s);
+  at('viewer.js', 1000);
+  at('dist/viewer.js', 2000);
+  const v = await startViewer(clothdb, db, ['--assets', page]);
+  try {
+    let text = await (await fetch(v.url + 'viewer.js')).text();
+    check(text === bundle, 'GET /viewer.js is dist/viewer.js when it is newer than viewer.js');
+    at('viewer.js', 3000);
+    text = await (await fetch(v.url + 'viewer.js')).text();
+    check(text.includes("from 'three'") && text !== bundle,
+          'GET /viewer.js is viewer.js itself once viewer.js is newer than the bundle');
+  } finally {
+    check(await stopViewer(v) === 0, 'SIGINT stops the server with exit 0');
+  }
+  const stale = await startViewer(clothdb, db, ['--assets', page]);
+  await stopViewer(stale);
+  // 'exit' can come before the last of stderr is read.
+  await new Promise((r) => stale.proc.stderr.closed ? r() : stale.proc.stderr.on('close', r));
+  check(stale.stderr().includes('dist/viewer.js is missing or older than viewer.js'),
+        `a server started with an old bundle says it serves viewer.js unbundled: ${stale.stderr()}`);
+}
+
 // 6. Bad requests: 4xx, nothing outside the served folders, and the server answers afterwards.
 async function badRequests(viewer) {
   const secret = fs.readFileSync(path.join(viewerDir, 'package.json'), 'utf8').slice(0, 40);
