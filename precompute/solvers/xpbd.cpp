@@ -26,7 +26,6 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
-#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <numbers>
@@ -136,16 +135,6 @@ class XpbdSolver final : public Solver {
     build_constraints();
     if (settings.tethers) build_tethers();
     build_vertex_edges();
-    if (const char* e = std::getenv("CLOTHDB_PROBE_MG"); e != nullptr && std::atoi(e) > 0) {
-      if (const char* p = std::getenv("CLOTHDB_PROBE_MG_PASSES")) mg_passes_ = std::atoi(p);
-      mg_relax_ = settings.strain_limit_relaxation;
-      if (const char* r = std::getenv("CLOTHDB_PROBE_MG_RELAX")) mg_relax_ = std::atof(r);
-      if (const char* c = std::getenv("CLOTHDB_PROBE_MG_CYCLE")) mg_cycle_ = std::atoi(c);
-      mg_path_ = std::getenv("CLOTHDB_PROBE_MG_PATH") != nullptr;
-      build_multigrid(std::atoi(e));
-      mg_galerkin_ = std::getenv("CLOTHDB_PROBE_MG_GALERKIN") != nullptr;
-      if (mg_galerkin_) build_supports();
-    }
     if (settings.self_collision_thickness_mm > 0.0)
       self_ = make_self_collision(model_, settings.self_collision_thickness_mm * 1e-3);
   }
@@ -250,49 +239,6 @@ class XpbdSolver final : public Solver {
   std::vector<double> tether_length_;
   void build_tethers();
   void build_vertex_edges();
-  // Hierarchical strain limit (Mueller 2008, "Hierarchical Position Based Dynamics"): level k+1
-  // of mg_ holds V_k+1, a maximal independent set of V_k's graph (V_0: every vertex, linked by the
-  // mesh edges), its links (two vertices of V_k+1 with a common neighbour in V_k) with the rest
-  // length of that two-link path, and the prolongation onto V_k \ V_k+1 (each such vertex moves
-  // by the inverse-rest-distance weighted mean of its neighbours' moves in V_k+1).
-  struct MultigridLevel {
-    std::vector<int> vertices;
-    std::vector<std::array<int, 2>> edges;
-    std::vector<double> rest;
-    // The two links of the finer level (fine: stretch constraints) the path runs along, and the
-    // path's current length and bend slack (path length minus chord) at the correction's start.
-    std::vector<std::array<int, 2>> children;
-    std::vector<double> path, slack;
-    std::vector<int> targets, source_begin, sources;
-    std::vector<double> weights;
-  };
-  std::vector<MultigridLevel> mg_;
-  std::vector<double> mg_fine_length_;
-  bool mg_path_ = false;
-  // Galerkin variant: per level, each coarse vertex's composite prolongation onto the fine
-  // vertices (its basis function phi, free vertices only), CSR over the level's vertices.
-  struct Support {
-    std::vector<int> begin, vertex;
-    std::vector<double> phi;
-  };
-  std::vector<Support> mg_support_;
-  std::vector<double> mg_phi_;
-  std::vector<unsigned char> mg_active_;
-  bool mg_galerkin_ = false;
-  void build_supports();
-  bool galerkin_correct(Eigen::Matrix3Xd& x, double max_stretch);
-  Eigen::Matrix3Xd mg_start_;
-  std::vector<int> mg_moved_list_;
-  int mg_passes_ = 4;
-  double mg_relax_ = 1.0;
-  int mg_cycle_ = 0;
-  int mg_moved_ = 0;
-  void build_multigrid(int levels);
-  // Coarsest level first: passes of the unilateral coarse limits, each level's moves prolongated
-  // onto the next finer one. Serial. Returns whether it moved a vertex; the moved free vertices
-  // are appended to mg_moved_list_.
-  bool multigrid_correct(Eigen::Matrix3Xd& x, double max_stretch);
-  void trace_strain(const Eigen::Matrix3Xd& x, double max_stretch, int pass) const;
   // Cloth self-collision (solvers/self_collision.hpp); thickness 0 when off.
   SelfCollision self_;
 };
@@ -360,326 +306,6 @@ void XpbdSolver::build_tethers() {
     tether_anchor_.push_back(anchor[static_cast<std::size_t>(i)]);
     tether_length_.push_back(distance[static_cast<std::size_t>(i)]);
   }
-}
-
-void XpbdSolver::build_multigrid(int levels) {
-  const int n = model_.vertex_count();
-  const double* w = model_.inv_mass.data();
-  // Per vertex: (neighbour, rest length of the path, index of the link on this level).
-  struct Link {
-    int to;
-    double rest;
-    int index;
-    int child0, child1;
-  };
-  using Links = std::vector<std::vector<Link>>;
-  Links adj(static_cast<std::size_t>(n));
-  for (std::size_t c = 0; c < stretch_.vertices.size(); ++c) {
-    const int i = stretch_.vertices[c][0], j = stretch_.vertices[c][1];
-    adj[static_cast<std::size_t>(i)].push_back({j, stretch_.rest[c], static_cast<int>(c), -1, -1});
-    adj[static_cast<std::size_t>(j)].push_back({i, stretch_.rest[c], static_cast<int>(c), -1, -1});
-  }
-  std::vector<int> current(static_cast<std::size_t>(n));
-  for (int i = 0; i < n; ++i) current[static_cast<std::size_t>(i)] = i;
-  std::vector<unsigned char> state(static_cast<std::size_t>(n), 0);
-  const bool free_sources = std::getenv("CLOTHDB_PROBE_MG_FREESRC") != nullptr;
-  for (int level = 0; level < levels; ++level) {
-    // Maximal independent set, pins first (they anchor the coarse levels), then by index.
-    for (int v : current) state[static_cast<std::size_t>(v)] = 0;
-    std::vector<int> order;
-    const bool pins_first = std::getenv("CLOTHDB_PROBE_MG_INDEX") == nullptr;
-    for (int v : current)
-      if (w[v] <= 0.0 && pins_first) order.push_back(v);
-    for (int v : current)
-      if (w[v] > 0.0 || !pins_first) order.push_back(v);
-    for (int v : order) {
-      if (state[static_cast<std::size_t>(v)] != 0) continue;
-      state[static_cast<std::size_t>(v)] = 1;
-      for (const Link& l : adj[static_cast<std::size_t>(v)])
-        if (state[static_cast<std::size_t>(l.to)] == 0) state[static_cast<std::size_t>(l.to)] = 2;
-    }
-    std::vector<int> coarse;
-    for (int v : current)
-      if (state[static_cast<std::size_t>(v)] == 1) coarse.push_back(v);
-    if (coarse.size() < 2 || coarse.size() == current.size()) break;
-    Links cadj(static_cast<std::size_t>(n));
-    // Keeps the shortest rest path between a and b (through one vertex of the finer level).
-    auto link = [&](int a, int b, double r, int c0, int c1) {
-      auto& list = cadj[static_cast<std::size_t>(a)];
-      for (Link& l : list) {
-        if (l.to == b) {
-          if (r < l.rest) l = {b, r, -1, c0, c1};
-          return;
-        }
-      }
-      list.push_back({b, r, -1, c0, c1});
-    };
-    MultigridLevel lv;
-    lv.vertices = coarse;
-    lv.source_begin.push_back(0);
-    for (int c : current) {
-      if (state[static_cast<std::size_t>(c)] != 2) continue;
-      const auto& nb = adj[static_cast<std::size_t>(c)];
-      double total = 0.0;
-      for (const Link& la : nb) {
-        if (state[static_cast<std::size_t>(la.to)] != 1) continue;
-        for (const Link& lb : nb) {
-          if (state[static_cast<std::size_t>(lb.to)] != 1 || lb.to == la.to) continue;
-          link(la.to, lb.to, la.rest + lb.rest, la.index, lb.index);
-        }
-        if (w[c] > 0.0 && (w[la.to] > 0.0 || !free_sources)) total += 1.0 / la.rest;
-      }
-      if (w[c] <= 0.0 || total <= 0.0) continue;
-      lv.targets.push_back(c);
-      for (const Link& la : nb) {
-        if (state[static_cast<std::size_t>(la.to)] != 1) continue;
-        if (free_sources && w[la.to] <= 0.0) continue;
-        lv.sources.push_back(la.to);
-        lv.weights.push_back((1.0 / la.rest) / total);
-      }
-      lv.source_begin.push_back(static_cast<int>(lv.sources.size()));
-    }
-    for (int a : coarse) {
-      auto& list = cadj[static_cast<std::size_t>(a)];
-      std::sort(list.begin(), list.end(), [](const Link& p, const Link& q) { return p.to < q.to; });
-      for (Link& l : list) {
-        if (a > l.to) continue;
-        l.index = static_cast<int>(lv.edges.size());
-        lv.edges.push_back({a, l.to});
-        lv.rest.push_back(l.rest);
-        lv.children.push_back({l.child0, l.child1});
-        for (Link& back : cadj[static_cast<std::size_t>(l.to)])
-          if (back.to == a) back.index = l.index;
-      }
-    }
-    lv.path.assign(lv.edges.size(), 0.0);
-    lv.slack.assign(lv.edges.size(), 0.0);
-    if (std::getenv("CLOTHDB_PROBE_MG_DEBUG"))
-      std::fprintf(stderr, "mg level %d: %zu vertices, %zu links, %zu targets (of %zu)\n",
-                   level + 1, coarse.size(), lv.edges.size(), lv.targets.size(), current.size());
-    mg_.push_back(std::move(lv));
-    adj = std::move(cadj);
-    current = std::move(coarse);
-  }
-  if (!mg_.empty()) mg_start_.resize(3, n);
-  mg_fine_length_.assign(stretch_.vertices.size(), 0.0);
-}
-
-bool shorten_edge(Eigen::Matrix3Xd& x, const double* w, int i, int j, double limit, double floor,
-                  double relax);
-
-void XpbdSolver::build_supports() {
-  const int n = model_.vertex_count();
-  const double* w = model_.inv_mass.data();
-  // Reverse prolongation per level: source -> (target, weight).
-  std::vector<std::vector<std::vector<std::pair<int, double>>>> down(mg_.size());
-  for (std::size_t k = 0; k < mg_.size(); ++k) {
-    down[k].assign(static_cast<std::size_t>(n), {});
-    const MultigridLevel& lv = mg_[k];
-    for (std::size_t t = 0; t < lv.targets.size(); ++t)
-      for (int q = lv.source_begin[t]; q < lv.source_begin[t + 1]; ++q)
-        down[k][static_cast<std::size_t>(lv.sources[static_cast<std::size_t>(q)])].push_back(
-            {lv.targets[t], lv.weights[static_cast<std::size_t>(q)]});
-  }
-  std::vector<double> phi(static_cast<std::size_t>(n), 0.0);
-  std::vector<int> list;
-  mg_support_.resize(mg_.size());
-  for (std::size_t k = 0; k < mg_.size(); ++k) {
-    Support& sup = mg_support_[k];
-    sup.begin.push_back(0);
-    for (int a : mg_[k].vertices) {
-      list.assign(1, a);
-      phi[static_cast<std::size_t>(a)] = 1.0;
-      // Down through levels k, k-1, ..., 0: a vertex of V_j+1 keeps its weight on V_j, and each
-      // target of level j gets its sources' weighted sum.
-      for (std::size_t j = k + 1; j-- > 0;) {
-        const std::size_t count = list.size();
-        for (std::size_t m = 0; m < count; ++m) {
-          const int s = list[m];
-          for (const auto& [t, wt] : down[j][static_cast<std::size_t>(s)]) {
-            if (phi[static_cast<std::size_t>(t)] == 0.0) list.push_back(t);
-            phi[static_cast<std::size_t>(t)] += wt * phi[static_cast<std::size_t>(s)];
-          }
-        }
-      }
-      for (int v : list) {
-        if (w[v] > 0.0 && phi[static_cast<std::size_t>(v)] > 0.0) {
-          sup.vertex.push_back(v);
-          sup.phi.push_back(phi[static_cast<std::size_t>(v)]);
-        }
-        phi[static_cast<std::size_t>(v)] = 0.0;
-      }
-      sup.begin.push_back(static_cast<int>(sup.vertex.size()));
-    }
-    if (std::getenv("CLOTHDB_PROBE_MG_DEBUG"))
-      std::fprintf(stderr, "mg level %zu: supports %zu entries\n", k + 1, sup.vertex.size());
-  }
-  mg_phi_.assign(static_cast<std::size_t>(n), 0.0);
-  mg_active_.assign(static_cast<std::size_t>(n), 0);
-}
-
-// One Gauss-Newton step per coarse vertex on the strain limit's penalty 1/2 sum max(0, r_e)^2
-// over the fine edges, r_e = |x_i - x_j| - limit_e, with the coarse vertex's move dy spread to
-// the fine vertices by its basis function phi (x_i += phi_i dy): the coarse step sees the fine
-// edges' excess (not a coarse chord) and moves the whole neighbourhood smoothly.
-bool XpbdSolver::galerkin_correct(Eigen::Matrix3Xd& x, double max_stretch) {
-  const std::size_t edges = stretch_.vertices.size();
-  bool any_active = false;
-  for (std::size_t c = 0; c < edges; ++c) {
-    const int i = stretch_.vertices[c][0], j = stretch_.vertices[c][1];
-    const double limit = max_stretch * stretch_.rest[c];
-    if ((x.col(i) - x.col(j)).squaredNorm() > limit * limit * (1.0 + 1e-9)) {
-      mg_active_[static_cast<std::size_t>(i)] = mg_active_[static_cast<std::size_t>(j)] = 1;
-      any_active = true;
-    }
-  }
-  if (!any_active) return false;
-  bool moved = false;
-  for (std::size_t k = mg_.size(); k-- > 0;) {
-    const Support& sup = mg_support_[k];
-    for (std::size_t a = 0; a + 1 < sup.begin.size(); ++a) {
-      const int b0 = sup.begin[a], b1 = sup.begin[a + 1];
-      bool touches = false;
-      for (int q = b0; q < b1 && !touches; ++q)
-        touches =
-            mg_active_[static_cast<std::size_t>(sup.vertex[static_cast<std::size_t>(q)])] != 0;
-      if (!touches) continue;
-      for (int q = b0; q < b1; ++q)
-        mg_phi_[static_cast<std::size_t>(sup.vertex[static_cast<std::size_t>(q)])] =
-            sup.phi[static_cast<std::size_t>(q)];
-      Vec3 g = Vec3::Zero();
-      Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
-      double r_max = 0.0;
-      for (int q = b0; q < b1; ++q) {
-        const int i = sup.vertex[static_cast<std::size_t>(q)];
-        const double pi = mg_phi_[static_cast<std::size_t>(i)];
-        for (int m = vertex_edge_begin_[static_cast<std::size_t>(i)];
-             m < vertex_edge_begin_[static_cast<std::size_t>(i) + 1]; ++m) {
-          const std::size_t c =
-              static_cast<std::size_t>(vertex_edges_[static_cast<std::size_t>(m)]);
-          const int j =
-              stretch_.vertices[c][0] == i ? stretch_.vertices[c][1] : stretch_.vertices[c][0];
-          const double pj = mg_phi_[static_cast<std::size_t>(j)];
-          if (pj != 0.0 && j < i) continue;  // counted from j
-          const Vec3 d = x.col(i) - x.col(j);
-          const double len = d.norm();
-          const double r = len - max_stretch * stretch_.rest[c];
-          if (!(r > 0.0) || len <= 0.0) continue;
-          const Vec3 nrm = d / len;
-          const double cf = pi - pj;
-          r_max = std::max(r_max, r);
-          g += (r * cf) * nrm;
-          H += (cf * cf) * (nrm * nrm.transpose());
-        }
-      }
-      const double tr = H.trace();
-      if (tr > 0.0) {
-        H += (1e-3 * tr) * Eigen::Matrix3d::Identity();
-        static const double damp = std::getenv("CLOTHDB_PROBE_MG_DAMP")
-                                       ? std::atof(std::getenv("CLOTHDB_PROBE_MG_DAMP"))
-                                       : 1.0;
-        Vec3 dy = -damp * H.ldlt().solve(g);
-        // Trust region: no further than the largest excess in the support.
-        if (dy.norm() > r_max) dy *= r_max / dy.norm();
-        // Ratio test (linearized): no edge of the support within its limit is taken past it.
-        if (std::getenv("CLOTHDB_PROBE_MG_RATIO")) {
-          double t = 1.0;
-          for (int q = b0; q < b1; ++q) {
-            const int i = sup.vertex[static_cast<std::size_t>(q)];
-            const double pi = mg_phi_[static_cast<std::size_t>(i)];
-            for (int m = vertex_edge_begin_[static_cast<std::size_t>(i)];
-                 m < vertex_edge_begin_[static_cast<std::size_t>(i) + 1]; ++m) {
-              const std::size_t c =
-                  static_cast<std::size_t>(vertex_edges_[static_cast<std::size_t>(m)]);
-              const int j =
-                  stretch_.vertices[c][0] == i ? stretch_.vertices[c][1] : stretch_.vertices[c][0];
-              const double pj = mg_phi_[static_cast<std::size_t>(j)];
-              if (pj != 0.0 && j < i) continue;
-              const Vec3 d = x.col(i) - x.col(j);
-              const double len = d.norm();
-              const double r = len - max_stretch * stretch_.rest[c];
-              if (r > 0.0 || len <= 0.0) continue;
-              const double grow = (pi - pj) * d.dot(dy) / len;
-              if (grow > -r * 1e-12 && grow > 0.0) t = std::min(t, -r / grow);
-            }
-          }
-          dy *= t;
-        }
-        for (int q = b0; q < b1; ++q) {
-          const int i = sup.vertex[static_cast<std::size_t>(q)];
-          x.col(i) += sup.phi[static_cast<std::size_t>(q)] * dy;
-        }
-        moved = true;
-      }
-      for (int q = b0; q < b1; ++q)
-        mg_phi_[static_cast<std::size_t>(sup.vertex[static_cast<std::size_t>(q)])] = 0.0;
-    }
-  }
-  for (std::size_t v = 0; v < mg_active_.size(); ++v) {
-    if (mg_active_[v] == 0) continue;
-    mg_active_[v] = 0;
-  }
-  if (moved) {
-    // Every free vertex in a processed support may have moved: report them all for the contact
-    // rounds (over-reporting costs a collision test each).
-    const double* w = model_.inv_mass.data();
-    for (int v = 0; v < model_.vertex_count(); ++v)
-      if (w[v] > 0.0) mg_moved_list_.push_back(v);
-  }
-  return moved;
-}
-
-bool XpbdSolver::multigrid_correct(Eigen::Matrix3Xd& x, double max_stretch) {
-  if (mg_galerkin_) return galerkin_correct(x, max_stretch);
-  const double* w = model_.inv_mass.data();
-  for (int v : mg_.front().vertices) mg_start_.col(v) = x.col(v);
-  if (mg_path_) {
-    // The residual restricted to the coarse links: each link's path length summed from the fine
-    // edges' current lengths, and its slack (path minus chord) from the bends along it. A link
-    // is then held to (1 + limit) rest - slack: its chord must shrink by the path's excess.
-    for (std::size_t c = 0; c < stretch_.vertices.size(); ++c)
-      mg_fine_length_[c] = (x.col(stretch_.vertices[c][0]) - x.col(stretch_.vertices[c][1])).norm();
-    const std::vector<double>* finer = &mg_fine_length_;
-    for (MultigridLevel& lv : mg_) {
-      for (std::size_t e = 0; e < lv.edges.size(); ++e) {
-        const double p = (*finer)[static_cast<std::size_t>(lv.children[e][0])] +
-                         (*finer)[static_cast<std::size_t>(lv.children[e][1])];
-        lv.path[e] = p;
-        lv.slack[e] = std::max(0.0, p - (x.col(lv.edges[e][0]) - x.col(lv.edges[e][1])).norm());
-      }
-      finer = &lv.path;
-    }
-  }
-  bool moved = false;
-  for (std::size_t k = mg_.size(); k-- > 0;) {
-    const MultigridLevel& lv = mg_[k];
-    for (int pass = 0; pass < mg_passes_; ++pass) {
-      bool any = false;
-      for (std::size_t e = 0; e < lv.edges.size(); ++e) {
-        const double slack = mg_path_ ? lv.slack[e] : 0.0;
-        const double limit = max_stretch * lv.rest[e] - slack;
-        if (limit <= 0.0) continue;
-        any |= shorten_edge(x, w, lv.edges[e][0], lv.edges[e][1], limit,
-                            std::max(lv.rest[e] - slack, 0.0), mg_relax_);
-      }
-      if (!any) break;
-      moved = true;
-    }
-    if (!moved) continue;
-    for (std::size_t t = 0; t < lv.targets.size(); ++t) {
-      Vec3 d = Vec3::Zero();
-      for (int s = lv.source_begin[t]; s < lv.source_begin[t + 1]; ++s) {
-        const int src = lv.sources[static_cast<std::size_t>(s)];
-        d += lv.weights[static_cast<std::size_t>(s)] * (x.col(src) - mg_start_.col(src));
-      }
-      x.col(lv.targets[t]) += d;
-    }
-  }
-  if (!moved) return false;
-  for (int v : mg_.front().vertices)
-    if (w[v] > 0.0 && x.col(v) != mg_start_.col(v)) mg_moved_list_.push_back(v);
-  for (int v : mg_.front().targets) mg_moved_list_.push_back(v);
-  return true;
 }
 
 void XpbdSolver::build_constraints() {
@@ -864,35 +490,7 @@ bool XpbdSolver::limit_strain_dirty(Eigen::Matrix3Xd& x, double max_stretch) {
   return any;
 }
 
-void XpbdSolver::trace_strain(const Eigen::Matrix3Xd& x, double max_stretch, int pass) const {
-  double worst = 0.0;
-  int over = 0;
-  std::size_t wc = 0;
-  for (std::size_t c = 0; c < stretch_.vertices.size(); ++c) {
-    const double r = (x.col(stretch_.vertices[c][0]) - x.col(stretch_.vertices[c][1])).norm() /
-                         stretch_.rest[c] -
-                     1.0;
-    if (r > worst) {
-      worst = r;
-      wc = c;
-    }
-    if (r > max_stretch - 1.0 + 1e-9) ++over;
-  }
-  const Vec3 a = model_.mesh.rest.col(stretch_.vertices[wc][0]),
-             b = model_.mesh.rest.col(stretch_.vertices[wc][1]);
-  std::fprintf(stderr, "trace pass %d: %d over, worst %.5f at (%.3f %.3f)-(%.3f %.3f)\n", pass,
-               over, worst, a.x(), a.y(), b.x(), b.y());
-}
-
 bool XpbdSolver::run_strain_limit(Eigen::Matrix3Xd& x, double max_stretch) {
-  if (!mg_.empty()) {
-#pragma omp single
-    {
-      if (std::getenv("CLOTHDB_PROBE_TRACE")) trace_strain(x, max_stretch, -1);
-      mg_moved_ = multigrid_correct(x, max_stretch) ? 1 : 0;
-      if (std::getenv("CLOTHDB_PROBE_TRACE")) trace_strain(x, max_stretch, 0);
-    }
-  }
   for (int col = 0; col < stretch_.color_count(); ++col) {
     limit_strain(stretch_.color_begin[static_cast<std::size_t>(col)],
                  stretch_.color_begin[static_cast<std::size_t>(col) + 1], x, max_stretch);
@@ -902,16 +500,12 @@ bool XpbdSolver::run_strain_limit(Eigen::Matrix3Xd& x, double max_stretch) {
   int corrected = 0;
 #pragma omp atomic read
   corrected = limit_corrected_;
-  corrected |= mg_moved_;
 #pragma omp barrier
 #pragma omp single
   {
     limit_corrected_ = 0;
-    mg_moved_ = 0;
     for (int v : limit_touched_list_) limit_touched_[static_cast<std::size_t>(v)] = 0;
     limit_touched_list_.clear();
-    for (int v : mg_moved_list_) touch(v);
-    mg_moved_list_.clear();
     if (corrected != 0) {
       // The edges a second full pass could find too long: those at a vertex the first moved.
       for (std::size_t v = 0; v < limit_moved_.size(); ++v) {
@@ -922,20 +516,8 @@ bool XpbdSolver::run_strain_limit(Eigen::Matrix3Xd& x, double max_stretch) {
       }
       bool again = true;
       int pass = 1;
-      for (; pass < settings_.strain_limit_iterations && again; ++pass) {
+      for (; pass < settings_.strain_limit_iterations && again; ++pass)
         again = limit_strain_dirty(x, max_stretch);
-        if (std::getenv("CLOTHDB_PROBE_TRACE") &&
-            (pass < 8 || (pass & (pass - 1)) == 0 || pass % 50 == 0)) {
-          trace_strain(x, max_stretch, pass);
-        }
-        if (again && mg_cycle_ > 0 && pass % mg_cycle_ == 0 && multigrid_correct(x, max_stretch)) {
-          for (int v : mg_moved_list_) {
-            touch(v);
-            mark_edges_dirty(v);
-          }
-          mg_moved_list_.clear();
-        }
-      }
       limit_passes_ += pass;
       if (again) ++limit_capped_;
       std::fill(edge_dirty_.begin(), edge_dirty_.end(), 0);
