@@ -3,6 +3,7 @@
 // frame, one frame at a time as a player decodes; the measurement itself is right on known errors;
 // damaged and newer blobs are refused.
 #include <gtest/gtest.h>
+#include <zstd.h>
 
 #include <cmath>
 #include <cstdlib>
@@ -12,6 +13,7 @@
 #include <vector>
 
 #include "compress/subspace.hpp"
+#include "database/codec/bytes.hpp"
 #include "database/codec/codec.hpp"
 #include "database/codec/contract.hpp"
 #include "database/format/checksum.hpp"
@@ -324,6 +326,63 @@ TEST(CodecV3, DecodesBitForBitAsBeforeTheFastDecoder) {
     EXPECT_EQ(std::memcmp(y.data(), all.data(), all.size() * sizeof(float)), 0);
   }
   EXPECT_TRUE(residual && none) << "the pinned blobs cover both kinds";
+}
+
+// A residual value the payload makes too large for the integers (its top byte plane set, the blob
+// re-compressed and resealed so every checksum holds) is refused by the range check of the
+// residual's time pass, whether it falls in one of integrate_lanes8's 8-value register blocks or in
+// the values after the last whole block (7 x 5 vertices: 105 values, 13 blocks and 1 more), and
+// whichever frame of a group of eight it is. The blob rebuilt without the damage decodes as before.
+TEST(CodecV3, ResidualOutOfRangeRefusedInBlocksAndTail) {
+  const uint32_t si = 7, sj = 5, V = si * sj, F = 20;
+  // A basis of smooth waves, frames with detail it does not hold: the residual carries it.
+  const Basis basis = basis_of(waves(F, si, sj, 0.0, 0.0), V, 3);
+  const auto x = waves(F, si, sj, 0.4, 0.006);
+  V3Settings s;
+  s.contract = {0.001, 0.003, 0.0001};
+  s.segment_frames = 32;  // one segment
+  const auto blob = encode_v3(x.data(), F, V, basis, s);
+  BlobInfo info;
+  Error err;
+  ASSERT_EQ(read_info(blob.data(), blob.size(), &info, &err), Status::Ok);
+  ASSERT_EQ(info.chunk_count, 1u);
+  ASSERT_GT(info.residual_interval, 0u) << "the test needs a blob with a residual";
+  // Layout (codec_v3.cpp): 64-byte header, one 16-byte table entry {XXH64, compressed, raw}, the
+  // zstd frame; before zstd the coefficients' 4 planes (F x modes), then the residual's (F x 3V).
+  const size_t table = 64, payload = table + 16;
+  const uint32_t raw_size = bytes::get_u32(blob.data() + table + 12);
+  std::vector<uint8_t> raw(raw_size);
+  ASSERT_EQ(ZSTD_decompress(raw.data(), raw.size(), blob.data() + payload, blob.size() - payload),
+            raw.size());
+  auto rebuilt = [&](const std::vector<uint8_t>& r) {
+    std::vector<uint8_t> out(blob.begin(), blob.begin() + ptrdiff_t(payload));
+    out.resize(payload + ZSTD_compressBound(r.size()));
+    const size_t csize =
+        ZSTD_compress(out.data() + payload, out.size() - payload, r.data(), r.size(), 3);
+    EXPECT_FALSE(ZSTD_isError(csize));
+    out.resize(payload + csize);
+    bytes::put_u32(out.data() + table + 8, uint32_t(csize));
+    detail::reseal(out.data(), out.size());
+    return out;
+  };
+  DecodeScratch scratch;
+  std::vector<float> before, after;
+  ASSERT_EQ(decode_all(blob.data(), blob.size(), before, scratch, &err, &basis), Status::Ok);
+  const auto same = rebuilt(raw);
+  ASSERT_EQ(decode_all(same.data(), same.size(), after, scratch, &err, &basis), Status::Ok)
+      << err.message;
+  EXPECT_EQ(after, before);
+  const size_t n = size_t(V) * 3, N = size_t(F) * n, residual = 4 * size_t(F) * info.modes;
+  for (const auto& [frame, value] : {std::pair{0u, 17u}, {10u, 40u}, {19u, 104u}, {9u, 104u}}) {
+    SCOPED_TRACE("frame " + std::to_string(frame) + ", value " + std::to_string(value));
+    auto bad = raw;
+    bad[residual + 3 * N + size_t(frame) * n + value] = 0x7f;  // about 1e9 after unzigzag
+    const auto damaged = rebuilt(bad);
+    DecodeScratch fresh;
+    EXPECT_EQ(decode_all(damaged.data(), damaged.size(), after, fresh, &err, &basis),
+              Status::Corrupt);
+    EXPECT_NE(std::strstr(err.message, "residual out of range"), nullptr) << err.message;
+  }
 }
 
 TEST(CodecV3, RefusesBadInputAndDamagedOrNewerBlobs) {

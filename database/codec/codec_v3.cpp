@@ -56,11 +56,12 @@ constexpr int32_t kMaxInt = (1 << 27) - 1;  // so 2 a - b never overflows int32
 constexpr double kMaxStep = 1e3;
 constexpr uint32_t kMaxSegmentFrames = 4096;
 
-// The decoder's kernels (reconstruct, add_spatial_prediction8) are built for AVX-512 (x86-64-v4:
-// the mode sum's 16-float vectors one register each) and AVX2 as well as the x86-64 baseline,
-// picked at load time (as version 2's predict and the runtime's playback kernels): without FMA
-// (and with -ffp-contract=off) all round every operation alike, and integer code is exact, so the
-// frames are bit-identical whichever runs.
+// The decoder's kernels (reconstruct, unpack_lanes8, add_spatial_prediction8, integrate_lanes8)
+// are built for AVX-512 (x86-64-v4: the mode sum's 16-float vectors one register each) and AVX2 as
+// well as the x86-64 baseline, picked at load time (as version 2's predict and the runtime's
+// playback kernels): without FMA (and with -ffp-contract=off) all round every operation alike, and
+// integer code is exact, so the frames are bit-identical whichever runs (checked for all three
+// against the pinned test's hashes: docs/notebook/codec_v3.md, "Seventh session").
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #define CLOTHDB_V3_MULTIVERSION __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
 #else
@@ -162,6 +163,7 @@ size_t segment_offset(const uint8_t* blob, const Header& h, uint32_t s) {
 constexpr uint32_t kFrames = 6;
 constexpr size_t kCoords = 16;
 constexpr size_t kChunkBytes = 128 * 1024;
+constexpr size_t kResidualAhead = 4 * kCoords;  // how far ahead the residual is fetched
 
 // Sixteen floats as one value (GCC and Clang vector extensions): element by element the same IEEE
 // multiply and add as scalar code, but the register block below stays in registers, which the
@@ -229,6 +231,11 @@ inline __attribute__((always_inline)) void reconstruct_frames(const Basis& b, ui
         __builtin_prefetch(u);
         __builtin_prefetch(u + kCoords - 1);
       }
+    // The residual's rows of these frames, kResidualAhead blocks on: integrate_lanes8 wrote them
+    // a whole segment before (7.7 MB for two at 10,000 vertices), so they come from L3 or memory,
+    // F rows at a time, which the hardware prefetcher picks up too late at each chunk's start.
+    if (Q != nullptr && c + kResidualAhead < n)
+      for (uint32_t j = 0; j < F; ++j) __builtin_prefetch(Q + size_t(j) * n + c + kResidualAhead);
     sum_block<F>(b.modes.data() + c, n, M, w, b.mean.data() + c, acc);
     for (uint32_t j = 0; j < F; ++j)
       store(acc[j], Q ? Q + size_t(j) * n + c : nullptr, rstep, kCoords, out + size_t(j) * n + c);
@@ -311,15 +318,13 @@ inline int32_t spatial_prediction(const int32_t* d, size_t c, size_t row) {
   return median_prediction(d, c, row);
 }
 
-// Values [0, width) of one frame of a segment part from its 4 byte planes (p: the frame's first
-// low byte; N: values per plane), zigzagged in the payload.
-// (stride: where value i goes, d[i * stride]; 8 into the spatial pass's lanes.)
-template <size_t stride>
+// Values [0, width) of one frame of the coefficients from their 4 byte planes (p: the frame's first
+// low byte; N: values per plane), zigzagged in the payload. (The residual: unpack_lanes8.)
 inline void unpack(const uint8_t* __restrict p, size_t N, size_t width, int32_t* __restrict d) {
   const uint8_t *p1 = p + N, *p2 = p1 + N, *p3 = p2 + N;
   for (size_t i = 0; i < width; ++i)
-    d[i * stride] = int32_t(unzigzag(uint32_t(p[i]) | uint32_t(p1[i]) << 8 | uint32_t(p2[i]) << 16 |
-                                     uint32_t(p3[i]) << 24));
+    d[i] = int32_t(unzigzag(uint32_t(p[i]) | uint32_t(p1[i]) << 8 | uint32_t(p2[i]) << 16 |
+                            uint32_t(p3[i]) << 24));
 }
 
 // The spatial pass over eight frames of a segment's residual at once, in place: each value plus its
@@ -365,13 +370,133 @@ void add_spatial_prediction8(int32_t* lanes, size_t width, size_t row) {
     }
 }
 
+// Eight rows of eight values transposed in place (m[i][j] becomes m[j][i]): three rounds of
+// two-input shuffles, the AVX2 unpack pattern (32-bit pairs, 64-bit pairs, 128-bit halves).
+inline __attribute__((always_inline)) void transpose8(Uints8 (&m)[8]) {
+  Uints8 t[8], u[8];
+  for (int i = 0; i < 8; i += 2) {
+    t[i] = __builtin_shufflevector(m[i], m[i + 1], 0, 8, 1, 9, 4, 12, 5, 13);
+    t[i + 1] = __builtin_shufflevector(m[i], m[i + 1], 2, 10, 3, 11, 6, 14, 7, 15);
+  }
+  for (int i = 0; i < 8; i += 4)
+    for (int j = 0; j < 2; ++j) {
+      u[i + 2 * j] = __builtin_shufflevector(t[i + j], t[i + j + 2], 0, 1, 8, 9, 4, 5, 12, 13);
+      u[i + 2 * j + 1] =
+          __builtin_shufflevector(t[i + j], t[i + j + 2], 2, 3, 10, 11, 6, 7, 14, 15);
+    }
+  for (int j = 0; j < 4; ++j) {
+    m[j] = __builtin_shufflevector(u[j], u[j + 4], 0, 1, 2, 3, 8, 9, 10, 11);
+    m[j + 4] = __builtin_shufflevector(u[j], u[j + 4], 4, 5, 6, 7, 12, 13, 14, 15);
+  }
+}
+
+// Values c..c+7 of one frame from its 4 byte planes (p: the frame's first low byte, N: values per
+// plane), unzigzagged. Each plane's 8 bytes are read as one 64-bit load and the bytes interleaved
+// by shuffles: GCC 12 reads an 8-byte vector type byte by byte through general registers
+// (docs/notebook/codec_v3.md, "Sixth session"), which cost more than the work.
+typedef uint8_t Bytes16 __attribute__((vector_size(16)));
+typedef uint64_t U64x2 __attribute__((vector_size(16)));
+typedef uint16_t U16x8 __attribute__((vector_size(16)));
+inline __attribute__((always_inline)) void unpack_row8(const uint8_t* p, size_t N, size_t c,
+                                                       Uints8& out) {
+  uint64_t b[4];
+  for (int i = 0; i < 4; ++i) std::memcpy(&b[i], p + size_t(i) * N + c, 8);
+  const U64x2 v01 = {b[0], b[1]}, v23 = {b[2], b[3]};
+  // Low and high 16 bits of each value: byte i of plane 0 beside byte i of plane 1 (2 and 3).
+  const U16x8 lo = U16x8(__builtin_shufflevector(Bytes16(v01), Bytes16(v01), 0, 8, 1, 9, 2, 10, 3,
+                                                 11, 4, 12, 5, 13, 6, 14, 7, 15));
+  const U16x8 hi = U16x8(__builtin_shufflevector(Bytes16(v23), Bytes16(v23), 0, 8, 1, 9, 2, 10, 3,
+                                                 11, 4, 12, 5, 13, 6, 14, 7, 15));
+  typedef uint16_t U16x16 __attribute__((vector_size(32)));
+  const Uints8 z = Uints8(U16x16(
+      __builtin_shufflevector(lo, hi, 0, 8, 1, 9, 2, 10, 3, 11, 4, 12, 5, 13, 6, 14, 7, 15)));
+  out = (z >> 1) ^ (0u - (z & 1u));  // unzigzag, lane by lane
+}
+
+// Frames f0..f0+G-1 (G <= 8) of a segment's residual unpacked into the spatial pass's lanes (value
+// c of frame g at lanes[8 c + g]; lanes of frames g >= G zero). p: the residual's first low byte;
+// N: values per plane; width: values per frame. Blocks of 8 values of the 8 frames are read as rows
+// and transposed in registers, so lanes is written in whole vectors, not one value at a time.
+CLOTHDB_V3_MULTIVERSION
+void unpack_lanes8(const uint8_t* p, size_t N, size_t width, uint32_t f0, uint32_t G,
+                   int32_t* lanes) {
+  size_t c = 0;
+  for (; c + 8 <= width; c += 8) {
+    Uints8 m[8];
+    for (uint32_t g = 0; g < 8; ++g)
+      if (g < G)
+        unpack_row8(p + size_t(f0 + g) * width, N, c, m[g]);
+      else
+        m[g] = Uints8{};
+    transpose8(m);
+    std::memcpy(lanes + 8 * c, m, sizeof m);
+  }
+  for (; c < width; ++c)
+    for (uint32_t g = 0; g < 8; ++g) {
+      const uint8_t* q = p + size_t(f0 + g) * width + c;
+      lanes[8 * c + g] =
+          g < G ? int32_t(unzigzag(uint32_t(q[0]) | uint32_t(q[N]) << 8 | uint32_t(q[2 * N]) << 16 |
+                                   uint32_t(q[3 * N]) << 24))
+                : 0;
+    }
+}
+
+// The time pass of frames f0..f0+G-1 (G <= 8) of a segment's residual from the spatial pass's
+// lanes, into v (frames of `width` values, frame-major; frames before f0 done): each value the lane
+// value plus, for the segment's first frame nothing, its second the first, the rest 2 a[f-1] -
+// a[f-2] (as add_time_prediction, the same wrapping integer sums). Blocks of 8 values are
+// transposed back to frame rows in registers and the chain through the frames runs along them.
+// Returns false if a value leaves the range (as add_time_prediction).
+CLOTHDB_V3_MULTIVERSION
+bool integrate_lanes8(const int32_t* lanes, size_t width, uint32_t f0, uint32_t G, int32_t* v) {
+  Uints8 bad = {};
+  const Uints8 kMax = Uints8{} + uint32_t(kMaxInt), kSpan = Uints8{} + 2u * uint32_t(kMaxInt);
+  size_t c = 0;
+  for (; c + 8 <= width; c += 8) {
+    Uints8 m[8];
+    std::memcpy(m, lanes + 8 * c, sizeof m);
+    transpose8(m);
+    // a: frame f - 1, b: frame f - 2 (the segment's first frame: both zero; its second: both the
+    // first, as 2 a - a = a).
+    Uints8 a = {}, b = {};
+    if (f0 >= 2) {
+      std::memcpy(&a, v + size_t(f0 - 1) * width + c, sizeof a);
+      std::memcpy(&b, v + size_t(f0 - 2) * width + c, sizeof b);
+    }
+    for (uint32_t g = 0; g < G; ++g) {
+      if (f0 + g == 1) b = a;
+      const Uints8 x = 2 * a - b + m[g];
+      bad |= Uints8(x + kMax > kSpan);
+      std::memcpy(v + size_t(f0 + g) * width + c, &x, sizeof x);
+      b = a;
+      a = x;
+    }
+  }
+  uint32_t bad_tail = 0;
+  for (; c < width; ++c) {
+    uint32_t a = 0, b = 0;
+    if (f0 >= 2) {
+      a = uint32_t(v[size_t(f0 - 1) * width + c]);
+      b = uint32_t(v[size_t(f0 - 2) * width + c]);
+    }
+    for (uint32_t g = 0; g < G; ++g) {
+      if (f0 + g == 1) b = a;
+      const uint32_t x = 2 * a - b + uint32_t(lanes[8 * c + g]);
+      bad_tail |= uint32_t(x + uint32_t(kMaxInt) > 2u * uint32_t(kMaxInt));
+      v[size_t(f0 + g) * width + c] = int32_t(x);
+      b = a;
+      a = x;
+    }
+  }
+  for (int i = 0; i < 8; ++i) bad_tail |= bad[i];
+  return bad_tail == 0;
+}
+
 // Frame f of a segment part (frames of `width` values, frame-major, v) in time, once the frames
-// before it are done: value c is src[c * stride] (the frame itself, stride 1, or its lane of the
-// spatial pass, stride 8) plus the first frame nothing, the second the first, the rest
-// 2 a[f-1] - a[f-2]. Wrapping arithmetic, then range-checked so a damaged payload cannot overflow
-// later.
-template <size_t stride>
-bool add_time_prediction(int32_t* v, uint32_t f, size_t width, const int32_t* src) {
+// before it are done, in place: value c plus, for the first frame nothing, the second the first,
+// the rest 2 a[f-1] - a[f-2]. Wrapping arithmetic, then range-checked so a damaged payload cannot
+// overflow later. (The coefficients; the residual's time pass is integrate_lanes8.)
+bool add_time_prediction(int32_t* v, uint32_t f, size_t width) {
   int32_t* d = v + size_t(f) * width;
   // In range: -kMaxInt <= x <= kMaxInt, as one unsigned comparison so the loops vectorise.
   auto out_of_range = [](int32_t x) {
@@ -379,15 +504,11 @@ bool add_time_prediction(int32_t* v, uint32_t f, size_t width, const int32_t* sr
   };
   uint32_t bad = 0;
   if (f == 0) {
-    for (size_t c = 0; c < width; ++c) {
-      const int32_t x = src[c * stride];
-      bad |= out_of_range(x);
-      d[c] = x;
-    }
+    for (size_t c = 0; c < width; ++c) bad |= out_of_range(d[c]);
   } else if (f == 1) {
     const int32_t* __restrict a = d - width;
     for (size_t c = 0; c < width; ++c) {
-      const int32_t x = int32_t(uint32_t(a[c]) + uint32_t(src[c * stride]));
+      const int32_t x = int32_t(uint32_t(a[c]) + uint32_t(d[c]));
       bad |= out_of_range(x);
       d[c] = x;
     }
@@ -395,7 +516,7 @@ bool add_time_prediction(int32_t* v, uint32_t f, size_t width, const int32_t* sr
     const int32_t* __restrict a = d - width;
     const int32_t* __restrict b = a - width;
     for (size_t c = 0; c < width; ++c) {
-      const int32_t x = int32_t(2 * uint32_t(a[c]) - uint32_t(b[c]) + uint32_t(src[c * stride]));
+      const int32_t x = int32_t(2 * uint32_t(a[c]) - uint32_t(b[c]) + uint32_t(d[c]));
       bad |= out_of_range(x);
       d[c] = x;
     }
@@ -462,8 +583,8 @@ struct DecoderV3Access {
     // Two parts, each in 4 byte planes: the coefficients (k x M), then the residual (k x 3V).
     const size_t Nc = size_t(k) * h.modes, n = N - Nc;
     for (uint32_t f = 0; f < k; ++f) {
-      unpack<1>(b + size_t(f) * h.modes, Nc, h.modes, v + size_t(f) * h.modes);
-      if (!add_time_prediction<1>(v, f, h.modes, v + size_t(f) * h.modes))
+      unpack(b + size_t(f) * h.modes, Nc, h.modes, v + size_t(f) * h.modes);
+      if (!add_time_prediction(v, f, h.modes))
         return fail(err, Status::Corrupt, "frame blob segment %u: coefficient out of range", seg);
     }
     if (n > 0) {
@@ -475,16 +596,10 @@ struct DecoderV3Access {
       int32_t* lanes = s.v3_lanes_.data();
       for (uint32_t f0 = 0; f0 < k; f0 += 8) {
         const uint32_t G = std::min(8u, k - f0);
-        for (uint32_t g = 0; g < 8; ++g) {
-          if (g < G)
-            unpack<8>(b + 4 * Nc + size_t(f0 + g) * width, n, width, lanes + g);
-          else
-            for (size_t c = 0; c < width; ++c) lanes[8 * c + g] = 0;
-        }
+        unpack_lanes8(b + 4 * Nc, n, width, f0, G, lanes);
         add_spatial_prediction8(lanes, width, h.row);
-        for (uint32_t g = 0; g < G; ++g)
-          if (!add_time_prediction<8>(r, f0 + g, width, lanes + g))
-            return fail(err, Status::Corrupt, "frame blob segment %u: residual out of range", seg);
+        if (!integrate_lanes8(lanes, width, f0, G, r))
+          return fail(err, Status::Corrupt, "frame blob segment %u: residual out of range", seg);
       }
     }
     return Status::Ok;
