@@ -85,6 +85,53 @@ TEST(SelfIntersection, FoldedSheetCrossesOnlyWhenFoldedThrough) {
   EXPECT_GE(count_self_intersections(mesh, through), 8);
 }
 
+// The metric's grid (edges filed by box in cells of the mean edge) against every edge-triangle
+// pair tested: a 12 x 12 sheet crumpled by a seeded random displacement larger than its edges (many
+// crossings, some triangles crossed by several edges) and one vertex thrown 50 m away (its edges
+// span too many cells to be filed and are tested against every triangle). The same set, grouped by
+// triangle in increasing order.
+TEST(SelfIntersection, GridFindsEveryCrossingTheBruteForceFinds) {
+  ClothMesh mesh = make_quad_grid(12, 12, 1.0, 1.0);
+  Eigen::Matrix3Xd x = mesh.rest;
+  unsigned state = 12345u;
+  auto noise = [&]() {
+    state = state * 1664525u + 1013904223u;
+    return static_cast<double>(state >> 8) / static_cast<double>(1u << 24) - 0.5;
+  };
+  for (int i = 0; i < mesh.vertex_count(); ++i)
+    for (int k = 0; k < 3; ++k) x(k, i) += 0.25 * noise();
+  x.col(77) += Vec3(50.0, -20.0, 30.0);
+  std::vector<std::array<int, 2>> brute;
+  for (size_t t = 0; t < mesh.triangles.size(); ++t) {
+    const auto& tri = mesh.triangles[t];
+    for (size_t e = 0; e < mesh.edges.size(); ++e) {
+      const int i = mesh.edges[e][0], j = mesh.edges[e][1];
+      if (i == tri[0] || i == tri[1] || i == tri[2] || j == tri[0] || j == tri[1] || j == tri[2])
+        continue;
+      if (segment_crosses_triangle(x.col(i), x.col(j), x.col(tri[0]), x.col(tri[1]), x.col(tri[2])))
+        brute.push_back({static_cast<int>(e), static_cast<int>(t)});
+    }
+  }
+  const auto found = edge_triangle_crossings(mesh, x);
+  for (size_t k = 1; k < found.size(); ++k) EXPECT_LE(found[k - 1][1], found[k][1]);
+  auto by_triangle = [](const std::array<int, 2>& a, const std::array<int, 2>& b) {
+    return a[1] < b[1] || (a[1] == b[1] && a[0] < b[0]);
+  };
+  std::vector<std::array<int, 2>> sorted = found;
+  std::sort(sorted.begin(), sorted.end(), by_triangle);
+  std::sort(brute.begin(), brute.end(), by_triangle);
+  EXPECT_GT(brute.size(), 50u);
+  EXPECT_EQ(sorted, brute);
+  int runaway = 0, shared = 0;
+  for (const auto& c : brute) {
+    const auto& e = mesh.edges[static_cast<size_t>(c[0])];
+    runaway += e[0] == 77 || e[1] == 77;
+  }
+  for (size_t k = 1; k < brute.size(); ++k) shared += brute[k][1] == brute[k - 1][1];
+  EXPECT_GT(runaway, 0) << "the runaway vertex's edges cross nothing: the test misses that path";
+  EXPECT_GT(shared, 0) << "no triangle crossed twice: the test misses the ordering path";
+}
+
 // ---- The patch hierarchy's search (self_collision.hpp, top) ----
 
 // Distance from p to triangle abc, as an oracle independent of the solver's Voronoi-region code:

@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <stdexcept>
 #include <string>
+#include <utility>
 
 namespace clothdb {
 
@@ -63,6 +64,24 @@ bool segment_crosses_triangle(const Vec3& p, const Vec3& q, const Vec3& a, const
   return (u > 0.0 && v > 0.0 && w > 0.0) || (u < 0.0 && v < 0.0 && w < 0.0);
 }
 
+namespace {
+
+// Where triangle t's query in the midpoint grid (`grid`, cells as large as the longest edge, the
+// query box the triangle's grown by half that) first reaches edge e's bucket: the order in which
+// that query hands out the edges (cells in x, y, z order, a bucket's edges by index).
+long midpoint_query_rank(const PointGrid& grid, const Vec3& mid, const Vec3& lo, const Vec3& hi) {
+  const int bucket =
+      grid.bucket_of(grid.cell_index(mid[0]), grid.cell_index(mid[1]), grid.cell_index(mid[2]));
+  long rank = 0;
+  for (long ix = grid.cell_index(lo[0]); ix <= grid.cell_index(hi[0]); ++ix)
+    for (long iy = grid.cell_index(lo[1]); iy <= grid.cell_index(hi[1]); ++iy)
+      for (long iz = grid.cell_index(lo[2]); iz <= grid.cell_index(hi[2]); ++iz, ++rank)
+        if (grid.bucket_of(ix, iy, iz) == bucket) return rank;
+  return rank;  // not reached: the edge's own cell is in the query
+}
+
+}  // namespace
+
 std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
                                                         const Eigen::Matrix3Xd& x) {
   if (x.cols() != mesh.vertex_count())
@@ -72,37 +91,155 @@ std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
   std::vector<std::array<int, 2>> out;
   const size_t edge_count = mesh.edges.size();
   if (edge_count == 0) return out;
-  // Edges by midpoint, in cells as large as the longest edge: an edge that reaches a triangle has
-  // its midpoint within half its length of the triangle's box.
-  Eigen::Matrix3Xd mid(3, static_cast<Eigen::Index>(edge_count));
-  double longest = 0.0;
+  // Each edge is filed in every cell its box overlaps, the cells as large as the mean edge, and
+  // each triangle visits the cells its box overlaps: an edge that crosses a triangle holds the
+  // crossing point in its box and the triangle's, so it is met. (Edges by midpoint in cells as
+  // large as the longest edge, as before, handed each triangle many more edges: 283 M against 80 M
+  // instructions a call on the 12k long skirt's frames 30-190 of 01_01, callgrind;
+  // docs/notebook/self_collision.md, "Eighth round".) An edge over more than kMaxCells cells (a
+  // runaway vertex) is tested against every triangle instead.
+  constexpr long kMaxCells = 64;
+  std::vector<std::array<double, 6>> box(edge_count);
+  double longest = 0.0, total = 0.0;
   for (size_t e = 0; e < edge_count; ++e) {
     const Vec3 p = x.col(mesh.edges[e][0]), q = x.col(mesh.edges[e][1]);
-    mid.col(static_cast<Eigen::Index>(e)) = 0.5 * (p + q);
-    longest = std::max(longest, (p - q).norm());
+    const Vec3 lo = p.cwiseMin(q), hi = p.cwiseMax(q);
+    box[e] = {lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]};
+    const double length = (p - q).norm();
+    longest = std::max(longest, length);
+    total += length;
   }
   if (!std::isfinite(longest))
     throw std::invalid_argument("edge_triangle_crossings: non-finite positions");
   if (!(longest > 0.0)) return out;
-  PointGrid grid;
-  grid.build(mid, longest);
+  const double cell = total / static_cast<double>(edge_count);
+  auto cell_of = [cell](double c) {
+    // Clamped so a runaway coordinate cannot overflow the cast (as PointGrid::cell_index).
+    return static_cast<long>(std::clamp(std::floor(c / cell), -1e9, 1e9));
+  };
+  // Cells hashed (Teschner et al. 2003's primes, then a multiplicative hash into 2^bits buckets).
+  std::vector<std::array<long, 6>> span(edge_count);
+  std::vector<int> big;
+  size_t entries = 0;
+  for (size_t e = 0; e < edge_count; ++e) {
+    auto& s = span[e];
+    for (int k = 0; k < 3; ++k) {
+      s[static_cast<size_t>(k)] = cell_of(box[e][static_cast<size_t>(k)]);
+      s[static_cast<size_t>(k) + 3] = cell_of(box[e][static_cast<size_t>(k) + 3]);
+    }
+    const long nx = s[3] - s[0] + 1, ny = s[4] - s[1] + 1, nz = s[5] - s[2] + 1;
+    const long cells =
+        nx > kMaxCells || ny > kMaxCells || nz > kMaxCells ? kMaxCells + 1 : nx * ny * nz;
+    if (cells > kMaxCells) {
+      big.push_back(static_cast<int>(e));
+      s[0] = 1, s[3] = 0;  // filed nowhere
+    } else {
+      entries += static_cast<size_t>(cells);
+    }
+  }
+  int bits = 4;
+  while ((size_t{1} << bits) < 2 * entries) ++bits;
+  const int shift = 64 - bits;
+  auto bucket_of = [shift](long ix, long iy, long iz) {
+    const std::uint64_t h = (static_cast<std::uint64_t>(ix) * 73856093ULL) ^
+                            (static_cast<std::uint64_t>(iy) * 19349663ULL) ^
+                            (static_cast<std::uint64_t>(iz) * 83492791ULL);
+    return static_cast<size_t>((h * 0x9E3779B97F4A7C15ULL) >> shift);
+  };
+  const size_t table = size_t{1} << bits;
+  // Each entry holds its edge's box in floats moved outwards by far more than a float's rounding
+  // (a millionth of the coordinate), so a test on them never rejects what the exact box keeps,
+  // and a query reads its buckets in a row.
+  struct Entry {
+    float lo[3], hi[3];
+    int edge;
+  };
+  auto down = [](double d) { return static_cast<float>(d - (std::abs(d) * 1e-6 + 1e-20)); };
+  auto up = [](double d) { return static_cast<float>(d + (std::abs(d) * 1e-6 + 1e-20)); };
+  std::vector<int> begin(table + 1, 0);
+  std::vector<Entry> items(entries);
+  auto for_cells = [&](const std::array<long, 6>& s, auto&& f) {
+    for (long ix = s[0]; ix <= s[3]; ++ix)
+      for (long iy = s[1]; iy <= s[4]; ++iy)
+        for (long iz = s[2]; iz <= s[5]; ++iz) f(bucket_of(ix, iy, iz));
+  };
+  for (size_t e = 0; e < edge_count; ++e) for_cells(span[e], [&](size_t b) { ++begin[b + 1]; });
+  for (size_t b = 0; b < table; ++b) begin[b + 1] += begin[b];
+  {
+    std::vector<int> fill(begin.begin(), begin.end() - 1);
+    for (size_t e = 0; e < edge_count; ++e) {
+      const auto& eb = box[e];
+      const Entry entry{{down(eb[0]), down(eb[1]), down(eb[2])},
+                        {up(eb[3]), up(eb[4]), up(eb[5])},
+                        static_cast<int>(e)};
+      for_cells(span[e], [&](size_t b) { items[static_cast<size_t>(fill[b]++)] = entry; });
+    }
+  }
+  // Within one triangle the crossings are put in the order the midpoint grid's query found them
+  // (which every report and the untangling's order of constraints were made with); that grid is
+  // built only for a triangle crossed more than once.
+  PointGrid midpoint_grid;
   std::vector<int> stamp(edge_count, -1);
+  std::vector<int> found;
+  std::vector<std::pair<long, int>> ranked;
   for (size_t t = 0; t < mesh.triangles.size(); ++t) {
     const std::array<int, 3>& tri = mesh.triangles[t];
     const Vec3 a = x.col(tri[0]), b = x.col(tri[1]), c = x.col(tri[2]);
-    const Vec3 reach = Vec3::Constant(0.5 * longest);
-    const Vec3 lo = a.cwiseMin(b).cwiseMin(c) - reach, hi = a.cwiseMax(b).cwiseMax(c) + reach;
-    grid.query(lo, hi, [&](int e) {
+    // The slack, far above rounding, keeps the box tests from ever deciding a case the
+    // orientation signs would count.
+    const Vec3 lo = a.cwiseMin(b).cwiseMin(c) - Vec3::Constant(1e-9),
+               hi = a.cwiseMax(b).cwiseMax(c) + Vec3::Constant(1e-9);
+    found.clear();
+    // Exact (double) box test, then the vertices, then the orientation signs.
+    auto visit = [&](int e) {
       int& seen = stamp[static_cast<size_t>(e)];
       if (seen == static_cast<int>(t)) return;
       seen = static_cast<int>(t);
+      const auto& eb = box[static_cast<size_t>(e)];
+      if (eb[3] < lo[0] || eb[4] < lo[1] || eb[5] < lo[2] || eb[0] > hi[0] || eb[1] > hi[1] ||
+          eb[2] > hi[2])
+        return;
       const int i = mesh.edges[static_cast<size_t>(e)][0],
                 j = mesh.edges[static_cast<size_t>(e)][1];
       if (i == tri[0] || i == tri[1] || i == tri[2] || j == tri[0] || j == tri[1] || j == tri[2])
         return;
-      if (segment_crosses_triangle(x.col(i), x.col(j), a, b, c))
-        out.push_back({e, static_cast<int>(t)});
+      if (segment_crosses_triangle(x.col(i), x.col(j), a, b, c)) found.push_back(e);
+    };
+    const std::array<long, 6> query = {cell_of(lo[0]), cell_of(lo[1]), cell_of(lo[2]),
+                                       cell_of(hi[0]), cell_of(hi[1]), cell_of(hi[2])};
+    const float flo[3] = {down(lo[0]), down(lo[1]), down(lo[2])};
+    const float fhi[3] = {up(hi[0]), up(hi[1]), up(hi[2])};
+    for_cells(query, [&](size_t bucket) {
+      for (int k = begin[bucket]; k < begin[bucket + 1]; ++k) {
+        const Entry& en = items[static_cast<size_t>(k)];
+        if (en.hi[0] < flo[0] || en.hi[1] < flo[1] || en.hi[2] < flo[2] || en.lo[0] > fhi[0] ||
+            en.lo[1] > fhi[1] || en.lo[2] > fhi[2])
+          continue;
+        visit(en.edge);
+      }
     });
+    for (int e : big) visit(e);
+    if (found.size() > 1) {
+      if (midpoint_grid.bucket_begin.empty()) {
+        Eigen::Matrix3Xd mid(3, static_cast<Eigen::Index>(edge_count));
+        for (size_t e = 0; e < edge_count; ++e)
+          mid.col(static_cast<Eigen::Index>(e)) =
+              0.5 * (x.col(mesh.edges[e][0]) + x.col(mesh.edges[e][1]));
+        midpoint_grid.build(mid, longest);
+      }
+      const Vec3 reach = Vec3::Constant(0.5 * longest);
+      const Vec3 box_lo = a.cwiseMin(b).cwiseMin(c), box_hi = a.cwiseMax(b).cwiseMax(c);
+      ranked.clear();
+      for (int e : found) {
+        const Vec3 mid = 0.5 * (x.col(mesh.edges[static_cast<size_t>(e)][0]) +
+                                x.col(mesh.edges[static_cast<size_t>(e)][1]));
+        ranked.emplace_back(midpoint_query_rank(midpoint_grid, mid, box_lo - reach, box_hi + reach),
+                            e);
+      }
+      std::sort(ranked.begin(), ranked.end());
+      for (size_t k = 0; k < found.size(); ++k) found[k] = ranked[k].second;
+    }
+    for (int e : found) out.push_back({e, static_cast<int>(t)});
   }
   return out;
 }

@@ -52,7 +52,10 @@ bool segment_crosses_triangle(const Vec3& p, const Vec3& q, const Vec3& a, const
                               const Vec3& c);
 
 // Pairs (edge index in mesh.edges, triangle index in mesh.triangles) where the edge crosses a
-// triangle it shares no vertex with, in (triangle, edge) order. x: 3 x vertex_count positions.
+// triangle it shares no vertex with, by triangle; a triangle's crossings in the order a PointGrid
+// of the edges' midpoints (cells as large as the longest edge) hands them to the triangle's box
+// grown by half that (the order the untangling's constraints were first made in; the search itself
+// files the edges by box). x: 3 x vertex_count positions.
 std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
                                                         const Eigen::Matrix3Xd& x);
 // Their number: the self_intersections metric of one frame.

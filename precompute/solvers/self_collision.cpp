@@ -149,6 +149,8 @@ constexpr int kLeafTriangles = 8;
 // none at pi/5), because a flat patch's own pairs are not listed until the next build
 // (docs/notebook/self_collision.md, "Sixth round" and after).
 constexpr double kFlatAngle = 3.14159265358979323846 / 5.0;
+// cos(pi/5) = (1 + sqrt 5) / 4, as a literal (std::cos is not constexpr here).
+constexpr double kFlatCos = 0.80901699437494742410;
 // Contours longer than this are not tested (the test is quadratic): such a patch is searched.
 constexpr int kMaxContour = 512;
 
@@ -478,7 +480,12 @@ void refit_patches(SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix
       double lowest = 1.0;
       for (int k = 0; k < p.tri_end - p.tri_begin; ++k)
         lowest = std::min(lowest, normals[k].dot(b.axis));
-      b.angle = degenerate || !(len > 0.0) ? pi : std::acos(std::clamp(lowest, -1.0, 1.0));
+      // A cone surely at least kFlatAngle wide (acos is monotone and exact to an ulp or so, far
+      // inside the 1e-9 margin) is stored as pi without its acos: every test compares a cone with
+      // kFlatAngle, and one that wide decides nothing else (PatchBounds::angle).
+      b.angle = degenerate || !(len > 0.0) || lowest < kFlatCos - 1e-9
+                    ? pi
+                    : std::acos(std::clamp(lowest, -1.0, 1.0));
     } else {
       const PatchBounds& l = sc.patch_bounds[static_cast<std::size_t>(p.left)];
       const PatchBounds& r = sc.patch_bounds[static_cast<std::size_t>(p.right)];
@@ -487,7 +494,9 @@ void refit_patches(SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix
       b.normal_sum = l.normal_sum + r.normal_sum;
       const double len = b.normal_sum.norm();
       b.axis = len > 0.0 ? Vec3(b.normal_sum / len) : Vec3::Zero();
-      b.angle = !(len > 0.0) || l.angle >= pi || r.angle >= pi
+      // A child's cone at least kFlatAngle wide makes the parent's so (it holds the child's):
+      // pi, without the two acos (PatchBounds::angle).
+      b.angle = !(len > 0.0) || l.angle >= kFlatAngle || r.angle >= kFlatAngle
                     ? pi
                     : std::min(pi, std::max(angle_between(b.axis, l.axis) + l.angle,
                                             angle_between(b.axis, r.axis) + r.angle));
@@ -509,41 +518,48 @@ bool segments_meet(const double* a, const double* b, const double* c, const doub
   return !(o1 * o2 > 0.0) && !(o3 * o4 > 0.0);
 }
 
+// A contour edge projected onto the plane of a cone's axis: its ends (u, v) and its range in u.
+struct ProjectedEdge {
+  double low, high;   // range in u
+  double a[2], b[2];  // its ends
+  int v0, v1;         // its vertices
+  int index;          // position in the contour (the sort's tie-break)
+};
+
 // Whether the contour edges `contour[0, k)`, projected onto the plane normal to `axis`, keep
 // apart (edges sharing a vertex excepted). A sweep along u: the edges sorted by their lowest u,
-// each tested only against those that start before it ends.
+// each tested only against those that start before it ends. (Only the answer is used, so how the
+// sweep orders its tests does not matter.)
 bool contour_is_simple(const ClothMesh& mesh, const Eigen::Matrix3Xd& x, const int* contour, int k,
-                       const Vec3& axis, std::vector<std::array<double, 4>>& scratch,
-                       std::vector<int>& sorted) {
+                       const Vec3& axis, std::vector<ProjectedEdge>& scratch) {
   if (k > kMaxContour) return false;
   // A basis (u, v) of the plane normal to the axis.
   const Vec3 helper = std::abs(axis[0]) < 0.6 ? Vec3(1, 0, 0) : Vec3(0, 1, 0);
   const Vec3 u = axis.cross(helper).normalized(), v = axis.cross(u);
   scratch.resize(static_cast<std::size_t>(k));
-  sorted.resize(static_cast<std::size_t>(k));
   for (int i = 0; i < k; ++i) {
     const auto& e = mesh.edges[static_cast<std::size_t>(contour[i])];
     const Vec3 a = x.col(e[0]), c = x.col(e[1]);
-    scratch[static_cast<std::size_t>(i)] = {a.dot(u), a.dot(v), c.dot(u), c.dot(v)};
-    sorted[static_cast<std::size_t>(i)] = i;
+    ProjectedEdge& s = scratch[static_cast<std::size_t>(i)];
+    s.a[0] = a.dot(u);
+    s.a[1] = a.dot(v);
+    s.b[0] = c.dot(u);
+    s.b[1] = c.dot(v);
+    s.low = std::min(s.a[0], s.b[0]);
+    s.high = std::max(s.a[0], s.b[0]);
+    s.v0 = e[0];
+    s.v1 = e[1];
+    s.index = i;
   }
-  auto low = [&](int i) {
-    const auto& si = scratch[static_cast<std::size_t>(i)];
-    return std::min(si[0], si[2]);
-  };
-  std::sort(sorted.begin(), sorted.end(),
-            [&](int i, int j) { return low(i) < low(j) || (low(i) == low(j) && i < j); });
+  std::sort(scratch.begin(), scratch.end(), [](const ProjectedEdge& i, const ProjectedEdge& j) {
+    return i.low < j.low || (i.low == j.low && i.index < j.index);
+  });
   for (int a = 0; a < k; ++a) {
-    const int i = sorted[static_cast<std::size_t>(a)];
-    const auto& ei = mesh.edges[static_cast<std::size_t>(contour[i])];
-    const auto& si = scratch[static_cast<std::size_t>(i)];
-    const double high = std::max(si[0], si[2]);
-    for (int b = a + 1; b < k && low(sorted[static_cast<std::size_t>(b)]) <= high; ++b) {
-      const int j = sorted[static_cast<std::size_t>(b)];
-      const auto& ej = mesh.edges[static_cast<std::size_t>(contour[j])];
-      if (ei[0] == ej[0] || ei[0] == ej[1] || ei[1] == ej[0] || ei[1] == ej[1]) continue;
-      const auto& sj = scratch[static_cast<std::size_t>(j)];
-      if (segments_meet(&si[0], &si[2], &sj[0], &sj[2])) return false;
+    const ProjectedEdge& si = scratch[static_cast<std::size_t>(a)];
+    for (int b = a + 1; b < k && scratch[static_cast<std::size_t>(b)].low <= si.high; ++b) {
+      const ProjectedEdge& sj = scratch[static_cast<std::size_t>(b)];
+      if (si.v0 == sj.v0 || si.v0 == sj.v1 || si.v1 == sj.v0 || si.v1 == sj.v1) continue;
+      if (segments_meet(si.a, si.b, sj.a, sj.b)) return false;
     }
   }
   return true;
@@ -554,12 +570,12 @@ bool contour_is_simple(const ClothMesh& mesh, const Eigen::Matrix3Xd& x, const i
 // locally) and whose contour projects onto that plane without crossing itself projects one to
 // one: a height field, which cannot pass through itself.
 bool patch_is_flat(const SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix3Xd& x,
-                   int id, std::vector<std::array<double, 4>>& scratch, std::vector<int>& sorted) {
+                   int id, std::vector<ProjectedEdge>& scratch) {
   const Patch& p = sc.patches[static_cast<std::size_t>(id)];
   const PatchBounds& b = sc.patch_bounds[static_cast<std::size_t>(id)];
   if (!p.disk || !(b.angle < kFlatAngle)) return false;
   return contour_is_simple(mesh, x, sc.contour.data() + p.contour_begin,
-                           p.contour_end - p.contour_begin, b.axis, scratch, sorted);
+                           p.contour_end - p.contour_begin, b.axis, scratch);
 }
 
 // The search over the hierarchy: a patch's own pairs (unless flat), then pairs of patches whose
@@ -576,10 +592,10 @@ struct PairSearch {
   std::vector<std::array<int, 2>>& ee;
   std::vector<float>* vt_gap;
   std::vector<float>* ee_gap;
-  std::vector<std::array<double, 4>> scratch;
+  std::vector<ProjectedEdge> scratch;
   // Scratch for the union of two patches (union_is_flat): stamps per vertex and edge, its
   // contour.
-  std::vector<int> vertex_stamp, edge_stamp, union_contour, sorted;
+  std::vector<int> vertex_stamp, edge_stamp, union_contour;
   int stamp = 0;
 
   // Whether two disks that border each other form a flat disk (the same test as patch_is_flat, on
@@ -594,6 +610,9 @@ struct PairSearch {
     if (!pa.disk || !pb.disk) return false;
     const PatchBounds& ba = sc.patch_bounds[static_cast<std::size_t>(a)];
     const PatchBounds& bb = sc.patch_bounds[static_cast<std::size_t>(b)];
+    // The union's cone holds each part's, so a part's cone at least kFlatAngle wide decides it
+    // before the acos below.
+    if (!(ba.angle < kFlatAngle) || !(bb.angle < kFlatAngle)) return false;
     const Vec3 sum = ba.normal_sum + bb.normal_sum;
     const double len = sum.norm();
     if (!(len > 0.0)) return false;
@@ -635,7 +654,7 @@ struct PairSearch {
       if (edge_stamp[static_cast<std::size_t>(e)] == stamp) union_contour.push_back(e);
     }
     return contour_is_simple(mesh, x, union_contour.data(), static_cast<int>(union_contour.size()),
-                             axis, scratch, sorted);
+                             axis, scratch);
   }
 
   const Patch& patch(int id) const { return sc.patches[static_cast<std::size_t>(id)]; }
@@ -747,7 +766,7 @@ struct PairSearch {
   }
 
   void own(int id) {
-    if (skip_flat && patch_is_flat(sc, mesh, x, id, scratch, sorted)) return;
+    if (skip_flat && patch_is_flat(sc, mesh, x, id, scratch)) return;
     const Patch& p = patch(id);
     if (p.left < 0) {
       triangles_vertices(id, id);
@@ -807,7 +826,6 @@ void find_pairs(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3
                     ee,
                     vt_gap,
                     ee_gap,
-                    {},
                     {},
                     {},
                     {},

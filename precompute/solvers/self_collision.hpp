@@ -66,7 +66,10 @@ struct PatchBounds {
   Vec3 lo, hi;      // box of its vertices
   Vec3 normal_sum;  // sum of its triangles' area-weighted normals
   Vec3 axis;        // normal_sum normalised (zero if it vanishes)
-  double angle;     // cone half-angle (rad) about axis holding every triangle normal; pi if none
+  // Cone half-angle (rad) about axis holding every triangle normal; pi if none. Only ever compared
+  // with the flat cone (self_collision.cpp, kFlatAngle), so a cone known to be at least that wide
+  // is stored as pi without computing it.
+  double angle;
 };
 
 // Holds `vertex` to `side` of `triangle`'s plane (plan_untangle, below).
