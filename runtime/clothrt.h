@@ -77,7 +77,10 @@ typedef struct clothrt_db_options {
 void clothrt_db_options_init(clothrt_db_options* options);
 
 /* Opens a clothdb database read-only and loads its graph. options may be NULL (defaults).
- * On failure *out is NULL and clothrt_last_open_errmsg() says why. */
+ * On failure *out is NULL and clothrt_last_open_errmsg() says why. The file is read through a
+ * memory map (SQLite's mmap_size, up to 1 GiB of it; docs/DATABASE.md): an I/O error on the file
+ * while it is read (a disk or network file system failing under it) then arrives as SIGBUS, not as
+ * CLOTHRT_ERR_IO. */
 int clothrt_db_open(const char* path, const clothrt_db_options* options, clothrt_db** out);
 void clothrt_db_close(clothrt_db* db); /* NULL is fine */
 const char* clothrt_last_open_errmsg(void);
