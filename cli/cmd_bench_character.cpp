@@ -33,7 +33,8 @@ std::string load_average() {
 
 void register_bench_character(CLI::App& bench) {
   struct Args {
-    std::string scene, solvers, substeps = "0", threads = "1", motions, self_collision, out;
+    std::string scene, solvers, substeps = "0", threads = "1", motions, self_collision, out,
+                                strain_targets;
     int vertices = 0, settle_every = 0;
     CharacterBenchOptions options;
   };
@@ -95,6 +96,12 @@ void register_bench_character(CLI::App& bench) {
                   "Comma-separated XPBD self-collision thicknesses in mm, 0: off, e.g. 0,4; "
                   "default: the scene's, and when that is on also a run without it (the table's "
                   "'CPU vs off' column is its cost)");
+  cmd->add_flag("--reference", args->options.reference,
+                "Also run each setting at 8x the sub-steps (the converged run of the same model) "
+                "over the same frames and report the RMS and largest vertex distance to it");
+  cmd->add_option("--strain-targets", args->strain_targets,
+                  "Comma-separated largest-strain targets in percent, e.g. 5,2.5: the cheapest run "
+                  "(CPU per frame) whose largest strain meets each is marked");
   cmd->add_option("--settle-every", args->settle_every,
                   "Instead of the clip run: settle the garment from every N-th frame of the clip "
                   "and print each settled state's largest edge strain and penetration");
@@ -122,6 +129,9 @@ void register_bench_character(CLI::App& bench) {
             "--self-collision: expected thicknesses in mm in [0, 50], got '" + t + "'");
       options.self_collision_mm.push_back(mm);
     }
+    if (!args->strain_targets.empty())
+      for (double t : number_list("--strain-targets", args->strain_targets, 0.0, 100.0, false))
+        options.strain_targets.push_back(t / 100.0);
     if (args->vertices > 0) {
       if (file.garment_kind == GarmentKind::Mesh)
         throw std::invalid_argument(args->scene +

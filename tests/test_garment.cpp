@@ -106,6 +106,35 @@ TEST(Garment, SkirtOnWalkStaysWithinTheStrainBoundWhereTheBodyPushesOnIt) {
   EXPECT_LE(with_rounds[0].p99_strain, 0.03);
 }
 
+// `bench character --reference --strain-targets`: each run is compared with the same setting at
+// 8x the sub-steps (scene_reference), over the same frames; a strain target that every run meets
+// marks exactly one run, one that none meets marks none.
+TEST(Garment, BenchCharacterComparesEachRunWithItsSettingAtEightTimesTheSubsteps) {
+  SceneFile file = load_scene_file(kMotions + "skirt_walk.json");
+  file.settle_frames = 3;
+  CharacterBenchOptions options;
+  options.clip = "01_01";
+  options.frames = 5;
+  options.substeps = {4, 6};
+  options.reference = true;
+  options.strain_targets = {1.0, 1e-6};
+  const auto rows = run_character_bench(file, options);
+  ASSERT_EQ(rows.size(), 2u);
+  int marked_all = 0, marked_none = 0;
+  for (const CharacterBenchRow& r : rows) {
+    ASSERT_TRUE(r.stable) << r.message;
+    const int substeps = r.solver.find("substeps=4 ") != std::string::npos ? 4 : 6;
+    EXPECT_NE(r.reference.find("substeps=" + std::to_string(8 * substeps) + " "), std::string::npos)
+        << r.reference;
+    // A run is not its own reference: a coarser step leaves the cloth somewhere else.
+    EXPECT_GT(r.reference_rms_mm, 0.0) << r.solver;
+    EXPECT_GE(r.reference_max_mm, r.reference_rms_mm) << r.solver;
+    for (double t : r.cheapest_for) (t == 1.0 ? marked_all : marked_none)++;
+  }
+  EXPECT_EQ(marked_all, 1);
+  EXPECT_EQ(marked_none, 0);
+}
+
 // The demo skirt at 3,000 and 12,000 vertices (motions/skirt_walk_12k.json) with the setting
 // docs/guide/resolution.md gives for 12k (strain-limit over-relaxation 1.8, Chebyshev rho 0.8 on
 // 4 stretch sweeps): over 01_01's first 30 frames after a short settle, within 0.5 % of the strain

@@ -8,6 +8,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "bench/strain_study.hpp"
 #include "cloth/self_intersection.hpp"
 #include "report/stats.hpp"
 
@@ -69,7 +70,8 @@ void locate_edge(const CharacterScene& scene, const MotionClip& clip, int f,
 
 CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverKind kind,
                           const SolverSettings& settings, ColliderMotion motion, int frames,
-                          const std::function<void(const std::string&)>& progress) {
+                          const std::function<void(const std::string&)>& progress,
+                          std::vector<Eigen::Matrix3Xd>* positions = nullptr) {
   scene.env.collider_motion = motion;
   auto solver = make_solver(kind, scene.model, settings);
   CharacterBenchRow row;
@@ -80,6 +82,7 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
   row.vertices = scene.model.vertex_count();
   row.capsules = static_cast<int>(scene.body.capsules.size());
   ClothState state = settle_garment(scene, *solver, clip_pose(clip, 0));
+  if (positions != nullptr) positions->assign(1, state.x);
   double wall = 0, cpu = 0;
   long iterations = 0, factorizations = 0, limit_passes = 0;
   std::vector<double> strains;  // every edge at every frame, for the percentile
@@ -97,6 +100,7 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
     }
     wall += run.seconds;
     ++row.frames;
+    if (positions != nullptr) positions->push_back(state.x);
     row.step_halvings += run.step_halvings;
     const FrameMetrics& m = run.metrics.front();
     iterations += m.iterations;
@@ -165,6 +169,12 @@ std::string worst_edge_text(const CharacterBenchRow& r) {
          " % down, " + fixed(1e3 * r.worst_edge_gap, 1) + " mm from " + r.worst_edge_bone;
 }
 
+std::string cheapest_text(const std::vector<double>& targets) {
+  std::string out;
+  for (double t : targets) out += (out.empty() ? "**" : ", **") + fixed(100 * t, 2) + " %**";
+  return out.empty() ? "-" : out;
+}
+
 }  // namespace
 
 std::vector<CharacterBenchRow> run_character_bench(
@@ -206,8 +216,25 @@ std::vector<CharacterBenchRow> run_character_bench(
         for (ColliderMotion motion : motions) {
           for (double mm : self_mm) {
             settings.self_collision_thickness_mm = mm;
-            rows.push_back(run_one(scene, clip, kind, settings, motion, frames, progress));
-            const CharacterBenchRow& r = rows.back();
+            std::vector<Eigen::Matrix3Xd> run_positions;
+            rows.push_back(run_one(scene, clip, kind, settings, motion, frames, progress,
+                                   options.reference ? &run_positions : nullptr));
+            CharacterBenchRow& r = rows.back();
+            if (options.reference && r.stable) {
+              const SolverCandidate ref = scene_reference(kind, settings);
+              std::vector<Eigen::Matrix3Xd> ref_positions;
+              const CharacterBenchRow rr = run_one(scene, clip, kind, ref.settings, motion, frames,
+                                                   progress, &ref_positions);
+              r.reference = rr.solver;
+              if (rr.stable && rr.frames > 0) {
+                const FrameErrors e = compare_frames(run_positions, ref_positions, 1);
+                r.reference_rms_mm = 1e3 * e.rms;
+                r.reference_max_mm = 1e3 * e.max;
+                r.reference_cpu_ms_per_frame = rr.cpu_ms_per_frame;
+              } else {
+                r.reference += " (unstable: " + rr.message + ")";
+              }
+            }
             if (progress)
               progress(r.solver + " threads=" + std::to_string(threads) + " " +
                        collider_motion_name(motion) + ": " + fixed(r.ms_per_frame, 2) +
@@ -223,11 +250,23 @@ std::vector<CharacterBenchRow> run_character_bench(
                                   fixed(r.strain_limit_passes_per_substep, 2) + " (capped " +
                                   std::to_string(r.strain_limit_capped) + ")"
                             : std::string()) +
+                       (std::isfinite(r.reference_rms_mm)
+                            ? ", " + fixed(r.reference_rms_mm, 2) + " / " +
+                                  fixed(r.reference_max_mm, 2) + " mm RMS / max from 8x sub-steps"
+                            : std::string()) +
                        (r.stable ? "" : ", UNSTABLE: " + r.message));
           }
         }
       }
     }
+  }
+  for (double target : options.strain_targets) {
+    CharacterBenchRow* best = nullptr;
+    for (CharacterBenchRow& row : rows)
+      if (row.stable && meets_strain_target(row.max_strain, target) &&
+          (best == nullptr || row.cpu_ms_per_frame < best->cpu_ms_per_frame))
+        best = &row;
+    if (best != nullptr) best->cheapest_for.push_back(target);
   }
   return rows;
 }
@@ -261,9 +300,10 @@ std::string character_rows_markdown(const std::vector<CharacterBenchRow>& rows) 
          "p99 strain | max strain "
          "| max pen. mm | mean pen. mm | tunnelled | deepest path | it./frame | fact./frame "
          "| halvings | worst edge | self-col. mm | CPU vs off | crossings max (frame) | frames "
-         "crossing | stable |\n"
+         "crossing | RMS / max mm from 8x sub-steps | ref. CPU ms/frame | cheapest within | "
+         "stable |\n"
          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
-         "---|\n";
+         "---|---|---|---|\n";
   for (const auto& r : rows) {
     // The cost of self-collision: CPU per frame over that of the same run without it (same
     // sub-steps, threads and colliders), when the table has one.
@@ -286,8 +326,15 @@ std::string character_rows_markdown(const std::vector<CharacterBenchRow>& rows) 
         << r.self_intersections << " ("
         << (r.self_intersection_frame < 0 ? std::string("-")
                                           : std::to_string(r.self_intersection_frame))
-        << ") | " << r.self_intersection_frames << " | " << (r.stable ? "yes" : "no: " + r.message)
-        << " |\n";
+        << ") | " << r.self_intersection_frames << " | "
+        << (std::isfinite(r.reference_rms_mm)
+                ? fixed(r.reference_rms_mm, 2) + " / " + fixed(r.reference_max_mm, 2)
+                : std::string("-"))
+        << " | "
+        << (std::isfinite(r.reference_cpu_ms_per_frame) ? fixed(r.reference_cpu_ms_per_frame, 2)
+                                                        : std::string("-"))
+        << " | " << cheapest_text(r.cheapest_for) << " | "
+        << (r.stable ? "yes" : "no: " + r.message) << " |\n";
   }
   return out.str();
 }

@@ -1,9 +1,12 @@
 // `clothdb bench character`: a character scene's clip run with several solvers, sub-step counts,
 // thread counts and collider motions (docs/GUIDE.md#the-pipeline-command-by-command): time per
 // frame, edge strain, penetration into the body capsules, and tunnelling (vertices whose path
-// crossed a capsule during a frame).
+// crossed a capsule during a frame). On request, each run's distance to a converged run of the same
+// model (the same setting at 8x the sub-steps) and, per strain target, the cheapest run that meets
+// it (as `bench solvers --strain-study` does for the cloth-only scenes).
 #pragma once
 
+#include <cmath>
 #include <functional>
 #include <string>
 #include <vector>
@@ -35,6 +38,12 @@ struct CharacterBenchOptions {
   // on also a run without it, so its cost is shown beside the same run without
   // (docs/guide/self_collision.md).
   std::vector<double> self_collision_mm;
+  // Also run each setting at 8x the sub-steps (scene_reference, solvers/solver_candidates.hpp)
+  // over the same frames and report the distance to it.
+  bool reference = false;
+  // Largest-strain targets, (l - l0) / l0: the cheapest stable run (CPU per frame) whose largest
+  // strain meets each (meets_strain_target, bench/strain_study.hpp) is marked.
+  std::vector<double> strain_targets;
 };
 
 struct CharacterBenchRow {
@@ -78,6 +87,12 @@ struct CharacterBenchRow {
   std::string worst_edge_bone;
   bool stable = true;
   std::string message;
+  // CharacterBenchOptions::reference: the reference's label, the RMS and the largest vertex
+  // distance to it over frames 1..frames (compare_frames, mm), and its CPU per frame. NaN when
+  // not run or unstable.
+  std::string reference;
+  double reference_rms_mm = NAN, reference_max_mm = NAN, reference_cpu_ms_per_frame = NAN;
+  std::vector<double> cheapest_for;  // the strain targets this run is the cheapest to meet
 };
 
 // The fastest point of any body capsule (its end points) over clip frames [0, frames).
