@@ -275,8 +275,7 @@ Compared compare_v2(const Frames& f, const codec::Basis& basis, double bound_mm,
 // Codec version 3 within a contract, clip by clip (as `db recode --codec v3` encodes them), its
 // bytes counting the basis once. Prints where the bytes go.
 Compared compare_v3(const Frames& f, const codec::Basis& basis, const codec::Contract& contract,
-                    uint32_t segment_frames, int level, int repeat, size_t basis_bytes,
-                    const std::string& label, double coefficient_step) {
+                    uint32_t segment_frames, int level, int repeat) {
   std::vector<uint32_t> starts = f.clip_starts;
   if (starts.empty()) starts.push_back(0);
   const size_t n = size_t(f.vertices) * 3;
@@ -284,8 +283,8 @@ Compared compare_v3(const Frames& f, const codec::Basis& basis, const codec::Con
   s.contract = contract;
   s.zstd_level = level;
   s.segment_frames = segment_frames;
-  s.coefficient_step = coefficient_step;
   std::vector<std::vector<uint8_t>> blobs;
+  const size_t basis_bytes = codec::serialize_basis(basis).size();
   size_t bytes = basis_bytes, header = 0, coefficients = 0, residual = 0;
   uint64_t symbols = 0, nonzero = 0;
   uint32_t with_residual = 0;
@@ -306,9 +305,9 @@ Compared compare_v3(const Frames& f, const codec::Basis& basis, const codec::Con
   const double encode_s = thread_cpu_seconds() - t0;
   const double vf = double(f.vertices) * f.frames;
   std::printf(
-      "v3, %s: bits per vertex-frame: basis %.3f, headers %.3f, coefficients %.3f, residual "
+      "v3, %u modes: bits per vertex-frame: basis %.3f, headers %.3f, coefficients %.3f, residual "
       "%.3f; residual symbols not 0: %.1f %%; encoded in %.1f CPU s\n",
-      label.c_str(), 8.0 * basis_bytes / vf, 8.0 * header / vf, 8.0 * coefficients / vf,
+      basis.mode_count, 8.0 * basis_bytes / vf, 8.0 * header / vf, 8.0 * coefficients / vf,
       8.0 * residual / vf, symbols ? 100.0 * double(nonzero) / double(symbols) : 0.0, encode_s);
   codec::DecodeScratch scratch;
   std::vector<float> out(f.x.size());
@@ -330,8 +329,8 @@ Compared compare_v3(const Frames& f, const codec::Basis& basis, const codec::Con
     }
   });
   char name[160];
-  std::snprintf(name, sizeof name, "v3, %s (+ basis), residual in %u of %zu clips", label.c_str(),
-                with_residual, starts.size());
+  std::snprintf(name, sizeof name, "v3, %u modes (+ basis), residual in %u of %zu clips",
+                basis.mode_count, with_residual, starts.size());
   return finish(f, name, 0, bytes, out, t);
 }
 
@@ -497,180 +496,16 @@ Frames frames_from_db(const std::string& path, uint32_t limit) {
   return f;
 }
 
-// ---- Per-cluster bases (issue 33: "per-region or per-node-cluster bases if they pay") ----
-
-// Vertices partitioned into K clusters by k-means (Lloyd) on the rest shape: seeds by farthest
-// point from vertex 0, then 50 iterations; ties go to the lower cluster, so the partition depends
-// only on the rest shape. Returns each vertex's cluster.
-std::vector<uint32_t> kmeans_clusters(const std::vector<float>& rest, uint32_t V, uint32_t K) {
-  std::vector<uint32_t> label(V, 0);
-  std::vector<double> centre(size_t(K) * 3);
-  auto d2 = [&](uint32_t v, uint32_t k) {
-    double s = 0;
-    for (int a = 0; a < 3; ++a) {
-      const double d = double(rest[3 * size_t(v) + a]) - centre[3 * size_t(k) + a];
-      s += d * d;
-    }
-    return s;
-  };
-  for (int a = 0; a < 3; ++a) centre[size_t(a)] = rest[size_t(a)];
-  std::vector<double> nearest(V, 1e300);
-  for (uint32_t k = 1; k < K; ++k) {
-    uint32_t far = 0;
-    for (uint32_t v = 0; v < V; ++v) {
-      nearest[v] = std::min(nearest[v], d2(v, k - 1));
-      if (nearest[v] > nearest[far]) far = v;
-    }
-    for (int a = 0; a < 3; ++a) centre[3 * size_t(k) + a] = rest[3 * size_t(far) + a];
-  }
-  for (int it = 0; it < 50; ++it) {
-    for (uint32_t v = 0; v < V; ++v) {
-      uint32_t best = 0;
-      for (uint32_t k = 1; k < K; ++k)
-        if (d2(v, k) < d2(v, best)) best = k;
-      label[v] = best;
-    }
-    std::vector<double> sum(size_t(K) * 3, 0.0);
-    std::vector<uint32_t> count(K, 0);
-    for (uint32_t v = 0; v < V; ++v) {
-      ++count[label[v]];
-      for (int a = 0; a < 3; ++a) sum[3 * size_t(label[v]) + a] += rest[3 * size_t(v) + a];
-    }
-    for (uint32_t k = 0; k < K; ++k)
-      if (count[k])
-        for (int a = 0; a < 3; ++a) centre[3 * size_t(k) + a] = sum[3 * size_t(k) + a] / count[k];
-  }
-  return label;
-}
-
-// Vertices partitioned into K bands of equal vertex count by height (the rest shape's y): for a
-// skirt, rings from the waist to the hem.
-std::vector<uint32_t> band_clusters(const std::vector<float>& rest, uint32_t V, uint32_t K) {
-  std::vector<uint32_t> order(V);
-  for (uint32_t v = 0; v < V; ++v) order[v] = v;
-  std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) {
-    return rest[3 * size_t(a) + 1] > rest[3 * size_t(b) + 1];
-  });
-  std::vector<uint32_t> label(V);
-  for (uint32_t i = 0; i < V; ++i) label[order[i]] = uint32_t(uint64_t(i) * K / V);
-  return label;
-}
-
-struct ClusterBasis {
-  codec::Basis basis;       // block-sparse: each mode is zero outside its cluster
-  size_t stored_bytes = 0;  // what a per-cluster layout would store (no zeros)
-  std::string label;
-};
-
-// One PCA per cluster (build_subspace on the cluster's coordinates of the sample), M modes each,
-// laid out as one basis of K x M modes that are zero outside their cluster: the same decoded
-// frames, coefficients and residual as a per-cluster layout would give, so the v3 encoder measures
-// it as is. stored_bytes counts what such a layout stores: the mean (3V float32), a cluster index
-// per vertex (one byte), and per cluster M scales and M x 3 V_k int16 values.
-ClusterBasis cluster_basis(const Frames& f, const std::vector<float>& sample,
-                           const std::vector<uint32_t>& label, uint32_t K, uint32_t M,
-                           const std::string& how, const codec::Contract& contract) {
-  const size_t n = size_t(f.vertices) * 3, N = sample.size() / n;
-  // What the modes leave of every frame (float projections, no quantisation), per vertex squared:
-  // how much of the frames the RMS and max caps would pass without a residual.
-  std::vector<double> left2(size_t(f.frames) * f.vertices, 0.0);
-  std::vector<float> mean(n, 0.0f), modes;
-  size_t stored = 24 + n * 4 + f.vertices;
-  double left = 0, total = 0;
-  uint32_t mode_count = 0;
-  const double t = thread_cpu_seconds();
-  for (uint32_t k = 0; k < K; ++k) {
-    std::vector<uint32_t> coords;
-    for (uint32_t v = 0; v < f.vertices; ++v)
-      if (label[v] == k)
-        for (uint32_t a = 0; a < 3; ++a) coords.push_back(3 * v + a);
-    if (coords.empty()) continue;
-    const size_t nk = coords.size();
-    std::vector<float> part(nk * N);
-    for (size_t j = 0; j < N; ++j)
-      for (size_t i = 0; i < nk; ++i) part[j * nk + i] = sample[j * n + coords[i]];
-    const Subspace s = build_subspace(part, uint32_t(nk), M);
-    for (size_t i = 0; i < nk; ++i) mean[coords[i]] = s.mean[i];
-    for (uint32_t m = 0; m < s.modes; ++m) {
-      modes.resize(modes.size() + n, 0.0f);
-      float* u = modes.data() + modes.size() - n;
-      for (size_t i = 0; i < nk; ++i) u[coords[i]] = s.basis[size_t(m) * nk + i];
-    }
-    std::vector<double> d(nk);
-    for (uint32_t j = 0; j < f.frames; ++j) {
-      const float* x = f.x.data() + size_t(j) * n;
-      for (size_t i = 0; i < nk; ++i) d[i] = double(x[coords[i]]) - double(s.mean[i]);
-      for (uint32_t m = 0; m < s.modes; ++m) {
-        const float* u = s.basis.data() + size_t(m) * nk;
-        double dot = 0;
-        for (size_t i = 0; i < nk; ++i) dot += double(u[i]) * d[i];
-        for (size_t i = 0; i < nk; ++i) d[i] -= dot * double(u[i]);
-      }
-      for (size_t i = 0; i < nk; ++i) left2[size_t(j) * f.vertices + coords[i] / 3] += d[i] * d[i];
-    }
-    mode_count += s.modes;
-    stored += size_t(s.modes) * (4 + 2 * nk);
-    left += s.residual_rms * s.residual_rms * double(nk);
-    total += s.sample_rms * s.sample_rms * double(nk);
-  }
-  ClusterBasis c;
-  c.basis = codec::make_basis(1, f.vertices, mean.data(), modes.data(), mode_count);
-  c.stored_bytes = stored;
-  char label_text[96];
-  std::snprintf(label_text, sizeof label_text, "%u %s clusters x %u modes", K, how.c_str(), M);
-  c.label = label_text;
-  std::printf(
-      "cluster basis: %s (%u modes in all) from %zu frames in %.1f CPU s, %.2f MB stored; sample "
-      "RMS %.2f mm, RMS left by the modes %.2f mm\n",
-      c.label.c_str(), mode_count, N, thread_cpu_seconds() - t, double(stored) / 1e6,
-      std::sqrt(total / double(n)) * 1e3, std::sqrt(left / double(n)) * 1e3);
-  std::vector<uint32_t> starts = f.clip_starts;
-  if (starts.empty()) starts.push_back(0);
-  uint64_t frames_within = 0, over_max = 0;
-  uint32_t clips_within = 0;
-  double worst_rms = 0, worst_max = 0;
-  for (size_t k = 0; k < starts.size(); ++k) {
-    const uint32_t end = k + 1 < starts.size() ? starts[k + 1] : f.frames;
-    bool clip_ok = true;
-    for (uint32_t j = starts[k]; j < end; ++j) {
-      double sum = 0, big = 0;
-      for (uint32_t v = 0; v < f.vertices; ++v) {
-        const double e2 = left2[size_t(j) * f.vertices + v];
-        sum += e2;
-        big = std::max(big, e2);
-        over_max += e2 > contract.max * contract.max;
-      }
-      const double rms = std::sqrt(sum / f.vertices), mx = std::sqrt(big);
-      worst_rms = std::max(worst_rms, rms);
-      worst_max = std::max(worst_max, mx);
-      const bool ok = rms <= contract.rms && mx <= contract.max;
-      frames_within += ok;
-      clip_ok = clip_ok && ok;
-    }
-    clips_within += clip_ok;
-  }
-  std::printf(
-      "  without a residual: %.1f %% of frames within RMS %g / max %g mm, %u of %zu clips; "
-      "vertex-frames over the max cap %.3f %%; worst frame RMS %.2f mm, worst vertex %.2f mm\n",
-      100.0 * double(frames_within) / f.frames, contract.rms * 1e3, contract.max * 1e3,
-      clips_within, starts.size(), 100.0 * double(over_max) / (double(f.frames) * f.vertices),
-      worst_rms * 1e3, worst_max * 1e3);
-  return c;
-}
-
 // The comparison table: every codec asked for at every bound, on the same frames.
 void compare_codecs(const Frames& f, const std::vector<std::string>& codecs,
                     const std::vector<std::string>& bounds, const std::vector<std::string>& modes,
                     uint32_t key_interval, int level, int repeat, uint32_t basis_frames,
-                    const codec::Contract& contract, uint32_t segment_frames,
-                    const std::vector<std::string>& clusters, const std::string& cluster_by,
-                    double coefficient_step) {
+                    const codec::Contract& contract, uint32_t segment_frames) {
   auto wants = [&](const char* name) {
     return std::find(codecs.begin(), codecs.end(), name) != codecs.end();
   };
   // v2 bases, each with the body frames it is used with (empty: character space).
   std::vector<std::pair<codec::Basis, std::vector<float>>> bases;
-  std::vector<ClusterBasis> cluster_bases;  // v3 only, with --clusters
   const bool subspace_rows = wants("v3") || wants("kim");
   for (const bool body : {false, true}) {
     if (!wants(body ? "v2-body" : "v2") && (body || !subspace_rows)) continue;
@@ -702,21 +537,6 @@ void compare_codecs(const Frames& f, const std::vector<std::string>& codecs,
           double(codec::serialize_basis(bases.back().first).size()) / 1e6, s.sample_rms * 1e3,
           s.residual_rms * 1e3);
     }
-    if (body || !wants("v3")) continue;
-    const std::vector<float> rest =
-        f.rest.empty() ? std::vector<float>(f.x.begin(), f.x.begin() + ptrdiff_t(n)) : f.rest;
-    for (const auto& kc : clusters) {
-      const uint32_t K = uint32_t(std::stoul(kc));
-      const std::vector<uint32_t> label = cluster_by == "bands"
-                                              ? band_clusters(rest, f.vertices, K)
-                                              : kmeans_clusters(rest, f.vertices, K);
-      for (const auto& m : modes) {
-        // K = 1: the garment's basis again, for what it leaves (its v3 row is above).
-        ClusterBasis c =
-            cluster_basis(f, sample, label, K, uint32_t(std::stoul(m)), cluster_by, contract);
-        if (K > 1) cluster_bases.push_back(std::move(c));
-      }
-    }
   }
   std::printf(
       "\n| codec | bound (mm) | ratio vs float32 | bits/vertex/frame | max coordinate error (mm) | "
@@ -736,10 +556,7 @@ void compare_codecs(const Frames& f, const std::vector<std::string>& codecs,
         contract.rms * 1e3, contract.max * 1e3, contract.jitter * 1e3);
   for (const auto& [basis, transforms] : bases) {
     if (!transforms.empty()) continue;
-    if (wants("v3") && std::find(clusters.begin(), clusters.end(), "1") != clusters.end())
-      print(compare_v3(f, basis, contract, segment_frames, level, repeat,
-                       codec::serialize_basis(basis).size(),
-                       std::to_string(basis.mode_count) + " modes", coefficient_step));
+    if (wants("v3")) print(compare_v3(f, basis, contract, segment_frames, level, repeat));
     if (wants("kim")) {
       // The fewest modes (of this basis, in steps of 8) whose worst-frame RMS is within the
       // contract's: Kim et al.'s PCA at the same RMS, with whatever max and jitter that leaves.
@@ -760,9 +577,6 @@ void compare_codecs(const Frames& f, const std::vector<std::string>& codecs,
       print(best);
     }
   }
-  for (const ClusterBasis& c : cluster_bases)
-    print(compare_v3(f, c.basis, contract, segment_frames, level, repeat, c.stored_bytes, c.label,
-                     coefficient_step));
   for (const auto& b : bounds) {
     const double bound_mm = std::stod(b);
     if (wants("v1")) print(compare_v1(f, bound_mm, key_interval, level, repeat));
@@ -821,8 +635,6 @@ void register_bench_codec(CLI::App& bench) {
     double rms_mm = 1, max_mm = 3, jitter_mm = codec::kDefaultJitterCap * 1e3;
     uint32_t segment_frames = codec::V3Settings{}.segment_frames;
     uint32_t basis_frames = 3000, db_frames = 3000;
-    std::string clusters = "1", cluster_by = "kmeans";
-    double coefficient_step_mm = 0;
     bool skip_v1_table = false, predictability = false;
     SolverOptions solver;
   };
@@ -894,20 +706,6 @@ void register_bench_codec(CLI::App& bench) {
                   "Comma-separated basis sizes for v2 (PCA of the frames themselves, as `db "
                   "recode` builds it from a database's own frames)")
       ->capture_default_str();
-  cmd->add_option(
-         "--clusters", args->clusters,
-         "v3: comma-separated cluster counts K; for each K > 1 also a basis of one PCA "
-         "per cluster of vertices, --modes modes each (1: the garment's basis; without 1, only "
-         "the cluster bases' v3 rows)")
-      ->capture_default_str();
-  cmd->add_option("--cluster-by", args->cluster_by,
-                  "With --clusters: kmeans (k-means on the rest shape) or bands (equal vertex "
-                  "counts by rest height)")
-      ->capture_default_str()
-      ->check(CLI::IsMember({"kmeans", "bands"}));
-  cmd->add_option("--coefficient-step-mm", args->coefficient_step_mm,
-                  "v3: the coefficients' quantisation step (mm; 0: half the jitter cap)")
-      ->capture_default_str();
   cmd->add_option("--basis-frames", args->basis_frames,
                   "Frames sampled evenly to build the v2 basis")
       ->capture_default_str();
@@ -924,7 +722,6 @@ void register_bench_codec(CLI::App& bench) {
     // Every list is checked before anything is simulated or read.
     number_list("--bounds", args->bounds, 1e-6, 1e6, false);
     number_list("--modes", args->modes, 0, 1024, true);
-    number_list("--clusters", args->clusters, 1, 256, true);
     number_list("--key-intervals", args->key_intervals, 0, 1 << 20, true);
     number_list("--levels", args->levels, 1, 22, true);
     Frames f;
@@ -981,8 +778,7 @@ void register_bench_codec(CLI::App& bench) {
         uint32_t(std::stoul(split_list(args->key_intervals).front())),
         std::stoi(split_list(args->levels).front()), std::max(3, args->repeat), args->basis_frames,
         codec::Contract{args->rms_mm * 1e-3, args->max_mm * 1e-3, args->jitter_mm * 1e-3},
-        args->segment_frames, split_list(args->clusters), args->cluster_by,
-        args->coefficient_step_mm * 1e-3);
+        args->segment_frames);
   });
 }
 
