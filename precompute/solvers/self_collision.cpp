@@ -597,11 +597,6 @@ struct PairSearch {
   // contour.
   std::vector<int> vertex_stamp, edge_stamp, union_contour;
   int stamp = 0;
-  // At a build: what keeps the lists complete, one watch per region the search settled.
-  std::vector<PatchWatch>* watches = nullptr;
-  void watch(int a, int b, double slack) {
-    if (watches) watches->push_back({a, b, float_below(slack)});
-  }
 
   // Whether two disks that border each other form a flat disk (the same test as patch_is_flat, on
   // their union): a pair of patches split apart high in the tree along a flat stretch of cloth is
@@ -663,16 +658,6 @@ struct PairSearch {
   }
 
   const Patch& patch(int id) const { return sc.patches[static_cast<std::size_t>(id)]; }
-
-  // The largest separation of the two patches' boxes along an axis: a lower bound on the distance
-  // between any parts of the two.
-  double separation(int a, int b) const {
-    const PatchBounds& p = sc.patch_bounds[static_cast<std::size_t>(a)];
-    const PatchBounds& q = sc.patch_bounds[static_cast<std::size_t>(b)];
-    double sep = -INFINITY;
-    for (int k = 0; k < 3; ++k) sep = std::max({sep, p.lo[k] - q.hi[k], q.lo[k] - p.hi[k]});
-    return sep;
-  }
 
   bool apart(int a, int b) const {
     const PatchBounds& p = sc.patch_bounds[static_cast<std::size_t>(a)];
@@ -780,21 +765,12 @@ struct PairSearch {
     }
   }
 
-  // Each way the search settles a region leaves a watch (PatchWatch): a flat patch or a flat
-  // union, a leaf or a pair of leaves searched (pairs left out were farther than the reach: slack
-  // reach - thickness, the skin), and a pair of patches found apart (slack: their boxes'
-  // separation less the thickness). Together they cover every vertex-triangle and edge-edge pair
-  // once.
   void own(int id) {
-    if (skip_flat && patch_is_flat(sc, mesh, x, id, scratch)) {
-      watch(id, id, reach - thickness);
-      return;
-    }
+    if (skip_flat && patch_is_flat(sc, mesh, x, id, scratch)) return;
     const Patch& p = patch(id);
     if (p.left < 0) {
       triangles_vertices(id, id);
       edges_edges(id, id);
-      watch(id, id, reach - thickness);
       return;
     }
     own(p.left);
@@ -803,21 +779,14 @@ struct PairSearch {
   }
 
   void between(int a, int b) {
-    if (apart(a, b)) {
-      if (watches) watch(a, b, separation(a, b) - thickness);
-      return;
-    }
-    if (skip_flat && union_is_flat(a, b)) {
-      watch(a, b, reach - thickness);
-      return;
-    }
+    if (apart(a, b)) return;
+    if (skip_flat && union_is_flat(a, b)) return;
     const Patch& pa = patch(a);
     const Patch& pb = patch(b);
     if (pa.left < 0 && pb.left < 0) {
       triangles_vertices(a, b);
       triangles_vertices(b, a);
       edges_edges(a, b);
-      watch(a, b, reach - thickness);
       return;
     }
     // Descend the larger (by triangles) of the two that can be split.
@@ -836,12 +805,11 @@ struct PairSearch {
 void find_pairs(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x, double reach,
                 bool skip_rest_neighbours, bool skip_flat, std::vector<std::array<int, 2>>& vt,
                 std::vector<std::array<int, 2>>& ee, std::vector<float>* vt_gap = nullptr,
-                std::vector<float>* ee_gap = nullptr, std::vector<PatchWatch>* watches = nullptr) {
+                std::vector<float>* ee_gap = nullptr) {
   vt.clear();
   ee.clear();
   if (vt_gap) vt_gap->clear();
   if (ee_gap) ee_gap->clear();
-  if (watches) watches->clear();
   if (!x.allFinite() || model.mesh.edges.empty() || sc.patches.empty())
     return;  // the solver's sanity check reports it
   refit_patches(sc, model.mesh, x);
@@ -863,7 +831,6 @@ void find_pairs(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3
                     {},
                     {},
                     0};
-  search.watches = watches;
   search.own(0);
 }
 
@@ -915,7 +882,7 @@ void sort_pairs(std::vector<std::array<int, 2>>& pairs, std::vector<float>& gaps
 
 void build_candidates(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x) {
   find_pairs(sc, model, x, sc.thickness + sc.skin, true, true, sc.vertex_triangle, sc.edge_edge,
-             &sc.vertex_triangle_gap, &sc.edge_edge_gap, &sc.watches);
+             &sc.vertex_triangle_gap, &sc.edge_edge_gap);
   std::vector<int> begin;
   std::vector<std::array<int, 2>> pairs_out;
   std::vector<float> gaps_out;
@@ -977,58 +944,6 @@ void raise_moved(std::vector<double>& moved, const Eigen::Matrix3Xd& x,
         std::max(moved[static_cast<std::size_t>(i)], (x.col(i) - built.col(i) - m).norm());
 }
 
-// Whether the last build's lists are still complete at x (docs/notebook/self_collision.md, "Ninth
-// round"): for every watch (PatchWatch), the box of the displacements since the build over the
-// vertices of its patches has a diagonal of at most the watch's slack. Any two of those vertices
-// have then moved by at most the slack relative to each other, and a vertex-triangle or edge-edge
-// distance changes by at most the largest relative motion of its corners, so a pair left out at the
-// build (farther than thickness + slack) is still farther than the thickness. The test before,
-// every vertex within skin / 2 of the garment's common motion, asked this of every two vertices of
-// the garment at once: the swinging hem rebuilt the lists of the whole skirt, although only patches
-// near each other need to keep together (each within its own slack), and a patch found flat only
-// needs to keep its shape (its own pairs were not listed: the same bound on its bending, skin, as
-// before, Volino & Magnenat-Thalmann 1994's test holding up to it as it did).
-bool lists_still_complete(SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix3Xd& x) {
-  sc.displacement.resize(3, x.cols());
-  sc.displacement.noalias() = x - sc.built_at;
-  if (!sc.displacement.allFinite())
-    return false;  // NaN positions rebuild (the solver reports them)
-  // Per patch, the box of its vertices' displacements, bottom-up (children after parents).
-  const std::size_t count = sc.patches.size();
-  sc.displacement_lo.resize(count);
-  sc.displacement_hi.resize(count);
-  for (std::size_t id = count; id-- > 0;) {
-    const Patch& p = sc.patches[id];
-    Vec3 lo, hi;
-    if (p.left < 0) {
-      lo = Vec3::Constant(INFINITY);
-      hi = Vec3::Constant(-INFINITY);
-      for (int k = p.tri_begin; k < p.tri_end; ++k)
-        for (int v :
-             mesh.triangles[static_cast<std::size_t>(sc.tri_order[static_cast<std::size_t>(k)])]) {
-          const Vec3 d = sc.displacement.col(v);
-          lo = lo.cwiseMin(d);
-          hi = hi.cwiseMax(d);
-        }
-    } else {
-      lo = sc.displacement_lo[static_cast<std::size_t>(p.left)].cwiseMin(
-          sc.displacement_lo[static_cast<std::size_t>(p.right)]);
-      hi = sc.displacement_hi[static_cast<std::size_t>(p.left)].cwiseMax(
-          sc.displacement_hi[static_cast<std::size_t>(p.right)]);
-    }
-    sc.displacement_lo[id] = lo;
-    sc.displacement_hi[id] = hi;
-  }
-  for (const PatchWatch& wt : sc.watches) {
-    const auto a = static_cast<std::size_t>(wt.a), b = static_cast<std::size_t>(wt.b);
-    const Vec3 span = sc.displacement_hi[a].cwiseMax(sc.displacement_hi[b]) -
-                      sc.displacement_lo[a].cwiseMin(sc.displacement_lo[b]);
-    const double slack = wt.slack;
-    if (!(span.squaredNorm() <= slack * slack)) return false;
-  }
-  return true;
-}
-
 }  // namespace
 
 bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
@@ -1036,11 +951,17 @@ bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Ei
   bool stale = sc.built_at.cols() != x.cols() || sc.moved.size() != std::size_t(x.cols());
   Vec3 m = Vec3::Zero();
   if (!stale && x.cols() > 0) {
-    // The lists stay complete while the regions the last build settled keep together, each
-    // within its slack (lists_still_complete). m, the centre of the displacements' box, is the
-    // common motion the projection's bounds (moved) are measured from.
+    // A pair's distance changes by at most |d_i - d_j| <= |d_i - m| + |d_j - m| for the vertex
+    // displacements d since the build and any common m: measured from the centre of the
+    // displacements' box, a garment carried along by the body (a walk, a jump) keeps its lists
+    // for as long as its shape changes by less than skin / 2. No scratch matrix: this runs every
+    // sub-step.
     m = common_motion(x, sc.built_at);
-    stale = !lists_still_complete(sc, model.mesh, x);
+    const double limit = 0.25 * sc.skin * sc.skin;
+    double worst = 0.0;
+    for (Eigen::Index i = 0; i < x.cols(); ++i)
+      worst = std::max(worst, (x.col(i) - sc.built_at.col(i) - m).squaredNorm());
+    stale = !(worst <= limit);  // NaN positions rebuild (and the solver's check reports them)
   }
   if (stale) {
     build_candidates(sc, model, x);
