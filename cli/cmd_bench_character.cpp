@@ -82,11 +82,6 @@ void register_bench_character(CLI::App& bench) {
                   "XPBD Chebyshev acceleration of the stretch sweeps (Wang 2015): spectral radius "
                   "estimate in [0, 1), 0: off; default: the scene's (docs/guide/resolution.md)")
       ->check(CLI::Range(0.0, 0.999));
-  cmd->add_option("--strain-limit-method", args->options.strain_limit_method,
-                  "XPBD strain limit: gauss_seidel (passes only) or fast_projection (passes, then "
-                  "the edges still over the limit projected together, Goldenthal et al. 2007); "
-                  "default: the scene's (docs/guide/resolution.md)")
-      ->check(CLI::IsMember({"gauss_seidel", "fast_projection"}));
   cmd->add_option("--tethers", args->options.tethers,
                   "XPBD long-range attachments to the pins: 1 on, 0 off; default: the scene's")
       ->check(CLI::Range(0, 1));

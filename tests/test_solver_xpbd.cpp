@@ -295,30 +295,23 @@ struct PassCount {
   double per_substep = 0;
   long capped = 0;
   double strain = 0;
-  double projections_per_substep = 0;  // fast projection's solves
 };
-PassCount swung_sheet_passes(
-    int resolution, int frames, int cap,
-    SolverSettings::StrainLimitMethod method = SolverSettings::StrainLimitMethod::GaussSeidel) {
+PassCount swung_sheet_passes(int resolution, int frames, int cap) {
   const ClothScene scene = make_hard_case("swung-sheet", resolution);
   SolverSettings s = xpbd_settings(4, 1);
   s.strain_limit = 0.02;
   s.strain_limit_iterations = cap;
   s.strain_limit_relaxation = 1.8;
-  s.strain_limit_method = method;
   auto solver = make_xpbd_solver(scene.model, s);
   const RunResult run = run_scene(scene, *solver, frames);
   EXPECT_TRUE(run.stable) << run.message;
   PassCount out;
-  long passes = 0, projections = 0;
+  long passes = 0;
   for (const FrameMetrics& m : run.metrics) {
     passes += m.strain_limit_passes;
-    projections += m.strain_limit_projections;
     out.capped += m.strain_limit_capped;
   }
   out.per_substep = static_cast<double>(passes) / (4.0 * static_cast<double>(frames));
-  out.projections_per_substep =
-      static_cast<double>(projections) / (4.0 * static_cast<double>(frames));
   out.strain = largest_strain(run);
   return out;
 }
@@ -344,23 +337,6 @@ TEST(Xpbd, StrainLimitPassesNeededGrowWithTheResolution) {
   EXPECT_GT(capped.capped, 0);
   EXPECT_LE(capped.per_substep, 16.0);
   EXPECT_GT(capped.strain, 0.02 + 1e-3);
-}
-
-// PROBE of the fast-projection experiment (docs/notebook/resolution.md, "Seventh round").
-TEST(Xpbd, DISABLED_ProbeFastProjection) {
-  for (int res : {21, 42, 84}) {
-    for (int cap : {16, 64, 2000}) {
-      for (auto m : {SolverSettings::StrainLimitMethod::GaussSeidel,
-                     SolverSettings::StrainLimitMethod::FastProjection}) {
-        if (res == 84 && cap == 2000 && m == SolverSettings::StrainLimitMethod::GaussSeidel)
-          continue;
-        const PassCount p = swung_sheet_passes(res, 20, cap, m);
-        std::printf("res %d cap %d method %d: passes %.2f solves %.2f capped %ld strain %.5f %%\n",
-                    res, cap, static_cast<int>(m), p.per_substep, p.projections_per_substep,
-                    p.capped, 100 * p.strain);
-      }
-    }
-  }
 }
 
 // Chebyshev acceleration of the stretch sweeps (Wang 2015), on the two-corner hanging sheet: the
@@ -505,11 +481,8 @@ TEST(Xpbd, SoftSheetStretchesAsAMembraneOfStiffnessEt) {
 // Colours make the parallel Gauss-Seidel order-independent: 1 and 2 threads agree bit for bit,
 // with moving pins (swung sheet) and with contact and friction (sphere drape).
 TEST(Xpbd, OneAndTwoThreadsGiveBitIdenticalResults) {
-  for (const char* name :
-       {"swung-sheet", "sphere-drape", "swung-sheet accelerated", "swung-sheet fast projection"}) {
-    const bool projected = std::string(name).find("projection") != std::string::npos;
-    const bool accelerated =
-        projected || std::string(name).find("accelerated") != std::string::npos;
+  for (const char* name : {"swung-sheet", "sphere-drape", "swung-sheet accelerated"}) {
+    const bool accelerated = std::string(name).find("accelerated") != std::string::npos;
     const ClothScene scene = make_hard_case(accelerated ? "swung-sheet" : name);
     // With separate stretch sweeps and the strain limit, whose passes and the collisions after
     // them are shared out among the threads too.
@@ -523,12 +496,6 @@ TEST(Xpbd, OneAndTwoThreadsGiveBitIdenticalResults) {
     if (accelerated) {
       s1.strain_limit_relaxation = s2.strain_limit_relaxation = 1.8;
       s1.chebyshev_rho = s2.chebyshev_rho = 0.9;
-    }
-    if (projected) {
-      s1.strain_limit_method = s2.strain_limit_method =
-          SolverSettings::StrainLimitMethod::FastProjection;
-      // Past the passes run before the projection, so it runs.
-      s1.strain_limit_iterations = s2.strain_limit_iterations = 24;
     }
     auto one = make_xpbd_solver(scene.model, s1);
     auto two = make_xpbd_solver(scene.model, s2);

@@ -63,10 +63,6 @@ void visit_solver_fields(SolverSettings& s, V& v) {
   v.integer("strain_limit_iterations", s.strain_limit_iterations, 1, kMaxIterations);
   // Below 2: projected over-relaxation converges for 0 < omega < 2 (Cryer 1971).
   v.optional_number("strain_limit_relaxation", s.strain_limit_relaxation, 1.0, 1.99, 1.0);
-  v.optional_choice("strain_limit_method", s.strain_limit_method,
-                    SolverSettings::StrainLimitMethod::GaussSeidel,
-                    {{"gauss_seidel", SolverSettings::StrainLimitMethod::GaussSeidel},
-                     {"fast_projection", SolverSettings::StrainLimitMethod::FastProjection}});
   v.integer("strain_limit_contact_rounds", s.strain_limit_contact_rounds, 0, kMaxIterations);
   // Below 1: at rho = 1 the weights grow without bound (omega -> 2).
   v.optional_number("chebyshev_rho", s.chebyshev_rho, 0.0, 0.999, 0.0);
@@ -144,11 +140,6 @@ struct Validator {
       if (o.second == e) return;
     refuse(where, prefix + name, "unknown value " + std::to_string(static_cast<int>(e)));
   }
-  template <class E>
-  void optional_choice(const char* name, E& e, E,
-                       std::initializer_list<std::pair<const char*, E>> options) {
-    choice(name, e, options);
-  }
 };
 
 struct ToJson {
@@ -173,12 +164,6 @@ struct ToJson {
   void choice(const char* name, E& e, std::initializer_list<std::pair<const char*, E>> options) {
     for (const auto& o : options)
       if (o.second == e) out[name] = o.first;
-  }
-  // A choice at its `off` value is left out, as optional_number.
-  template <class E>
-  void optional_choice(const char* name, E& e, E off,
-                       std::initializer_list<std::pair<const char*, E>> options) {
-    if (e != off) choice(name, e, options);
   }
 };
 
@@ -252,11 +237,6 @@ struct FromJson {
       names += std::string(names.empty() ? "" : ", ") + o.first;
     }
     refuse(where, prefix + name, "expected one of " + names + ", got " + v->dump());
-  }
-  template <class E>
-  void optional_choice(const char* name, E& e, E,
-                       std::initializer_list<std::pair<const char*, E>> options) {
-    choice(name, e, options);
   }
   // Fields the table does not know are refused: a misspelt option must not be silently ignored.
   void only(std::initializer_list<const char*> also = {}) {

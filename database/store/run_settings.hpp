@@ -117,14 +117,6 @@ struct SolverSettings {
   // correction that must travel along many edges takes fewer passes (docs/guide/resolution.md).
   // 1: off (shortened to the limit exactly).
   double strain_limit_relaxation = 1.0;
-  // XPBD: how the strain limit's runs converge. GaussSeidel: passes over the edges only (above).
-  // FastProjection: a few passes, then the edges still over the limit are projected onto it
-  // together, with Newton-like iterations of one sparse solve each (Goldenthal et al. 2007,
-  // "Efficient Simulation of Inextensible Cloth", sec. 4), then passes again to clean up
-  // (docs/guide/resolution.md). JSON "strain_limit_method": "gauss_seidel" | "fast_projection",
-  // left out at gauss_seidel so records made without it read and write as before.
-  enum class StrainLimitMethod { GaussSeidel, FastProjection };
-  StrainLimitMethod strain_limit_method = StrainLimitMethod::GaussSeidel;
   // XPBD with the strain limit on: after the collision pass, up to this many rounds of the
   // strain limit, with a frictionless collision projection between rounds, so edges the body
   // pushes on are shortened (by sliding along it) rather than left stretched

@@ -81,7 +81,7 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
   row.capsules = static_cast<int>(scene.body.capsules.size());
   ClothState state = settle_garment(scene, *solver, clip_pose(clip, 0));
   double wall = 0, cpu = 0;
-  long iterations = 0, factorizations = 0, limit_passes = 0, projections = 0;
+  long iterations = 0, factorizations = 0, limit_passes = 0;
   std::vector<double> strains;  // every edge at every frame, for the percentile
   const auto start = std::chrono::steady_clock::now();
   for (int f = 1; f < frames; ++f) {
@@ -102,7 +102,6 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
     iterations += m.iterations;
     factorizations += m.factorizations;
     limit_passes += m.strain_limit_passes;
-    projections += m.strain_limit_projections;
     row.strain_limit_capped += m.strain_limit_capped;
     row.max_strain = std::max(row.max_strain, m.max_strain);
     const EdgeStrainMax frame_worst = append_edge_strains(scene.model, state.x, strains);
@@ -148,8 +147,6 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
     row.factorizations_per_frame = static_cast<double>(factorizations) / row.frames;
     row.strain_limit_passes_per_substep =
         static_cast<double>(limit_passes) / (static_cast<double>(row.frames) * settings.substeps);
-    row.strain_limit_projections_per_substep =
-        static_cast<double>(projections) / (static_cast<double>(row.frames) * settings.substeps);
   }
   return row;
 }
@@ -197,13 +194,6 @@ std::vector<CharacterBenchRow> run_character_bench(
         settings.strain_limit_relaxation = options.strain_limit_relaxation;
       if (options.chebyshev_rho >= 0.0) settings.chebyshev_rho = options.chebyshev_rho;
       if (options.tethers >= 0) settings.tethers = options.tethers != 0;
-      if (!options.strain_limit_method.empty()) {
-        // The scene file's parser, so the names and the refusal are the same as in a scene.
-        SolverKind parsed = kind;
-        parse_solver_settings_json(
-            "{\"strain_limit_method\": \"" + options.strain_limit_method + "\"}",
-            "--strain-limit-method", &parsed, &settings);
-      }
       std::vector<double> self_mm = options.self_collision_mm;
       if (self_mm.empty()) {
         self_mm.push_back(file.settings.self_collision_thickness_mm);
@@ -231,12 +221,7 @@ std::vector<CharacterBenchRow> run_character_bench(
                        (settings.strain_limit > 0.0
                             ? ", strain-limit passes per sub-step " +
                                   fixed(r.strain_limit_passes_per_substep, 2) + " (capped " +
-                                  std::to_string(r.strain_limit_capped) + ")" +
-                                  (settings.strain_limit_method ==
-                                           SolverSettings::StrainLimitMethod::FastProjection
-                                       ? ", projection solves per sub-step " +
-                                             fixed(r.strain_limit_projections_per_substep, 2)
-                                       : std::string())
+                                  std::to_string(r.strain_limit_capped) + ")"
                             : std::string()) +
                        (r.stable ? "" : ", UNSTABLE: " + r.message));
           }

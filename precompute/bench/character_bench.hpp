@@ -29,8 +29,6 @@ struct CharacterBenchOptions {
   double strain_limit_relaxation = 0.0;  // XPBD strain_limit_relaxation; 0: the scene's
   double chebyshev_rho = -1.0;           // XPBD chebyshev_rho; negative: the scene's (0: off)
   int tethers = -1;                      // XPBD tethers: 0 off, 1 on; negative: the scene's
-  // XPBD strain_limit_method: "gauss_seidel" or "fast_projection"; empty: the scene's.
-  std::string strain_limit_method;
   std::vector<int> threads{1};
   std::vector<ColliderMotion> collider_motions;  // empty: the scene's
   // XPBD self-collision thicknesses (mm) to run, 0 for off. Empty: the scene's, and when that is
@@ -58,9 +56,6 @@ struct CharacterBenchRow {
   // and the runs of it that stopped at the cap with an edge still being shortened.
   double strain_limit_passes_per_substep = 0;
   long strain_limit_capped = 0;
-  // XPBD strain_limit_method fast_projection: its sparse solves per sub-step (mean over the run,
-  // StepReport::strain_limit_projections).
-  double strain_limit_projections_per_substep = 0;
   double max_penetration = 0;   // deepest vertex below a capsule surface at a frame's end, m
   double mean_penetration = 0;  // largest per-frame mean over penetrating vertices, m
   // Vertex-frames whose straight path over the frame, relative to a capsule moving with the body,

@@ -434,7 +434,6 @@ PoseRun simulate_poses(const CharacterScene& scene, Solver& solver,
     m.factorizations = report.factorizations;
     m.strain_limit_passes = report.strain_limit_passes;
     m.strain_limit_capped = report.strain_limit_capped;
-    m.strain_limit_projections = report.strain_limit_projections;
     run.metrics.push_back(m);
     run.frames.push_back(state.x);
   }

@@ -377,7 +377,6 @@ RunResult run_scene(const ClothScene& scene, Solver& solver, int frames, bool ke
       m.factorizations = report->factorizations;
       m.strain_limit_passes = report->strain_limit_passes;
       m.strain_limit_capped = report->strain_limit_capped;
-      m.strain_limit_projections = report->strain_limit_projections;
       m.stable = report->stable;
     }
     result.metrics.push_back(m);

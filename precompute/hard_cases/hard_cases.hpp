@@ -67,7 +67,6 @@ struct FrameMetrics {
   // XPBD's StepReport::strain_limit_passes and strain_limit_capped for the frame.
   long strain_limit_passes = 0;
   int strain_limit_capped = 0;
-  long strain_limit_projections = 0;  // StepReport::strain_limit_projections
   // Edges crossing a triangle they do not touch (cloth/self_intersection.hpp).
   int self_intersections = 0;
   bool stable = true;

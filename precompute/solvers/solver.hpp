@@ -42,9 +42,6 @@ struct StepReport {
   // the runs that stopped at strain_limit_iterations with an edge still being shortened.
   long strain_limit_passes = 0;
   int strain_limit_capped = 0;
-  // XPBD with strain_limit_method fast_projection: the sparse solves (one per Newton-like
-  // iteration of the projection, Goldenthal et al. 2007) run in this step.
-  long strain_limit_projections = 0;
   std::string message;  // why it was unstable or halved, for the user
 };
 

@@ -21,15 +21,11 @@
 #include <omp.h>
 
 #include <Eigen/Geometry>
-#include <Eigen/SparseCholesky>
-#include <Eigen/SparseCore>
 #include <algorithm>
 #include <array>
-#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
-#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <numbers>
@@ -78,12 +74,6 @@ struct ConstraintSet {
 };
 
 using Vec = Eigen::Map<Vec3>;
-
-// PROBE (experiment only, removed before commit): integer knob from the environment.
-int probe_int(const char* name, int fallback) {
-  const char* v = std::getenv(name);
-  return v ? std::atoi(v) : fallback;
-}
 
 // Signed dihedral angle of hinge (v0, v1, a, b) and its gradient with respect to the four vertices
 // (Bridson, Marino & Fedkiw 2003, sec. 4.1 "bending"). Triangles (v0, v1, a) and (v1, v0, b) have
@@ -168,7 +158,6 @@ class XpbdSolver final : public Solver {
       }
       if (settings_.strain_limit_contact_rounds > 0)
         out += " contact_rounds=" + std::to_string(settings_.strain_limit_contact_rounds);
-      if (fast_projection()) out += " fast_projection";
     }
     if (settings_.chebyshev_rho > 0.0) {
       char buf[64];
@@ -209,22 +198,6 @@ class XpbdSolver final : public Solver {
   bool run_strain_limit(Eigen::Matrix3Xd& x, double max_stretch);
   // One pass over the dirty constraints in colour order, serial; returns whether it shortened any.
   bool limit_strain_dirty(Eigen::Matrix3Xd& x, double max_stretch);
-  bool fast_projection() const {
-    return settings_.strain_limit_method == SolverSettings::StrainLimitMethod::FastProjection;
-  }
-  // Fast projection (Goldenthal et al. 2007) of the edges over the limit onto it, serial: marks the
-  // edges at every vertex it moved dirty and touches those vertices. Returns the solves it ran.
-  int project_active_set(Eigen::Matrix3Xd& x, double max_stretch);
-  // Its work arrays, kept so a run allocates nothing once they have grown: the active edges (in
-  // constraint order), each edge's row in the system or -1, the accumulated multipliers, the
-  // system's entries, and the factorisation.
-  std::vector<int> fp_active_, fp_row_, fp_analyzed_;
-  std::vector<double> fp_lambda_;
-  std::vector<Eigen::Triplet<double>> fp_entries_;
-  Eigen::SparseMatrix<double> fp_matrix_;
-  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> fp_ldlt_;
-  Eigen::VectorXd fp_rhs_, fp_dlambda_;
-  long limit_projections_ = 0;
   void mark_edges_dirty(int v) {
     const std::size_t vu = static_cast<std::size_t>(v);
     for (int k = vertex_edge_begin_[vu]; k < vertex_edge_begin_[vu + 1]; ++k)
@@ -543,16 +516,8 @@ bool XpbdSolver::run_strain_limit(Eigen::Matrix3Xd& x, double max_stretch) {
       }
       bool again = true;
       int pass = 1;
-      const int cap = settings_.strain_limit_iterations;
-      const int before =
-          fast_projection() ? std::min(cap, probe_int("CLOTHDB_PROBE_FP_BEFORE", 8)) : cap;
-      for (; pass < before && again; ++pass) again = limit_strain_dirty(x, max_stretch);
-      if (again && fast_projection()) {
-        // The passes have dealt with what is local; what is left is carried by the projection,
-        // and the passes after it only clean up (edges it pushed over the limit).
-        limit_projections_ += project_active_set(x, max_stretch);
-        for (; pass < cap && again; ++pass) again = limit_strain_dirty(x, max_stretch);
-      }
+      for (; pass < settings_.strain_limit_iterations && again; ++pass)
+        again = limit_strain_dirty(x, max_stretch);
       limit_passes_ += pass;
       if (again) ++limit_capped_;
       std::fill(edge_dirty_.begin(), edge_dirty_.end(), 0);
@@ -561,165 +526,6 @@ bool XpbdSolver::run_strain_limit(Eigen::Matrix3Xd& x, double max_stretch) {
     }
   }
   return corrected != 0;
-}
-
-// Fast projection (Goldenthal, Harmon, Fattal, Bercovier & Grinspun 2007, "Efficient Simulation of
-// Inextensible Cloth", sec. 4 and alg. 1) of the strain limit's active set. The edges over the
-// limit, held as equalities C_e = |x_i - x_j| - L_e = 0 (L_e = max_stretch l0), are moved to the
-// nearest point (in the mass norm) that meets them all, by Newton-like iterations of
-//   (J W J^T) dlambda = C(x),   x <- x - W J^T dlambda
-// (their eq. 9 and the update after it, at position level: h^2 cancels), J the gradient of the
-// set's C at the current x and W = M^-1, 0 at pins. One sparse solve carries a correction across
-// the whole set, where a Gauss-Seidel pass carries it about one edge. The inequalities make it an
-// active set: an edge stays in the set while its accumulated multiplier pulls (lambda > 0), an
-// edge the last solve pushed over the limit joins it, and one whose multiplier would push apart
-// leaves it (a limit only pulls).
-int XpbdSolver::project_active_set(Eigen::Matrix3Xd& x, double max_stretch) {
-  const double* w = model_.inv_mass.data();
-  const std::size_t edges = stretch_.vertices.size();
-  if (fp_row_.size() != edges) {
-    fp_row_.assign(edges, -1);
-    fp_lambda_.assign(edges, 0.0);
-  }
-  // Target a hair below the limit, so an edge the solve leaves at it (to rounding) does not count
-  // as over it in the passes after.
-  const double target =
-      max_stretch * (1.0 - probe_int("CLOTHDB_PROBE_FP_MARGIN_PPB", 100000) * 1e-9);
-  const int max_solves = probe_int("CLOTHDB_PROBE_FP_SOLVES", 16);
-  const double reg = probe_int("CLOTHDB_PROBE_FP_REG_PPM", 1000) * 1e-6;
-  const double hold = probe_int("CLOTHDB_PROBE_FP_HOLD_PCT", 0) * 0.01;
-  const double near_stretch = hold > 0.0 ? 1.0 + (max_stretch - 1.0) * (1.0 - hold) : 1e300;
-  std::vector<Vec3> normal;
-  int solves = 0;
-  fp_active_.clear();
-  for (; solves < max_solves; ++solves) {
-    // The new set, in constraint order (fixed: the same system for any thread count).
-    bool over_any = false;
-    std::vector<int> next;
-    next.reserve(fp_active_.size() + 64);
-    // Only the dirty edges can be over the limit (the passes' invariant: every other edge was
-    // tested since its vertices last moved), and the set's own edges are kept dirty below.
-    const unsigned char* dirty = edge_dirty_.data();
-    for (std::size_t c = 0; c < edges; ++c) {
-      if ((c & 7) == 0 && c + 8 <= edges) {
-        std::uint64_t word = 0;
-        std::memcpy(&word, dirty + c, sizeof word);
-        if (word == 0) {
-          c += 7;
-          continue;
-        }
-      }
-      if (dirty[c] == 0) continue;
-      const int i = stretch_.vertices[c][0], j = stretch_.vertices[c][1];
-      if (w[i] + w[j] <= 0.0) continue;
-      const double limit = max_stretch * stretch_.rest[c];
-      const double len_sq = (x.col(i) - x.col(j)).squaredNorm();
-      const bool over = len_sq > limit * limit * (1.0 + 1e-9);
-      over_any = over_any || over;
-      const bool near =
-          solves == 0 && len_sq > near_stretch * near_stretch * stretch_.rest[c] * stretch_.rest[c];
-      if (over || near || (fp_row_[c] >= 0 && fp_lambda_[c] > 0.0)) {
-        next.push_back(static_cast<int>(c));
-      } else {
-        fp_lambda_[c] = 0.0;
-      }
-    }
-    for (int c : fp_active_) fp_row_[static_cast<std::size_t>(c)] = -1;
-    fp_active_.swap(next);
-    if (std::getenv("CLOTHDB_PROBE_FP_TRACE")) {
-      double worst = 0;
-      int n_over = 0;
-      for (std::size_t c = 0; c < edges; ++c) {
-        const double s = (x.col(stretch_.vertices[c][0]) - x.col(stretch_.vertices[c][1])).norm() /
-                             stretch_.rest[c] -
-                         1.0;
-        worst = std::max(worst, s);
-        if (s > max_stretch - 1.0 + 1e-9) ++n_over;
-      }
-      std::fprintf(stderr, "solve %d: set %zu, over %d, worst %.5f %%\n", solves, fp_active_.size(),
-                   n_over, 100 * worst);
-    }
-    if (!over_any) break;
-    const int m = static_cast<int>(fp_active_.size());
-    for (int r = 0; r < m; ++r)
-      fp_row_[static_cast<std::size_t>(fp_active_[static_cast<std::size_t>(r)])] = r;
-    normal.resize(static_cast<std::size_t>(m));
-    fp_rhs_.resize(m);
-    for (int r = 0; r < m; ++r) {
-      const std::size_t c = static_cast<std::size_t>(fp_active_[static_cast<std::size_t>(r)]);
-      const Vec3 d = x.col(stretch_.vertices[c][0]) - x.col(stretch_.vertices[c][1]);
-      const double len = d.norm();
-      normal[static_cast<std::size_t>(r)] = d / len;
-      fp_rhs_[r] = probe_int("CLOTHDB_PROBE_FP_CLIP", 0)
-                       ? std::max(len - target * stretch_.rest[c], 0.0)
-                       : len - target * stretch_.rest[c];
-    }
-    // J W J^T, lower triangle: (r, r) = w_i + w_j (|n| = 1), and for two edges r, s sharing a
-    // free vertex v, w_v g_r(v) . g_s(v), g_e(v) = +n_e at the edge's first vertex, -n_e at its
-    // second. A relative 1e-9 on the diagonal keeps the factorisation defined where more edges
-    // than a flat patch has in-plane freedoms are active (J's rows then dependent); the moves
-    // W J^T dlambda of such a null direction are zero, so it does not change the step.
-    fp_entries_.clear();
-    for (int r = 0; r < m; ++r) {
-      const std::size_t c = static_cast<std::size_t>(fp_active_[static_cast<std::size_t>(r)]);
-      const std::array<int, 2>& e = stretch_.vertices[c];
-      fp_entries_.emplace_back(r, r, (w[e[0]] + w[e[1]]) * (1.0 + reg));
-      for (int side = 0; side < 2; ++side) {
-        const int v = e[static_cast<std::size_t>(side)];
-        if (w[v] <= 0.0) continue;
-        const double sign_r = side == 0 ? 1.0 : -1.0;
-        const std::size_t vu = static_cast<std::size_t>(v);
-        for (int k = vertex_edge_begin_[vu]; k < vertex_edge_begin_[vu + 1]; ++k) {
-          const int f = vertex_edges_[static_cast<std::size_t>(k)];
-          const int s = fp_row_[static_cast<std::size_t>(f)];
-          if (s <= r) continue;
-          const double sign_s = stretch_.vertices[static_cast<std::size_t>(f)][0] == v ? 1.0 : -1.0;
-          fp_entries_.emplace_back(
-              s, r,
-              w[v] * sign_r * sign_s *
-                  normal[static_cast<std::size_t>(r)].dot(normal[static_cast<std::size_t>(s)]));
-        }
-      }
-    }
-    fp_matrix_.resize(m, m);
-    fp_matrix_.setFromTriplets(fp_entries_.begin(), fp_entries_.end());
-    const auto t0 = std::chrono::steady_clock::now();
-    // The set is the same from one solve to the next once it has settled: the same sparsity,
-    // so the ordering and symbolic analysis are kept.
-    if (fp_active_ != fp_analyzed_) {
-      fp_ldlt_.analyzePattern(fp_matrix_);
-      fp_analyzed_ = fp_active_;
-    }
-    fp_ldlt_.factorize(fp_matrix_);
-    if (std::getenv("CLOTHDB_PROBE_FP_TRACE"))
-      std::fprintf(
-          stderr, "factor %d: %d rows %ld nnz %.3f ms\n", solves, m,
-          static_cast<long>(fp_matrix_.nonZeros()),
-          1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
-    if (fp_ldlt_.info() != Eigen::Success) break;
-    fp_dlambda_ = fp_ldlt_.solve(fp_rhs_);
-    if (!fp_dlambda_.allFinite()) break;
-    for (int r = 0; r < m; ++r) {
-      const std::size_t c = static_cast<std::size_t>(fp_active_[static_cast<std::size_t>(r)]);
-      const int i = stretch_.vertices[c][0], j = stretch_.vertices[c][1];
-      const Vec3 move = normal[static_cast<std::size_t>(r)] * fp_dlambda_[r];
-      x.col(i) -= w[i] * move;
-      x.col(j) += w[j] * move;
-      fp_lambda_[c] += fp_dlambda_[r];
-      edge_dirty_[c] = 1;
-      for (int v : {i, j}) {
-        if (w[v] <= 0.0) continue;
-        touch(v);
-        mark_edges_dirty(v);
-      }
-    }
-  }
-  for (int c : fp_active_) {
-    fp_row_[static_cast<std::size_t>(c)] = -1;
-    fp_lambda_[static_cast<std::size_t>(c)] = 0.0;
-  }
-  fp_active_.clear();
-  return solves;
 }
 
 // XPBD update with Rayleigh damping (Macklin 2016 eq. 26), for C = theta - theta0 with the
@@ -776,7 +582,6 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
   const ClothState saved = state;
   limit_passes_ = 0;
   limit_capped_ = 0;
-  limit_projections_ = 0;
   const Eigen::Matrix3Xd kin_start = kinematic_positions(model_, state.x);
 
   const int substeps = settings_.substeps;
@@ -968,7 +773,6 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
   report.iterations = substeps * sweeps;
   report.strain_limit_passes = limit_passes_;
   report.strain_limit_capped = limit_capped_;
-  report.strain_limit_projections = limit_projections_;
   if (!state_is_sane(state)) {
     state = saved;
     report.stable = false;
