@@ -5,22 +5,26 @@
 #include <cstdint>
 #include <stdexcept>
 #include <string>
-#include <utility>
 
 namespace clothdb {
 
+long grid_cell_index(double coordinate, double cell) {
+  return static_cast<long>(std::clamp(std::floor(coordinate / cell), -1e9, 1e9));
+}
+
+std::uint64_t grid_cell_hash(long ix, long iy, long iz) {
+  return (static_cast<std::uint64_t>(ix) * 73856093ULL) ^
+         (static_cast<std::uint64_t>(iy) * 19349663ULL) ^
+         (static_cast<std::uint64_t>(iz) * 83492791ULL);
+}
+
 long PointGrid::cell_index(double coordinate) const {
-  // Clamped so a runaway coordinate cannot overflow the cast; such points share edge cells.
-  const double c = std::floor(coordinate / cell);
-  return static_cast<long>(std::clamp(c, -1e9, 1e9));
+  return grid_cell_index(coordinate, cell);
 }
 
 int PointGrid::bucket_of(long ix, long iy, long iz) const {
-  // Teschner et al. 2003's primes.
-  const std::uint64_t h = (static_cast<std::uint64_t>(ix) * 73856093ULL) ^
-                          (static_cast<std::uint64_t>(iy) * 19349663ULL) ^
-                          (static_cast<std::uint64_t>(iz) * 83492791ULL);
-  return static_cast<int>(h % static_cast<std::uint64_t>(bucket_begin.size() - 1));
+  return static_cast<int>(grid_cell_hash(ix, iy, iz) %
+                          static_cast<std::uint64_t>(bucket_begin.size() - 1));
 }
 
 void PointGrid::build(const Eigen::Matrix3Xd& points, double cell_size) {
@@ -64,24 +68,6 @@ bool segment_crosses_triangle(const Vec3& p, const Vec3& q, const Vec3& a, const
   return (u > 0.0 && v > 0.0 && w > 0.0) || (u < 0.0 && v < 0.0 && w < 0.0);
 }
 
-namespace {
-
-// Where triangle t's query in the midpoint grid (`grid`, cells as large as the longest edge, the
-// query box the triangle's grown by half that) first reaches edge e's bucket: the order in which
-// that query hands out the edges (cells in x, y, z order, a bucket's edges by index).
-long midpoint_query_rank(const PointGrid& grid, const Vec3& mid, const Vec3& lo, const Vec3& hi) {
-  const int bucket =
-      grid.bucket_of(grid.cell_index(mid[0]), grid.cell_index(mid[1]), grid.cell_index(mid[2]));
-  long rank = 0;
-  for (long ix = grid.cell_index(lo[0]); ix <= grid.cell_index(hi[0]); ++ix)
-    for (long iy = grid.cell_index(lo[1]); iy <= grid.cell_index(hi[1]); ++iy)
-      for (long iz = grid.cell_index(lo[2]); iz <= grid.cell_index(hi[2]); ++iz, ++rank)
-        if (grid.bucket_of(ix, iy, iz) == bucket) return rank;
-  return rank;  // not reached: the edge's own cell is in the query
-}
-
-}  // namespace
-
 std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
                                                         const Eigen::Matrix3Xd& x) {
   if (x.cols() != mesh.vertex_count())
@@ -113,11 +99,8 @@ std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
     throw std::invalid_argument("edge_triangle_crossings: non-finite positions");
   if (!(longest > 0.0)) return out;
   const double cell = total / static_cast<double>(edge_count);
-  auto cell_of = [cell](double c) {
-    // Clamped so a runaway coordinate cannot overflow the cast (as PointGrid::cell_index).
-    return static_cast<long>(std::clamp(std::floor(c / cell), -1e9, 1e9));
-  };
-  // Cells hashed (Teschner et al. 2003's primes, then a multiplicative hash into 2^bits buckets).
+  auto cell_of = [cell](double c) { return grid_cell_index(c, cell); };
+  // Cells hashed (grid_cell_hash, then a multiplicative hash into 2^bits buckets).
   std::vector<std::array<long, 6>> span(edge_count);
   std::vector<int> big;
   size_t entries = 0;
@@ -141,10 +124,7 @@ std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
   while ((size_t{1} << bits) < 2 * entries) ++bits;
   const int shift = 64 - bits;
   auto bucket_of = [shift](long ix, long iy, long iz) {
-    const std::uint64_t h = (static_cast<std::uint64_t>(ix) * 73856093ULL) ^
-                            (static_cast<std::uint64_t>(iy) * 19349663ULL) ^
-                            (static_cast<std::uint64_t>(iz) * 83492791ULL);
-    return static_cast<size_t>((h * 0x9E3779B97F4A7C15ULL) >> shift);
+    return static_cast<size_t>((grid_cell_hash(ix, iy, iz) * 0x9E3779B97F4A7C15ULL) >> shift);
   };
   const size_t table = size_t{1} << bits;
   // Each entry holds its edge's box in floats moved outwards by far more than a float's rounding
@@ -175,13 +155,8 @@ std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
       for_cells(span[e], [&](size_t b) { items[static_cast<size_t>(fill[b]++)] = entry; });
     }
   }
-  // Within one triangle the crossings are put in the order the midpoint grid's query found them
-  // (which every report and the untangling's order of constraints were made with); that grid is
-  // built only for a triangle crossed more than once.
-  PointGrid midpoint_grid;
   std::vector<int> stamp(edge_count, -1);
   std::vector<int> found;
-  std::vector<std::pair<long, int>> ranked;
   for (size_t t = 0; t < mesh.triangles.size(); ++t) {
     const std::array<int, 3>& tri = mesh.triangles[t];
     const Vec3 a = x.col(tri[0]), b = x.col(tri[1]), c = x.col(tri[2]);
@@ -219,26 +194,9 @@ std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
       }
     });
     for (int e : big) visit(e);
-    if (found.size() > 1) {
-      if (midpoint_grid.bucket_begin.empty()) {
-        Eigen::Matrix3Xd mid(3, static_cast<Eigen::Index>(edge_count));
-        for (size_t e = 0; e < edge_count; ++e)
-          mid.col(static_cast<Eigen::Index>(e)) =
-              0.5 * (x.col(mesh.edges[e][0]) + x.col(mesh.edges[e][1]));
-        midpoint_grid.build(mid, longest);
-      }
-      const Vec3 reach = Vec3::Constant(0.5 * longest);
-      const Vec3 box_lo = a.cwiseMin(b).cwiseMin(c), box_hi = a.cwiseMax(b).cwiseMax(c);
-      ranked.clear();
-      for (int e : found) {
-        const Vec3 mid = 0.5 * (x.col(mesh.edges[static_cast<size_t>(e)][0]) +
-                                x.col(mesh.edges[static_cast<size_t>(e)][1]));
-        ranked.emplace_back(midpoint_query_rank(midpoint_grid, mid, box_lo - reach, box_hi + reach),
-                            e);
-      }
-      std::sort(ranked.begin(), ranked.end());
-      for (size_t k = 0; k < found.size(); ++k) found[k] = ranked[k].second;
-    }
+    // The buckets hand the edges out in hash order: a triangle's crossings by edge index, so the
+    // list (and the untangling's constraints made from it) does not depend on the table's size.
+    std::sort(found.begin(), found.end());
     for (int e : found) out.push_back({e, static_cast<int>(t)});
   }
   return out;

@@ -7,11 +7,18 @@
 
 #include <Eigen/Core>
 #include <array>
+#include <cstdint>
 #include <vector>
 
 #include "cloth/mesh.hpp"
 
 namespace clothdb {
+
+// The cell of a uniform grid (cells of size `cell`) that holds `coordinate`, clamped so a runaway
+// coordinate cannot overflow the cast (such points share the edge cells).
+long grid_cell_index(double coordinate, double cell);
+// A grid cell's hash before it is reduced to a table's size (Teschner et al. 2003's primes).
+std::uint64_t grid_cell_hash(long ix, long iy, long iz);
 
 // Points in a uniform grid of cubic cells, hashed into a table (Teschner et al. 2003, "Optimized
 // Spatial Hashing for Collision Detection of Deformable Objects"): build once, then visit the
@@ -52,10 +59,8 @@ bool segment_crosses_triangle(const Vec3& p, const Vec3& q, const Vec3& a, const
                               const Vec3& c);
 
 // Pairs (edge index in mesh.edges, triangle index in mesh.triangles) where the edge crosses a
-// triangle it shares no vertex with, by triangle; a triangle's crossings in the order a PointGrid
-// of the edges' midpoints (cells as large as the longest edge) hands them to the triangle's box
-// grown by half that (the order the untangling's constraints were first made in; the search itself
-// files the edges by box). x: 3 x vertex_count positions.
+// triangle it shares no vertex with, by triangle, a triangle's by edge. x: 3 x vertex_count
+// positions.
 std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
                                                         const Eigen::Matrix3Xd& x);
 // Their number: the self_intersections metric of one frame.
