@@ -467,6 +467,7 @@ void make_patches(SelfCollision& sc, const ClothMesh& mesh) {
   }
   sc.patch_bounds.resize(sc.patches.size());
   sc.edge_boxes.resize(sc.edge_order.size());
+  sc.triangle_boxes.resize(sc.tri_order.size());
 }
 
 // Boxes and normal cones at positions x, bottom-up (children after parents in sc.patches). A
@@ -500,6 +501,11 @@ void refit_patches(SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix
         const auto& t =
             mesh.triangles[static_cast<std::size_t>(sc.tri_order[static_cast<std::size_t>(k)])];
         const Vec3 a = x.col(t[0]), c1 = x.col(t[1]), c2 = x.col(t[2]);
+        TriangleBox& tb = sc.triangle_boxes[static_cast<std::size_t>(k)];
+        for (int i = 0; i < 3; ++i) {
+          tb.lo[i] = std::min(std::min(a[i], c1[i]), c2[i]);
+          tb.hi[i] = std::max(std::max(a[i], c1[i]), c2[i]);
+        }
         b.lo = b.lo.cwiseMin(a.cwiseMin(c1).cwiseMin(c2));
         b.hi = b.hi.cwiseMax(a.cwiseMax(c1).cwiseMax(c2));
         const Vec3 n = (c1 - a).cross(c2 - a);
@@ -617,8 +623,9 @@ bool contour_is_simple(const ClothMesh& mesh, const Eigen::Matrix3Xd& x, const i
     for (int b = a + 1; b < k && by_low[static_cast<std::size_t>(b)].first <= si.high; ++b) {
       const ProjectedEdge& sj =
           edges[static_cast<std::size_t>(by_low[static_cast<std::size_t>(b)].second)];
-      if (sj.cross_high < si.cross_low || si.cross_high < sj.cross_low) continue;
-      if (si.v0 == sj.v0 || si.v0 == sj.v1 || si.v1 == sj.v0 || si.v1 == sj.v1) continue;
+      if ((sj.cross_high < si.cross_low) | (si.cross_high < sj.cross_low) | (si.v0 == sj.v0) |
+          (si.v0 == sj.v1) | (si.v1 == sj.v0) | (si.v1 == sj.v1))
+        continue;
       if (segments_meet(si.a, si.b, sj.a, sj.b)) return false;
     }
   }
@@ -734,7 +741,8 @@ struct PairSearch {
     if (p->contour_end - p->contour_begin > q->contour_end - q->contour_begin) std::swap(p, q);
     for (int k = p->contour_begin; k < p->contour_end; ++k) {
       const int across = sc.contour_across[static_cast<std::size_t>(k)];
-      if (across == kAcrossUnknown || (across >= q->tri_begin && across < q->tri_end)) return true;
+      if ((across == kAcrossUnknown) | ((across >= q->tri_begin) & (across < q->tri_end)))
+        return true;
     }
     return false;
   }
@@ -742,19 +750,18 @@ struct PairSearch {
   bool apart(int a, int b) const {
     const PatchBounds& p = sc.patch_bounds[static_cast<std::size_t>(a)];
     const PatchBounds& q = sc.patch_bounds[static_cast<std::size_t>(b)];
-    for (int k = 0; k < 3; ++k)
-      if (p.lo[k] > q.hi[k] + reach || q.lo[k] > p.hi[k] + reach) return true;
-    return false;
+    return (p.lo[0] > q.hi[0] + reach) | (q.lo[0] > p.hi[0] + reach) | (p.lo[1] > q.hi[1] + reach) |
+           (q.lo[1] > p.hi[1] + reach) | (p.lo[2] > q.hi[2] + reach) | (q.lo[2] > p.hi[2] + reach);
   }
 
-  void vertex_triangle(int tri, int v, const Vec3& a, const Vec3& b, const Vec3& c,
-                       bool triangle_free) {
+  void vertex_triangle(int tri, int v) {
     const auto& t = mesh.triangles[static_cast<std::size_t>(tri)];
     if (v == t[0] || v == t[1] || v == t[2]) return;
-    if (!triangle_free && w[v] <= 0.0) return;
+    if (w[v] <= 0.0 && !(w[t[0]] + w[t[1]] + w[t[2]] > 0.0)) return;
     if (skip_rest && listed(sc.rest_vt_begin, sc.rest_vt, tri, v)) return;
     const Vec3 p = x.col(v);
-    const double d_sq = (closest_on_triangle(p, a, b, c) - p).squaredNorm();
+    const double d_sq =
+        (closest_on_triangle(p, x.col(t[0]), x.col(t[1]), x.col(t[2])) - p).squaredNorm();
     if (d_sq >= reach_sq) return;
     vt.push_back({tri, v});
     if (vt_gap) vt_gap->push_back(float_below(std::sqrt(d_sq) - thickness));
@@ -773,43 +780,43 @@ struct PairSearch {
     int count = 0;
     for (int j = pv.vert_begin; j < pv.vert_end; ++j) {
       const int v = sc.vert_order[static_cast<std::size_t>(j)];
-      if (outside(&x(0, v), near_lo, near_hi)) continue;
-      near[count++] = v;
+      near[count] = v;  // kept only if inside (no branch)
+      count += !outside(&x(0, v), near_lo, near_hi);
     }
     if (count == 0) return;
     for (int k = pt.tri_begin; k < pt.tri_end; ++k) {
-      const int tri = sc.tri_order[static_cast<std::size_t>(k)];
-      const auto& t = mesh.triangles[static_cast<std::size_t>(tri)];
-      const Vec3 a = x.col(t[0]), b = x.col(t[1]), c = x.col(t[2]);
-      double lo[3], hi[3];
-      for (int i = 0; i < 3; ++i) {
-        lo[i] = std::min(std::min(a[i], b[i]), c[i]) - reach;
-        hi[i] = std::max(std::max(a[i], b[i]), c[i]) + reach;
-      }
-      const bool triangle_free = w[t[0]] + w[t[1]] + w[t[2]] > 0.0;
+      const TriangleBox& box = sc.triangle_boxes[static_cast<std::size_t>(k)];
+      const double lo[3] = {box.lo[0] - reach, box.lo[1] - reach, box.lo[2] - reach};
+      const double hi[3] = {box.hi[0] + reach, box.hi[1] + reach, box.hi[2] + reach};
+      int inside[3 * kLeafTriangles];  // those near vertices within reach of this triangle's box
+      int count_inside = 0;
       for (int j = 0; j < count; ++j) {
-        if (outside(&x(0, near[j]), lo, hi)) continue;
-        vertex_triangle(tri, near[j], a, b, c, triangle_free);
+        inside[count_inside] = near[j];
+        count_inside += !outside(&x(0, near[j]), lo, hi);
       }
+      for (int j = 0; j < count_inside; ++j)
+        vertex_triangle(sc.tri_order[static_cast<std::size_t>(k)], inside[j]);
     }
   }
 
-  // Whether point p lies outside the box [lo, hi] (scalar tests that stop at the first axis out:
-  // most points of a leaf pair are out on the first one tested).
+  // The box tests below combine their six comparisons with | rather than ||: the outcomes are
+  // close to random along a leaf pair, and one branch on the result mispredicts less than a chain
+  // of six (with ||, 17 % fewer instructions a build bought 2 % of CPU time).
+  // Whether point p lies outside the box [lo, hi].
   static bool outside(const double* p, const double* lo, const double* hi) {
-    return p[0] < lo[0] || p[0] > hi[0] || p[1] < lo[1] || p[1] > hi[1] || p[2] < lo[2] ||
-           p[2] > hi[2];
+    return (p[0] < lo[0]) | (p[0] > hi[0]) | (p[1] < lo[1]) | (p[1] > hi[1]) | (p[2] < lo[2]) |
+           (p[2] > hi[2]);
   }
   // Whether box q lies more than `reach` from box p along some axis, with p's grown bounds given.
   static bool apart_along_an_axis(const EdgeBox& q, const double* lo, const double* hi) {
-    return q.hi[0] < lo[0] || q.lo[0] > hi[0] || q.hi[1] < lo[1] || q.lo[1] > hi[1] ||
-           q.hi[2] < lo[2] || q.lo[2] > hi[2];
+    return (q.hi[0] < lo[0]) | (q.lo[0] > hi[0]) | (q.hi[1] < lo[1]) | (q.lo[1] > hi[1]) |
+           (q.hi[2] < lo[2]) | (q.lo[2] > hi[2]);
   }
 
   void edge_pair(const EdgeBox& p, const EdgeBox& q) {
+    if ((p.v0 == q.v0) | (p.v0 == q.v1) | (p.v1 == q.v0) | (p.v1 == q.v1)) return;
     const EdgeBox& e1 = p.edge < q.edge ? p : q;
     const EdgeBox& e2 = p.edge < q.edge ? q : p;
-    if (e2.v0 == e1.v0 || e2.v0 == e1.v1 || e2.v1 == e1.v0 || e2.v1 == e1.v1) return;
     if (w[e1.v0] + w[e1.v1] <= 0.0 && w[e2.v0] + w[e2.v1] <= 0.0) return;
     // Two segments are at least as far apart as their boxes. Most pairs whose boxes come within
     // the reach along each axis are still farther than it (the boxes of two edges of a leaf pair
@@ -817,8 +824,8 @@ struct PairSearch {
     // closest points, which would leave them out too (far_sq's margin is above their rounding).
     double box_sq = 0.0;
     for (int k = 0; k < 3; ++k) {
-      const double gap = std::max(e2.lo[k] - e1.hi[k], e1.lo[k] - e2.hi[k]);
-      if (gap > 0.0) box_sq += gap * gap;
+      const double gap = std::max({e2.lo[k] - e1.hi[k], e1.lo[k] - e2.hi[k], 0.0});
+      box_sq += gap * gap;
     }
     if (box_sq > far_sq) return;
     if (skip_rest && listed(sc.rest_ee_begin, sc.rest_ee, e1.edge, e2.edge)) return;
@@ -837,8 +844,8 @@ struct PairSearch {
     int count = 0;
     for (int i = p.edge_begin; i < p.edge_end; ++i) {
       const EdgeBox& e = sc.edge_boxes[static_cast<std::size_t>(i)];
-      if (apart_along_an_axis(e, near_lo, near_hi)) continue;
-      out[count++] = &e;
+      out[count] = &e;  // kept only if near (no branch)
+      count += !apart_along_an_axis(e, near_lo, near_hi);
     }
     return count;
   }
@@ -856,8 +863,14 @@ struct PairSearch {
       const EdgeBox& e = *from_a[i];
       const double lo[3] = {e.lo[0] - reach, e.lo[1] - reach, e.lo[2] - reach};
       const double hi[3] = {e.hi[0] + reach, e.hi[1] + reach, e.hi[2] + reach};
-      for (int j = a == b ? i + 1 : 0; j < count_b; ++j)
-        if (!apart_along_an_axis(*others[j], lo, hi)) edge_pair(e, *others[j]);
+      // The edges within reach of this one's box are gathered first, without a branch.
+      int close[3 * kLeafTriangles];
+      int count = 0;
+      for (int j = a == b ? i + 1 : 0; j < count_b; ++j) {
+        close[count] = j;
+        count += !apart_along_an_axis(*others[j], lo, hi);
+      }
+      for (int m = 0; m < count; ++m) edge_pair(e, *others[close[m]]);
     }
   }
 

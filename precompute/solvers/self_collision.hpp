@@ -79,6 +79,11 @@ struct EdgeBox {
   int edge, v0, v1;
 };
 
+// A triangle's box at the last build, stored in tri_order's order (PairSearch::triangles_vertices).
+struct TriangleBox {
+  double lo[3], hi[3];
+};
+
 // Holds `vertex` to `side` of `triangle`'s plane (plan_untangle, below).
 struct UntangleConstraint {
   int vertex, triangle;
@@ -114,7 +119,8 @@ struct SelfCollision {
   // the mesh): two patches share the edge when it falls in the other's triangle range.
   std::vector<int> contour_across;
   std::vector<PatchBounds> patch_bounds;
-  std::vector<EdgeBox> edge_boxes;  // per edge_order position, refit with patch_bounds
+  std::vector<EdgeBox> edge_boxes;          // per edge_order position, refit with patch_bounds
+  std::vector<TriangleBox> triangle_boxes;  // per tri_order position, likewise
   // The largest absolute coordinate at the last refit: bounds the rounding of the exact distance
   // tests, so that the cheaper tests before them reject only what those would (self_collision.cpp).
   double coordinate_bound = 0.0;
