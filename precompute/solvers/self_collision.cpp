@@ -828,8 +828,16 @@ struct PairSearch {
       box_sq += gap * gap;
     }
     if (box_sq > far_sq) return;
+    const Vec3 p1 = x.col(e1.v0), q1 = x.col(e1.v1), p2 = x.col(e2.v0), q2 = x.col(e2.v1);
+    // And at least as far as their projections onto the line through their midpoints (a
+    // separating axis that catches the pairs side by side across a wrinkle, which the boxes do
+    // not): with c the midpoints' offset, the projections are (|c|^2 - spread) / |c| apart.
+    const Vec3 c = 0.5 * ((p2 + q2) - (p1 + q1));
+    const double cc = c.squaredNorm();
+    const double room = cc - 0.5 * (std::abs((q1 - p1).dot(c)) + std::abs((q2 - p2).dot(c)));
+    if (room > 0.0 && room * room > far_sq * cc) return;
     if (skip_rest && listed(sc.rest_ee_begin, sc.rest_ee, e1.edge, e2.edge)) return;
-    const double d_sq = segment_distance_sq(x.col(e1.v0), x.col(e1.v1), x.col(e2.v0), x.col(e2.v1));
+    const double d_sq = segment_distance_sq(p1, q1, p2, q2);
     if (d_sq >= reach_sq) return;
     ee.push_back({e1.edge, e2.edge});
     if (ee_gap) ee_gap->push_back(float_below(std::sqrt(d_sq) - thickness));
