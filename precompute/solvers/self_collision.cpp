@@ -153,9 +153,6 @@ constexpr double kFlatAngle = 3.14159265358979323846 / 5.0;
 constexpr double kFlatCos = 0.80901699437494742410;
 // Contours longer than this are not tested (the test is quadratic): such a patch is searched.
 constexpr int kMaxContour = 512;
-// SelfCollision::contour_across of an edge held by more than two triangles (a non-manifold edge):
-// which of the others lie across is not recorded, so it may be shared with any patch.
-constexpr int kAcrossUnknown = -2;
 
 // Splitting a patch so that its halves stay edge-connected (docs/notebook/self_collision.md, "Sixth
 // round"): the median split alone left 32 % of the 12k skirt's leaves not edge-connected, so not
@@ -388,16 +385,10 @@ void make_patches(SelfCollision& sc, const ClothMesh& mesh) {
   order_by_owner(vert_owner, sc.vert_order, vert_before);
   order_by_owner(edge_owner, sc.edge_order, edge_before);
 
-  // For contour_across: each triangle's position in tri_order, and how many triangles hold each
-  // edge (across an edge of more than two, `neighbours` names only one of the others).
-  std::vector<int> tri_position(static_cast<std::size_t>(nt)),
-      edge_triangles(static_cast<std::size_t>(ne), 0);
-  for (int k = 0; k < nt; ++k) {
-    const int t = sc.tri_order[static_cast<std::size_t>(k)];
-    tri_position[static_cast<std::size_t>(t)] = k;
-    for (int e : tri_edges[static_cast<std::size_t>(t)])
-      ++edge_triangles[static_cast<std::size_t>(e)];
-  }
+  // For contour_across: each triangle's position in tri_order.
+  std::vector<int> tri_position(static_cast<std::size_t>(nt));
+  for (int k = 0; k < nt; ++k)
+    tri_position[static_cast<std::size_t>(sc.tri_order[static_cast<std::size_t>(k)])] = k;
 
   // Per patch: own ranges, disk (edge-connected, V - E + F = 1), contour (edges in one of its
   // triangles). Stamps keep it O(triangles) per level.
@@ -457,10 +448,8 @@ void make_patches(SelfCollision& sc, const ClothMesh& mesh) {
         if (edge_uses[static_cast<std::size_t>(e)] != 1) continue;
         sc.contour.push_back(e);
         const int across = neighbours[static_cast<std::size_t>(t)][j];
-        const int held = edge_triangles[static_cast<std::size_t>(e)];
-        sc.contour_across.push_back(held > 2     ? kAcrossUnknown
-                                    : across < 0 ? -1
-                                                 : tri_position[static_cast<std::size_t>(across)]);
+        sc.contour_across.push_back(across < 0 ? -1
+                                               : tri_position[static_cast<std::size_t>(across)]);
       }
     }
     p.contour_end = static_cast<int>(sc.contour.size());
@@ -687,7 +676,7 @@ struct PairSearch {
     // Most pairs tested share no edge (they meet across a fold, or at a corner): the shorter
     // contour's edges across which lies a triangle of the other patch say so before the acos and
     // the stamps below.
-    if (!may_share_an_edge(a, b)) return false;
+    if (!share_an_edge(a, b)) return false;
     const Vec3 sum = ba.normal_sum + bb.normal_sum;
     const double len = sum.norm();
     if (!(len > 0.0)) return false;
@@ -734,15 +723,14 @@ struct PairSearch {
 
   const Patch& patch(int id) const { return sc.patches[static_cast<std::size_t>(id)]; }
 
-  // False when patches a and b surely share no edge (SelfCollision::contour_across).
-  bool may_share_an_edge(int a, int b) const {
+  // Whether patches a and b share an edge (SelfCollision::contour_across).
+  bool share_an_edge(int a, int b) const {
     const Patch* p = &patch(a);
     const Patch* q = &patch(b);
     if (p->contour_end - p->contour_begin > q->contour_end - q->contour_begin) std::swap(p, q);
     for (int k = p->contour_begin; k < p->contour_end; ++k) {
       const int across = sc.contour_across[static_cast<std::size_t>(k)];
-      if ((across == kAcrossUnknown) | ((across >= q->tri_begin) & (across < q->tri_end)))
-        return true;
+      if ((across >= q->tri_begin) & (across < q->tri_end)) return true;
     }
     return false;
   }

@@ -116,7 +116,8 @@ struct SelfCollision {
   std::vector<Patch> patches;
   std::vector<int> tri_order, vert_order, edge_order, contour;
   // Per contour entry, the tri_order position of the triangle across that edge (-1: a border of
-  // the mesh): two patches share the edge when it falls in the other's triangle range.
+  // the mesh; build_topology refuses an edge of more than two triangles): two patches share the
+  // edge when it falls in the other's triangle range.
   std::vector<int> contour_across;
   std::vector<PatchBounds> patch_bounds;
   std::vector<EdgeBox> edge_boxes;          // per edge_order position, refit with patch_bounds
