@@ -397,6 +397,39 @@ TEST(SelfCollisionSearch, HierarchyFindsEveryPairTheBruteForceFindsOnAPleatedTub
   EXPECT_EQ(ee, brute.ee);
 }
 
+// Each contour entry names the triangle beyond its edge (SelfCollision::contour_across), which the
+// union test reads to reject two patches that share no edge before its acos: the tri_order
+// position of the other triangle holding the edge, outside the patch, or -1 at the mesh's border.
+// A wrong position would have the union test reject patches that share an edge (and list the
+// pairs of a flat union) or test ones that do not.
+TEST(SelfCollisionSearch, ContourAcrossNamesTheTriangleBeyondEachContourEdge) {
+  const ClothModel model = make_model(flared_tube(12, 0.05), Material{}, {});
+  const SelfCollision sc = make_self_collision(model, 0.004);
+  const ClothMesh& mesh = model.mesh;
+  ASSERT_EQ(sc.contour_across.size(), sc.contour.size());
+  std::vector<int> position(mesh.triangles.size());
+  for (std::size_t k = 0; k < sc.tri_order.size(); ++k)
+    position[static_cast<std::size_t>(sc.tri_order[k])] = static_cast<int>(k);
+  int border = 0, inside = 0;
+  for (const Patch& p : sc.patches)
+    for (int k = p.contour_begin; k < p.contour_end; ++k) {
+      const auto& e = mesh.edges[static_cast<std::size_t>(sc.contour[static_cast<std::size_t>(k)])];
+      std::vector<int> beyond;  // positions of the triangles holding e outside the patch
+      for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+        const auto& tri = mesh.triangles[t];
+        const long ends =
+            std::count(tri.begin(), tri.end(), e[0]) + std::count(tri.begin(), tri.end(), e[1]);
+        if (ends == 2 && (position[t] < p.tri_begin || position[t] >= p.tri_end))
+          beyond.push_back(position[t]);
+      }
+      ASSERT_LE(beyond.size(), 1u);
+      EXPECT_EQ(sc.contour_across[static_cast<std::size_t>(k)], beyond.empty() ? -1 : beyond[0]);
+      ++(beyond.empty() ? border : inside);
+    }
+  EXPECT_GT(border, 100);  // the tube's waist and hem
+  EXPECT_GT(inside, 1000);
+}
+
 SolverSettings xpbd(double thickness_mm, int threads = 1) {
   SolverSettings s;
   s.substeps = 20;

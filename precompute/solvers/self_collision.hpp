@@ -72,6 +72,18 @@ struct PatchBounds {
   double angle;
 };
 
+// An own edge of a patch at the last build, stored in edge_order's order so that a leaf's edges are
+// read in a row (self_collision.cpp, PairSearch::edges_edges): its box and its ends.
+struct EdgeBox {
+  double lo[3], hi[3];
+  int edge, v0, v1;
+};
+
+// A triangle's box at the last build, stored in tri_order's order (PairSearch::triangles_vertices).
+struct TriangleBox {
+  double lo[3], hi[3];
+};
+
 // Holds `vertex` to `side` of `triangle`'s plane (plan_untangle, below).
 struct UntangleConstraint {
   int vertex, triangle;
@@ -103,7 +115,16 @@ struct SelfCollision {
   // The patch hierarchy (topology from the rest shape; bounds refit at each build).
   std::vector<Patch> patches;
   std::vector<int> tri_order, vert_order, edge_order, contour;
+  // Per contour entry, the tri_order position of the triangle across that edge (-1: a border of
+  // the mesh; build_topology refuses an edge of more than two triangles): two patches share the
+  // edge when it falls in the other's triangle range.
+  std::vector<int> contour_across;
   std::vector<PatchBounds> patch_bounds;
+  std::vector<EdgeBox> edge_boxes;          // per edge_order position, refit with patch_bounds
+  std::vector<TriangleBox> triangle_boxes;  // per tri_order position, likewise
+  // The largest absolute coordinate at the last refit: bounds the rounding of the exact distance
+  // tests, so that the cheaper tests before them reject only what those would (self_collision.cpp).
+  double coordinate_bound = 0.0;
   Eigen::Matrix3Xd built_at;  // positions at the last build (empty: never built)
   // Per vertex, a bound (m) on how far it has moved since the build relative to the garment's
   // common motion, over every position a pass may see (the sub-step's start and now, and each move
