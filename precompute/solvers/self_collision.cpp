@@ -455,7 +455,14 @@ void make_patches(SelfCollision& sc, const ClothMesh& mesh) {
     p.contour_end = static_cast<int>(sc.contour.size());
   }
   sc.patch_bounds.resize(sc.patches.size());
+  // The edges' ends in edge_order, once; the boxes are refit at each build.
   sc.edge_boxes.resize(sc.edge_order.size());
+  for (std::size_t i = 0; i < sc.edge_order.size(); ++i) {
+    EdgeBox& box = sc.edge_boxes[i];
+    box.edge = sc.edge_order[i];
+    box.v0 = mesh.edges[static_cast<std::size_t>(box.edge)][0];
+    box.v1 = mesh.edges[static_cast<std::size_t>(box.edge)][1];
+  }
   sc.triangle_boxes.resize(sc.tri_order.size());
 }
 
@@ -463,12 +470,7 @@ void make_patches(SelfCollision& sc, const ClothMesh& mesh) {
 // parent's cone holds its children's: half-angle max(angle(axis, child axis) + child half-angle).
 void refit_patches(SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix3Xd& x) {
   constexpr double pi = 3.14159265358979323846;
-  sc.coordinate_bound = x.size() > 0 ? x.cwiseAbs().maxCoeff() : 0.0;
-  for (std::size_t i = 0; i < sc.edge_order.size(); ++i) {
-    EdgeBox& box = sc.edge_boxes[i];
-    box.edge = sc.edge_order[i];
-    box.v0 = mesh.edges[static_cast<std::size_t>(box.edge)][0];
-    box.v1 = mesh.edges[static_cast<std::size_t>(box.edge)][1];
+  for (EdgeBox& box : sc.edge_boxes) {
     for (int k = 0; k < 3; ++k) {
       box.lo[k] = std::min(x(k, box.v0), x(k, box.v1));
       box.hi[k] = std::max(x(k, box.v0), x(k, box.v1));
@@ -644,8 +646,7 @@ struct PairSearch {
   const double* w;
   double reach, reach_sq, thickness;
   // Squared distance beyond which the exact tests surely leave a pair out: the reach, plus a margin
-  // far above their rounding (a few ulps of the largest coordinate,
-  // SelfCollision::coordinate_bound).
+  // far above their rounding (a few ulps of the largest coordinate; find_pairs).
   double far_sq;
   bool skip_rest, skip_flat;
   std::vector<std::array<int, 2>>& vt;
@@ -923,7 +924,7 @@ void find_pairs(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3
   // The exact tests' computed distances are within about 1e-15 times the largest coordinate of the
   // true ones (closest_on_segments: points on the segments to a few ulps): 1e-13 of it, and 1 nm,
   // leave a margin of two orders of magnitude.
-  const double far = reach + 1e-9 + 1e-13 * sc.coordinate_bound;
+  const double far = reach + 1e-9 + 1e-13 * x.cwiseAbs().maxCoeff();
   PairSearch search{sc,
                     model.mesh,
                     x,

@@ -120,11 +120,10 @@ struct SelfCollision {
   // edge when it falls in the other's triangle range.
   std::vector<int> contour_across;
   std::vector<PatchBounds> patch_bounds;
-  std::vector<EdgeBox> edge_boxes;          // per edge_order position, refit with patch_bounds
-  std::vector<TriangleBox> triangle_boxes;  // per tri_order position, likewise
-  // The largest absolute coordinate at the last refit: bounds the rounding of the exact distance
-  // tests, so that the cheaper tests before them reject only what those would (self_collision.cpp).
-  double coordinate_bound = 0.0;
+  // Per edge_order position (ends set once, boxes refit with patch_bounds), and per tri_order
+  // position (boxes refit likewise).
+  std::vector<EdgeBox> edge_boxes;
+  std::vector<TriangleBox> triangle_boxes;
   Eigen::Matrix3Xd built_at;  // positions at the last build (empty: never built)
   // Per vertex, a bound (m) on how far it has moved since the build relative to the garment's
   // common motion, over every position a pass may see (the sub-step's start and now, and each move
