@@ -145,7 +145,9 @@ Environment environment_at(const Environment& env, double s) {
 
 bool resolve_vertex_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
                                const Eigen::VectorXd& inv_mass, Eigen::Index i,
-                               const Environment& env, double s, double s_start) {
+                               const Environment& env, double s, double s_start,
+                               NearSurface* near) {
+  if (near) near->distance = INFINITY;
   if (inv_mass[i] <= 0.0) return false;
   if (s_start < 0.0) s_start = s;
   s = pose_fraction(env, s);
@@ -154,25 +156,43 @@ bool resolve_vertex_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_st
   Vec3 p = x.col(i);
   const Vec3 p0 = x_start.col(i);
   bool hit = false;
-  for (const auto& c : env.planes) hit |= respond(p, p0, plane_point(c, p), Vec3::Zero(), env);
+  // The response pushes a vertex out along the normal to the margin (friction moves it along the
+  // surface), so its distance afterwards is at least the margin.
+  auto note = [&](const SurfacePoint& sp) {
+    const double d = std::max(sp.distance, env.collision_margin);
+    if (near && sp.distance < near->reach && d < near->distance) {
+      near->distance = d;
+      near->normal = sp.normal;
+    }
+  };
+  // Capsules farther than this are skipped (the margin, or the reach of `near` if larger).
+  const double watch = std::max(env.collision_margin, near ? near->reach : 0.0);
+  for (const auto& c : env.planes) {
+    const SurfacePoint sp = plane_point(c, p);
+    hit |= respond(p, p0, sp, Vec3::Zero(), env);
+    note(sp);
+  }
   for (const auto& c : env.spheres) {
     const Vec3 center = lerp(c.center_start, c.center, s);
     const Vec3 center0 = lerp(c.center_start, c.center, s_start);
     if (swept) p = swept_entry(p0, p, center0, center0, center, center, c.radius);
-    hit |= respond(p, p0, sphere_point(center, c.radius, p), center - center0, env);
+    const SurfacePoint sp = sphere_point(center, c.radius, p);
+    hit |= respond(p, p0, sp, center - center0, env);
+    note(sp);
   }
   for (const auto& c : env.capsules) {
     const Vec3 a = lerp(c.a_start, c.a, s), b = lerp(c.b_start, c.b, s);
     const Vec3 a0 = lerp(c.a_start, c.a, s_start), b0 = lerp(c.b_start, c.b, s_start);
     if (swept) {
       p = swept_entry(p0, p, a0, b0, a, b, c.radius);
-    } else if (far_from_capsule(a, b, c.radius + env.collision_margin, p)) {
+    } else if (far_from_capsule(a, b, c.radius + watch, p)) {
       continue;  // respond would find no depth; skips the square root for most pairs
     }
     const SurfacePoint sp = capsule_point(a, b, c.radius, p);
     const Vec3 axis_now = a + sp.segment_t * (b - a);
     const Vec3 axis_before = a0 + sp.segment_t * (b0 - a0);
     hit |= respond(p, p0, sp, axis_now - axis_before, env);
+    note(sp);
   }
   // A swept entry point may sit exactly on the surface, where respond finds no depth (margin 0):
   // it is still where the vertex must go.

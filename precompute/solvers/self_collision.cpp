@@ -104,24 +104,54 @@ bool barycentric(const Vec3& e0, const Vec3& e1, const Vec3& ep, double& b1, dou
   return true;
 }
 
-// One vertex-triangle PBD step (Mueller 2007 eq. 4-5) for C = sigma (x_v - q) . n - h < 0, q =
-// sum b_k x_k: gradients sigma n for v and -sigma b_k n for the corners (the normal's own
-// derivative left out, as usual for contacts). `moved` (the contacts' motion bounds; null before
-// the first refresh) grows by each vertex's move. False when nothing can move.
-bool push_vertex_off_triangle(Eigen::Matrix3Xd& x, const double* w, double* moved, int v,
-                              const std::array<int, 3>& t, double b0, double b1, double b2,
-                              const Vec3& n, double sigma, double c) {
-  const double wv = w[v], w0 = w[t[0]], w1 = w[t[1]], w2 = w[t[2]];
-  const double denom = wv + w0 * b0 * b0 + w1 * b1 * b1 + w2 * b2 * b2;
+// One contact's PBD step (Mueller 2007 eq. 4-5) for a constraint c = C(x) < 0 whose gradient for
+// vertex who[k] is coef[k] n: each vertex moves by w coef_k (-c / denom) n, denom = sum w coef^2.
+// A vertex near the body (SelfCollision::body_room) is not moved farther into the body than its
+// room: the part of its move along the body's normal beyond the room is dropped, and the contact is
+// left partly unresolved for the next pass, which moves the other layer (the multiplier is not
+// recomputed with that vertex's weight taken out: with every other weight small, as for an
+// edge-edge contact whose only free vertex sits at the end of its edge, that divides by a lever
+// near 0 and threw the twisted skirt apart; docs/notebook/self_collision.md, "Known gaps").
+// `moved` (the contacts' motion bounds; null before the first refresh) grows by each vertex's move.
+// False when nothing can move.
+bool push_apart(Eigen::Matrix3Xd& x, SelfCollision& sc, const double* w, double* moved,
+                const int* who, const double* coef, int count, const Vec3& n, double c) {
+  double denom = 0.0;
+  for (int k = 0; k < count; ++k) denom += w[who[k]] * coef[k] * coef[k];
   if (!(denom > 0.0)) return false;
-  const Vec3 step = (-c / denom * sigma) * n;
-  const Vec3 moves[4] = {wv * step, -(w0 * b0) * step, -(w1 * b1) * step, -(w2 * b2) * step};
-  const int who[4] = {v, t[0], t[1], t[2]};
-  for (int k = 0; k < 4; ++k) {
-    x.col(who[k]) += moves[k];
-    if (moved) moved[who[k]] += moves[k].norm();
+  const bool body = sc.body_room.size() == std::size_t(x.cols());
+  // Rounded as the contacts always were (w coef times this), so that where the body's room does
+  // not cut a move the frames are those of the code before it.
+  const Vec3 unit = (-c / denom) * n;
+  for (int k = 0; k < count; ++k) {
+    const int v = who[k];
+    if (w[v] <= 0.0) continue;
+    Vec3 step = (w[v] * coef[k]) * unit;
+    double* room = body ? &sc.body_room[std::size_t(v)] : nullptr;
+    if (room && *room < INFINITY) {
+      const auto nb = sc.body_normal.col(v);
+      const double along = step.dot(nb);
+      if (-along > *room) {
+        step -= (along + std::max(*room, 0.0)) * nb;
+        ++sc.body_cuts;
+      }
+      *room += step.dot(nb);
+    }
+    x.col(v) += step;
+    if (moved) moved[v] += step.norm();
   }
   return true;
+}
+
+// One vertex-triangle PBD step for C = sigma (x_v - q) . n - h < 0, q = sum b_k x_k: gradients
+// sigma n for v and -sigma b_k n for the corners (the normal's own derivative left out, as usual
+// for contacts).
+bool push_vertex_off_triangle(Eigen::Matrix3Xd& x, SelfCollision& sc, const double* w,
+                              double* moved, int v, const std::array<int, 3>& t, double b0,
+                              double b1, double b2, const Vec3& n, double sigma, double c) {
+  const int who[4] = {v, t[0], t[1], t[2]};
+  const double coef[4] = {sigma, -sigma * b0, -sigma * b1, -sigma * b2};
+  return push_apart(x, sc, w, moved, who, coef, 4, n, c);
 }
 
 // Largest float not above d, and smallest not below it (gaps and boxes must not overstate a
@@ -1101,10 +1131,6 @@ int project_self_collision(SelfCollision& sc, const ClothModel& model, Eigen::Ma
   // contacts); the PBD step moves each by -C w grad / sum w |grad|^2 (Mueller 2007 eq. 4-5).
   double* moved = sc.moved.data();
   // A vertex moved by `step` moves its pairs' distances by at most |step|.
-  auto move = [&](int i, const Vec3& step) {
-    x.col(i) += step;
-    moved[i] += step.norm();
-  };
   for (std::size_t k = 0; k < sc.vertex_triangle.size(); ++k) {
     const std::array<int, 2>& pair = sc.vertex_triangle[k];
     const int v = pair[1];
@@ -1131,7 +1157,7 @@ int project_self_collision(SelfCollision& sc, const ClothModel& model, Eigen::Ma
     if (!barycentric(x.col(t[1]) - a, x.col(t[2]) - a, x.col(v) - dist * n - a, b1, b2)) continue;
     const double b0 = 1.0 - b1 - b2;
     if (b0 < 0.0 || b1 < 0.0 || b2 < 0.0) continue;
-    if (push_vertex_off_triangle(x, w, moved, v, t, b0, b1, b2, n, sigma, c)) ++contacts;
+    if (push_vertex_off_triangle(x, sc, w, moved, v, t, b0, b1, b2, n, sigma, c)) ++contacts;
   }
   // Edge-edge: C = (P - Q) . n - h >= 0 with P, Q the closest points, n their unit direction, or,
   // when the interior closest points have swapped sides since the sub-step's start (the edges
@@ -1171,15 +1197,9 @@ int project_self_collision(SelfCollision& sc, const ClothModel& model, Eigen::Ma
       c = dist - h;
     }
     if (c >= 0.0) continue;
-    const double w0 = w[e1[0]], w1 = w[e1[1]], w2 = w[e2[0]], w3 = w[e2[1]];
-    const double denom = w0 * (1 - s) * (1 - s) + w1 * s * s + w2 * (1 - t) * (1 - t) + w3 * t * t;
-    if (!(denom > 0.0)) continue;
-    const Vec3 step = (-c / denom) * n;
-    move(e1[0], (w0 * (1 - s)) * step);
-    move(e1[1], (w1 * s) * step);
-    move(e2[0], -(w2 * (1 - t)) * step);
-    move(e2[1], -(w3 * t) * step);
-    ++contacts;
+    const int who[4] = {e1[0], e1[1], e2[0], e2[1]};
+    const double coef[4] = {1 - s, s, -(1 - t), -t};
+    if (push_apart(x, sc, w, moved, who, coef, 4, n, c)) ++contacts;
   }
   return contacts;
 }
@@ -1283,7 +1303,8 @@ int project_untangle(SelfCollision& sc, const ClothModel& model, Eigen::Matrix3X
     if (c >= 0.0) continue;
     // The contacts' motion bounds (SelfCollision::moved) cover this move too.
     double* moved = sc.moved.size() == std::size_t(x.cols()) ? sc.moved.data() : nullptr;
-    if (push_vertex_off_triangle(x, w, moved, u.vertex, t, b0, b1, b2, nrm, u.side, c)) ++projected;
+    if (push_vertex_off_triangle(x, sc, w, moved, u.vertex, t, b0, b1, b2, nrm, u.side, c))
+      ++projected;
   }
   return projected;
 }

@@ -132,8 +132,33 @@ struct SelfCollision {
   std::vector<double> moved;
   // Untangling constraints of the step being run again (plan_untangle); empty otherwise.
   std::vector<UntangleConstraint> untangle;
-  long builds = 0;  // how many builds so far (reported by describe / benchmarks)
+  // The body under the cloth, set by the solver after its collision pass in each sub-step (empty:
+  // not used): per vertex, the outward normal of the nearest collider surface within
+  // kBodyReach thicknesses, and how far (m) the contacts may still move the vertex against that
+  // normal (+infinity: no surface that near). The room is the vertex's distance from the surface
+  // plus kBodyGive thicknesses: the contacts may press the layer next to the body into it by that
+  // much, no deeper (docs/notebook/self_collision.md, "Eleventh round").
+  Eigen::Matrix3Xd body_normal;
+  std::vector<double> body_room;
+  long body_cuts = 0;  // contact moves the body's room has cut short so far
+  long builds = 0;     // how many builds so far (reported by describe / benchmarks)
 };
+
+// The contacts after the body's collision pass (xpbd.cpp) push the layer next to the body into it
+// when the layers over it press on it (the wrung twisted skirt: 18.7 mm deep). They may push a
+// vertex at most kBodyGive thicknesses below the body's surface, counted from where the collision
+// pass left it along the normal of the surface nearest it; the vertices within kBodyReach
+// thicknesses of a surface are watched. Give, not a hard wall: with none (0) or one thickness
+// the twisted skirt went through itself for one of the three build schedules tried, with two for
+// none (docs/notebook/self_collision.md, "Eleventh round").
+constexpr double kBodyGive = 2.0;
+constexpr double kBodyReach = 3.0;
+// Contact passes per sub-step: up to kContactPasses, until one projects no contact; up to
+// kContactPassesAtBody while the body's room cuts moves short in the sub-step (the other layer
+// then has to move out, which takes the Gauss-Seidel passes more rounds; with three, the twisted
+// skirt went through itself).
+constexpr int kContactPasses = 3;
+constexpr int kContactPassesAtBody = 10;
 
 // A SelfCollision for `model` with thickness (m) > 0. The skin is half the mean rest edge length,
 // but at least the thickness: enough that a build lasts several sub-steps, small enough that the

@@ -135,8 +135,11 @@ class XpbdSolver final : public Solver {
     build_constraints();
     if (settings.tethers) build_tethers();
     build_vertex_edges();
-    if (settings.self_collision_thickness_mm > 0.0)
+    if (settings.self_collision_thickness_mm > 0.0) {
       self_ = make_self_collision(model_, settings.self_collision_thickness_mm * 1e-3);
+      self_.body_normal.setZero(3, model_.vertex_count());
+      self_.body_room.assign(static_cast<std::size_t>(model_.vertex_count()), INFINITY);
+    }
   }
 
   std::string describe() const override {
@@ -694,23 +697,42 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
       }
       // Colliders at this sub-step's pose; friction measured against the surface's own motion
       // over the sub-step. Each vertex is resolved on its own, so the vertices are shared out.
+      // With self-collision, the pass also notes each vertex's nearest body surface: the contacts
+      // below may not push a vertex deep into it (self_collision.hpp, kBodyGive).
+      if (self_.thickness > 0.0) {
+        const double reach = kBodyReach * self_.thickness, give = kBodyGive * self_.thickness;
 #pragma omp for schedule(static)
-      for (Eigen::Index i = 0; i < n; ++i)
-        resolve_vertex_collisions(state.x, x_prev, model_.inv_mass, i, env, s_end, s_start);
+        for (Eigen::Index i = 0; i < n; ++i) {
+          NearSurface near;
+          near.reach = reach;
+          resolve_vertex_collisions(state.x, x_prev, model_.inv_mass, i, env, s_end, s_start,
+                                    &near);
+          self_.body_room[static_cast<std::size_t>(i)] = near.distance + give;
+          if (near.distance < INFINITY) self_.body_normal.col(i) = near.normal;
+        }
+      } else {
+#pragma omp for schedule(static)
+        for (Eigen::Index i = 0; i < n; ++i)
+          resolve_vertex_collisions(state.x, x_prev, model_.inv_mass, i, env, s_end, s_start);
+      }
       // Self-collision after the body's collision pass: cloth pressed between the body and another
       // layer is pushed apart last, so a layer the body moved cannot end the sub-step through the
       // one over it (which would then be taken as its side at the next sub-step). It may push the
-      // inner layer into the collision margin. Serial and in list order: the same result for any
-      // thread count (self_collision.hpp).
+      // inner layer into the body, at most kBodyGive thicknesses deep. Serial and in list order:
+      // the same result for any thread count (self_collision.hpp).
       if (self_.thickness > 0.0) {
 #pragma omp single
         {
           refresh_self_collision(self_, model_, state.x, x_prev);
           // Up to three Gauss-Seidel passes, until one projects no contact: a single pass left
           // crossings that the next sub-steps then kept (each pair's side is taken at the
-          // sub-step's start), docs/notebook/self_collision.md, "Third round".
-          for (int pass = 0; pass < 3; ++pass)
+          // sub-step's start), docs/notebook/self_collision.md, "Third round". More while the
+          // body's room cuts contact moves short (self_collision.hpp, kContactPassesAtBody).
+          const long cuts = self_.body_cuts;
+          for (int pass = 0; pass < kContactPassesAtBody; ++pass) {
+            if (pass >= kContactPasses && self_.body_cuts == cuts) break;
             if (project_self_collision(self_, model_, state.x, x_prev) == 0) break;
+          }
           // A step run again to undo crossings: their ends held to their sides (below).
           if (!self_.untangle.empty()) project_untangle(self_, model_, state.x);
         }
