@@ -1,8 +1,9 @@
 // Cloth self-collision for XPBD (docs/notebook/self_collision.md): vertex-triangle and edge-edge
 // contacts that keep the cloth at least `thickness` from itself, as unilateral position constraints
-// projected in each sub-step, up to three passes (xpbd.cpp) (Bridson, Fedkiw & Anderson 2002 sec. 7
-// for the pair types and their closest points; Mueller et al. 2007 sec. 4.2 / Macklin 2016 for
-// projecting C >= 0 with inverse-mass weights).
+// projected in each sub-step, up to three passes, ten where the body's room cuts a move (xpbd.cpp,
+// kBodyGive below) (Bridson, Fedkiw & Anderson 2002 sec. 7 for the pair types and their closest
+// points; Mueller et al. 2007 sec. 4.2 / Macklin 2016 for projecting C >= 0 with inverse-mass
+// weights).
 //
 // Cost: candidates are found only when needed. A build lists every pair closer than thickness +
 // skin (a Verlet list); it stays complete until some vertex has moved more than skin / 2 since the
