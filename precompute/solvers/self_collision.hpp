@@ -45,6 +45,7 @@
 #include <vector>
 
 #include "cloth/model.hpp"
+#include "cloth/self_intersection.hpp"
 
 namespace clothdb {
 
@@ -132,6 +133,8 @@ struct SelfCollision {
   std::vector<double> moved;
   // Untangling constraints of the step being run again (plan_untangle); empty otherwise.
   std::vector<UntangleConstraint> untangle;
+  // The crossing search's arrays, kept from step to step (plan_untangle runs it once a step).
+  CrossingScratch crossing_scratch;
   long builds = 0;  // how many builds so far (reported by describe / benchmarks)
 };
 
