@@ -85,6 +85,23 @@ TEST(SelfIntersection, FoldedSheetCrossesOnlyWhenFoldedThrough) {
   EXPECT_GE(count_self_intersections(mesh, through), 8);
 }
 
+// Every edge-triangle pair tested (the oracle of the grid's search), by triangle then edge.
+std::vector<std::array<int, 2>> brute_force_crossings(const ClothMesh& mesh,
+                                                      const Eigen::Matrix3Xd& x) {
+  std::vector<std::array<int, 2>> brute;
+  for (size_t t = 0; t < mesh.triangles.size(); ++t) {
+    const auto& tri = mesh.triangles[t];
+    for (size_t e = 0; e < mesh.edges.size(); ++e) {
+      const int i = mesh.edges[e][0], j = mesh.edges[e][1];
+      if (i == tri[0] || i == tri[1] || i == tri[2] || j == tri[0] || j == tri[1] || j == tri[2])
+        continue;
+      if (segment_crosses_triangle(x.col(i), x.col(j), x.col(tri[0]), x.col(tri[1]), x.col(tri[2])))
+        brute.push_back({static_cast<int>(e), static_cast<int>(t)});
+    }
+  }
+  return brute;
+}
+
 // The metric's grid (edges filed by box in cells of the mean edge) against every edge-triangle
 // pair tested: a 12 x 12 sheet crumpled by a seeded random displacement larger than its edges (many
 // crossings, some triangles crossed by several edges) and one vertex thrown 50 m away (its edges
@@ -101,17 +118,7 @@ TEST(SelfIntersection, GridFindsEveryCrossingTheBruteForceFinds) {
   for (int i = 0; i < mesh.vertex_count(); ++i)
     for (int k = 0; k < 3; ++k) x(k, i) += 0.25 * noise();
   x.col(77) += Vec3(50.0, -20.0, 30.0);
-  std::vector<std::array<int, 2>> brute;
-  for (size_t t = 0; t < mesh.triangles.size(); ++t) {
-    const auto& tri = mesh.triangles[t];
-    for (size_t e = 0; e < mesh.edges.size(); ++e) {
-      const int i = mesh.edges[e][0], j = mesh.edges[e][1];
-      if (i == tri[0] || i == tri[1] || i == tri[2] || j == tri[0] || j == tri[1] || j == tri[2])
-        continue;
-      if (segment_crosses_triangle(x.col(i), x.col(j), x.col(tri[0]), x.col(tri[1]), x.col(tri[2])))
-        brute.push_back({static_cast<int>(e), static_cast<int>(t)});
-    }
-  }
+  std::vector<std::array<int, 2>> brute = brute_force_crossings(mesh, x);
   const auto found = edge_triangle_crossings(mesh, x);
   for (size_t k = 1; k < found.size(); ++k) EXPECT_LE(found[k - 1][1], found[k][1]);
   auto by_triangle = [](const std::array<int, 2>& a, const std::array<int, 2>& b) {
@@ -130,6 +137,34 @@ TEST(SelfIntersection, GridFindsEveryCrossingTheBruteForceFinds) {
   for (size_t k = 1; k < brute.size(); ++k) shared += brute[k][1] == brute[k - 1][1];
   EXPECT_GT(runaway, 0) << "the runaway vertex's edges cross nothing: the test misses that path";
   EXPECT_GT(shared, 0) << "no triangle crossed twice: the test misses the ordering path";
+}
+
+// The solver keeps one CrossingScratch for all its searches (self_collision.hpp): reused across
+// meshes of other sizes and across crumplings with and without a runaway vertex, it must hand back
+// exactly what a fresh search and the brute force find (stamps, buckets or runaway edges left over
+// from the call before would drop or add crossings).
+TEST(SelfIntersection, ReusedScratchFindsWhatAFreshSearchFinds) {
+  CrossingScratch scratch;
+  unsigned state = 777u;
+  auto noise = [&]() {
+    state = state * 1664525u + 1013904223u;
+    return static_cast<double>(state >> 8) / static_cast<double>(1u << 24) - 0.5;
+  };
+  int calls_with_crossings = 0;
+  for (const int size : {12, 20, 12, 7, 20}) {
+    const ClothMesh mesh = make_quad_grid(size, size, 1.0, 1.0);
+    for (const bool runaway : {true, false}) {
+      Eigen::Matrix3Xd x = mesh.rest;
+      for (int i = 0; i < mesh.vertex_count(); ++i)
+        for (int k = 0; k < 3; ++k) x(k, i) += (3.0 / size) * noise();
+      if (runaway) x.col(size + 2) += Vec3(40.0, 10.0, -25.0);
+      const auto reused = edge_triangle_crossings(mesh, x, &scratch);
+      EXPECT_EQ(reused, edge_triangle_crossings(mesh, x)) << size << " x " << size;
+      EXPECT_EQ(reused, brute_force_crossings(mesh, x)) << size << " x " << size;
+      calls_with_crossings += !reused.empty();
+    }
+  }
+  EXPECT_EQ(calls_with_crossings, 10) << "a crumpled sheet without crossings tests nothing";
 }
 
 // ---- The patch hierarchy's search (self_collision.hpp, top) ----

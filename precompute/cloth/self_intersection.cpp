@@ -57,19 +57,28 @@ double orient(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d) {
   return (b - a).cross(c - a).dot(d - a);
 }
 
-}  // namespace
-
-bool segment_crosses_triangle(const Vec3& p, const Vec3& q, const Vec3& a, const Vec3& b,
-                              const Vec3& c) {
-  const double sp = orient(a, b, c, p), sq = orient(a, b, c, q);
+// segment_crosses_triangle with n = (b - a) x (c - a) given: the same operations in the same order
+// (orient(a, b, c, d) is that cross product dotted with d - a), so the same answer to the bit, with
+// the triangle's cross product made once for all the edges it is tested against.
+bool crosses_with_normal(const Vec3& p, const Vec3& q, const Vec3& a, const Vec3& b, const Vec3& c,
+                         const Vec3& n) {
+  const double sp = n.dot(p - a), sq = n.dot(q - a);
   if (!((sp > 0.0 && sq < 0.0) || (sp < 0.0 && sq > 0.0))) return false;
   // The line p-q passes inside the triangle when it sees the three edges turning the same way.
   const double u = orient(p, q, a, b), v = orient(p, q, b, c), w = orient(p, q, c, a);
   return (u > 0.0 && v > 0.0 && w > 0.0) || (u < 0.0 && v < 0.0 && w < 0.0);
 }
 
+}  // namespace
+
+bool segment_crosses_triangle(const Vec3& p, const Vec3& q, const Vec3& a, const Vec3& b,
+                              const Vec3& c) {
+  return crosses_with_normal(p, q, a, b, c, (b - a).cross(c - a));
+}
+
 std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
-                                                        const Eigen::Matrix3Xd& x) {
+                                                        const Eigen::Matrix3Xd& x,
+                                                        CrossingScratch* scratch) {
   if (x.cols() != mesh.vertex_count())
     throw std::invalid_argument("edge_triangle_crossings: " + std::to_string(x.cols()) +
                                 " positions for a mesh of " + std::to_string(mesh.vertex_count()) +
@@ -77,6 +86,8 @@ std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
   std::vector<std::array<int, 2>> out;
   const size_t edge_count = mesh.edges.size();
   if (edge_count == 0) return out;
+  CrossingScratch local;
+  CrossingScratch& work = scratch != nullptr ? *scratch : local;
   // Each edge is filed in every cell its box overlaps, the cells as large as the mean edge, and
   // each triangle visits the cells its box overlaps: an edge that crosses a triangle holds the
   // crossing point in its box and the triangle's, so it is met. (Edges by midpoint in cells as
@@ -85,7 +96,10 @@ std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
   // docs/notebook/self_collision.md, "Eighth round".) An edge over more than kMaxCells cells (a
   // runaway vertex) is tested against every triangle instead.
   constexpr long kMaxCells = 64;
-  std::vector<std::array<double, 6>> box(edge_count);
+  // Raw pointers into the scratch: through references to its vectors every access reloaded the
+  // vector's data pointer (the stores below may alias it).
+  work.box.resize(edge_count);
+  std::array<double, 6>* const box = work.box.data();
   double longest = 0.0, total = 0.0;
   for (size_t e = 0; e < edge_count; ++e) {
     const Vec3 p = x.col(mesh.edges[e][0]), q = x.col(mesh.edges[e][1]);
@@ -99,10 +113,21 @@ std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
     throw std::invalid_argument("edge_triangle_crossings: non-finite positions");
   if (!(longest > 0.0)) return out;
   const double cell = total / static_cast<double>(edge_count);
-  auto cell_of = [cell](double c) { return grid_cell_index(c, cell); };
+  // Any cell index that does not decrease with the coordinate files an edge and a triangle whose
+  // boxes share a point in a common cell, which is all the search needs: the coordinate times the
+  // inverse cell, clamped, then truncated and moved down for negatives (a floor without a call;
+  // grid_cell_index's division and floor were 10 % of the instructions).
+  const double inverse_cell = 1.0 / cell;
+  auto cell_of = [inverse_cell](double c) {
+    const double v = std::clamp(c * inverse_cell, -1e9, 1e9);
+    const long i = static_cast<long>(v);
+    return i - static_cast<long>(v < static_cast<double>(i));
+  };
   // Cells hashed (grid_cell_hash, then a multiplicative hash into 2^bits buckets).
-  std::vector<std::array<long, 6>> span(edge_count);
-  std::vector<int> big;
+  work.span.resize(edge_count);
+  std::array<long, 6>* const span = work.span.data();
+  std::vector<int>& big = work.big;
+  big.clear();
   size_t entries = 0;
   for (size_t e = 0; e < edge_count; ++e) {
     auto& s = span[e];
@@ -130,14 +155,13 @@ std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
   // Each entry holds its edge's box in floats moved outwards by far more than a float's rounding
   // (a millionth of the coordinate), so a test on them never rejects what the exact box keeps,
   // and a query reads its buckets in a row.
-  struct Entry {
-    float lo[3], hi[3];
-    int edge;
-  };
+  using Entry = CrossingScratch::Entry;
   auto down = [](double d) { return static_cast<float>(d - (std::abs(d) * 1e-6 + 1e-20)); };
   auto up = [](double d) { return static_cast<float>(d + (std::abs(d) * 1e-6 + 1e-20)); };
-  std::vector<int> begin(table + 1, 0);
-  std::vector<Entry> items(entries);
+  work.begin.assign(table + 1, 0);
+  int* const begin = work.begin.data();
+  work.items.resize(entries);
+  Entry* const items = work.items.data();
   auto for_cells = [&](const std::array<long, 6>& s, auto&& f) {
     for (long ix = s[0]; ix <= s[3]; ++ix)
       for (long iy = s[1]; iy <= s[4]; ++iy)
@@ -146,7 +170,8 @@ std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
   for (size_t e = 0; e < edge_count; ++e) for_cells(span[e], [&](size_t b) { ++begin[b + 1]; });
   for (size_t b = 0; b < table; ++b) begin[b + 1] += begin[b];
   {
-    std::vector<int> fill(begin.begin(), begin.end() - 1);
+    work.fill.assign(work.begin.begin(), work.begin.end() - 1);
+    int* const fill = work.fill.data();
     for (size_t e = 0; e < edge_count; ++e) {
       const auto& eb = box[e];
       const Entry entry{{down(eb[0]), down(eb[1]), down(eb[2])},
@@ -155,11 +180,14 @@ std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
       for_cells(span[e], [&](size_t b) { items[static_cast<size_t>(fill[b]++)] = entry; });
     }
   }
-  std::vector<int> stamp(edge_count, -1);
-  std::vector<int> found;
+  work.stamp.assign(edge_count, -1);
+  int* const stamp = work.stamp.data();
+  std::vector<int>& found = work.found;
+  found.clear();
   for (size_t t = 0; t < mesh.triangles.size(); ++t) {
     const std::array<int, 3>& tri = mesh.triangles[t];
     const Vec3 a = x.col(tri[0]), b = x.col(tri[1]), c = x.col(tri[2]);
+    const Vec3 n = (b - a).cross(c - a);
     // The slack, far above rounding, keeps the box tests from ever deciding a case the
     // orientation signs would count.
     const Vec3 lo = a.cwiseMin(b).cwiseMin(c) - Vec3::Constant(1e-9),
@@ -178,7 +206,7 @@ std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
                 j = mesh.edges[static_cast<size_t>(e)][1];
       if (i == tri[0] || i == tri[1] || i == tri[2] || j == tri[0] || j == tri[1] || j == tri[2])
         return;
-      if (segment_crosses_triangle(x.col(i), x.col(j), a, b, c)) found.push_back(e);
+      if (crosses_with_normal(x.col(i), x.col(j), a, b, c, n)) found.push_back(e);
     };
     const std::array<long, 6> query = {cell_of(lo[0]), cell_of(lo[1]), cell_of(lo[2]),
                                        cell_of(hi[0]), cell_of(hi[1]), cell_of(hi[2])};

@@ -58,11 +58,27 @@ struct PointGrid {
 bool segment_crosses_triangle(const Vec3& p, const Vec3& q, const Vec3& a, const Vec3& b,
                               const Vec3& c);
 
+// The search's working arrays (edge boxes, the hashed cells' entries, stamps), kept by a caller
+// that searches the same mesh often (the solver, once a step) so that a search allocates nothing:
+// fresh arrays of a few MB a call were page faults (1.9 % of all samples of `bench character` on
+// the 12k skirt; docs/notebook/self_collision.md, "Eleventh round").
+struct CrossingScratch {
+  struct Entry {  // an edge's box in floats, moved outwards (self_intersection.cpp)
+    float lo[3], hi[3];
+    int edge;
+  };
+  std::vector<std::array<double, 6>> box;
+  std::vector<std::array<long, 6>> span;
+  std::vector<int> big, begin, fill, stamp, found;
+  std::vector<Entry> items;
+};
+
 // Pairs (edge index in mesh.edges, triangle index in mesh.triangles) where the edge crosses a
 // triangle it shares no vertex with, by triangle, a triangle's by edge. x: 3 x vertex_count
-// positions.
+// positions. The scratch, when given, is reused (the result does not depend on it).
 std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
-                                                        const Eigen::Matrix3Xd& x);
+                                                        const Eigen::Matrix3Xd& x,
+                                                        CrossingScratch* scratch = nullptr);
 // Their number: the self_intersections metric of one frame.
 int count_self_intersections(const ClothMesh& mesh, const Eigen::Matrix3Xd& x);
 

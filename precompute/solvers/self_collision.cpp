@@ -1091,32 +1091,47 @@ void raise_moved(std::vector<double>& moved, const Eigen::Matrix3Xd& x,
 
 bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
                             const Eigen::Matrix3Xd& x_start) {
-  bool stale = sc.built_at.cols() != x.cols() || sc.moved.size() != std::size_t(x.cols());
-  Vec3 m = Vec3::Zero();
-  if (!stale && x.cols() > 0) {
+  const bool built = sc.built_at.cols() == x.cols() && sc.moved.size() == std::size_t(x.cols());
+  if (built) {
     // A pair's distance changes by at most |d_i - d_j| <= |d_i - m| + |d_j - m| for the vertex
     // displacements d since the build and any common m: measured from the centre of the
     // displacements' box, a garment carried along by the body (a walk, a jump) keeps its lists
     // for as long as its shape changes by less than skin / 2. No scratch matrix: this runs every
-    // sub-step.
-    m = common_motion(x, sc.built_at);
+    // sub-step, in two passes over the vertices (the common motions of x and of the sub-step's
+    // start, then the check and both motion bounds), where common_motion and raise_moved took
+    // five: the same operations on each vertex, so the same bounds to the bit.
+    const Eigen::Matrix3Xd& built_at = sc.built_at;
+    Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
+    Vec3 lo_start = lo, hi_start = hi;
+    for (Eigen::Index i = 0; i < x.cols(); ++i) {
+      const Vec3 d = x.col(i) - built_at.col(i);
+      lo = lo.cwiseMin(d);
+      hi = hi.cwiseMax(d);
+      const Vec3 d_start = x_start.col(i) - built_at.col(i);
+      lo_start = lo_start.cwiseMin(d_start);
+      hi_start = hi_start.cwiseMax(d_start);
+    }
+    const Vec3 m = 0.5 * (lo + hi), m_start = 0.5 * (lo_start + hi_start);
     const double limit = 0.25 * sc.skin * sc.skin;
     double worst = 0.0;
-    for (Eigen::Index i = 0; i < x.cols(); ++i)
-      worst = std::max(worst, (x.col(i) - sc.built_at.col(i) - m).squaredNorm());
-    stale = !(worst <= limit);  // NaN positions rebuild (and the solver's check reports them)
+    // The bounds cover the sub-step's start too (its side decides a contact), and the positions
+    // left by the constraints after the last pass. Raised before the check is decided: after a
+    // build they are reset below anyway.
+    double* moved = sc.moved.data();
+    for (Eigen::Index i = 0; i < x.cols(); ++i) {
+      const double d_sq = (x.col(i) - built_at.col(i) - m).squaredNorm();
+      worst = std::max(worst, d_sq);
+      moved[i] = std::max(moved[i], std::sqrt(d_sq));  // Eigen's norm() is this square root
+      moved[i] = std::max(moved[i], (x_start.col(i) - built_at.col(i) - m_start).norm());
+    }
+    if (worst <= limit)
+      return false;  // NaN positions rebuild (and the solver's check reports them)
   }
-  if (stale) {
-    build_candidates(sc, model, x);
-    sc.moved.assign(static_cast<std::size_t>(x.cols()), 0.0);
-    m = common_motion(x, sc.built_at);
-  }
-  // The bounds cover the sub-step's start too (its side decides a contact), and the positions left
-  // by the constraints after the last pass. (x's common motion is the staleness check's: measured
-  // once a sub-step.)
-  raise_moved(sc.moved, x, sc.built_at, m);
+  build_candidates(sc, model, x);
+  // The bounds at x, the build's positions, are 0; the sub-step's start's are raised.
+  sc.moved.assign(static_cast<std::size_t>(x.cols()), 0.0);
   raise_moved(sc.moved, x_start, sc.built_at, common_motion(x_start, sc.built_at));
-  return stale;
+  return true;
 }
 
 int project_self_collision(SelfCollision& sc, const ClothModel& model, Eigen::Matrix3Xd& x,
@@ -1222,7 +1237,8 @@ int plan_untangle(SelfCollision& sc, const ClothModel& model, const Eigen::Matri
   const ClothMesh& mesh = model.mesh;
   const double* w = model.inv_mass.data();
   const std::size_t n = static_cast<std::size_t>(x.cols());
-  const std::vector<std::array<int, 2>> crossings = edge_triangle_crossings(mesh, x);
+  const std::vector<std::array<int, 2>> crossings =
+      edge_triangle_crossings(mesh, x, &sc.crossing_scratch);
   if (crossings.empty()) return 0;
   // The pieces the crossing edges cut the mesh into (BWK 2003 sec. 4: the intersection contour
   // bounds a region on each side; the one that went through is the smaller). Union-find over the

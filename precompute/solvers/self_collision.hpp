@@ -46,6 +46,7 @@
 #include <vector>
 
 #include "cloth/model.hpp"
+#include "cloth/self_intersection.hpp"
 
 namespace clothdb {
 
@@ -141,6 +142,8 @@ struct SelfCollision {
   // much, no deeper (docs/notebook/self_collision.md, "Eleventh round").
   Eigen::Matrix3Xd body_normal;
   std::vector<double> body_room;
+  // The crossing search's arrays, kept from step to step (plan_untangle runs it once a step).
+  CrossingScratch crossing_scratch;
   long body_cuts = 0;  // contact moves the body's room has cut short so far
   long builds = 0;     // how many builds so far (reported by describe / benchmarks)
 };
