@@ -34,7 +34,7 @@ std::string load_average() {
 void register_bench_character(CLI::App& bench) {
   struct Args {
     std::string scene, solvers, substeps = "0", threads = "1", motions, self_collision, out,
-                                strain_targets;
+                                strain_targets, coarse_vertices = "0";
     int vertices = 0, settle_every = 0;
     CharacterBenchOptions options;
   };
@@ -83,6 +83,9 @@ void register_bench_character(CLI::App& bench) {
                   "XPBD Chebyshev acceleration of the stretch sweeps (Wang 2015): spectral radius "
                   "estimate in [0, 1), 0: off; default: the scene's (docs/guide/resolution.md)")
       ->check(CLI::Range(0.0, 0.999));
+  cmd->add_option("--coarse-vertices", args->coarse_vertices,
+                  "Experiment: solve a skirt of this many vertices and drive the scene's skirt "
+                  "from it (docs/notebook/resolution.md, ninth round); 0: off");
   cmd->add_option("--tethers", args->options.tethers,
                   "XPBD long-range attachments to the pins: 1 on, 0 off; default: the scene's")
       ->check(CLI::Range(0, 1));
@@ -112,6 +115,7 @@ void register_bench_character(CLI::App& bench) {
     for (const auto& s : split_list(args->solvers)) options.solvers.push_back(parse_solver_kind(s));
     options.substeps = int_list(args->substeps, "--substeps");
     options.threads = int_list(args->threads, "--threads");
+    options.coarse_vertices = int_list(args->coarse_vertices, "--coarse-vertices");
     for (int t : options.threads)
       if (t < 1) throw std::invalid_argument("--threads: expected thread counts >= 1");
     for (const auto& m : split_list(args->motions))
