@@ -14,7 +14,6 @@
 #include "bench/strain_study.hpp"
 #include "cloth/self_intersection.hpp"
 #include "report/stats.hpp"
-#include "solvers/upsampled.hpp"
 
 namespace clothdb {
 
@@ -75,11 +74,9 @@ void locate_edge(const CharacterScene& scene, const MotionClip& clip, int f,
 CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverKind kind,
                           const SolverSettings& settings, ColliderMotion motion, int frames,
                           const std::function<void(const std::string&)>& progress,
-                          std::vector<Eigen::Matrix3Xd>* positions = nullptr,
-                          const ClothModel* coarse = nullptr) {
+                          std::vector<Eigen::Matrix3Xd>* positions = nullptr) {
   scene.env.collider_motion = motion;
-  auto solver = coarse != nullptr ? make_upsampled_solver(scene.model, *coarse, settings, {})
-                                  : make_solver(kind, scene.model, settings);
+  auto solver = make_scene_solver(scene, kind, settings);
   CharacterBenchRow row;
   row.solver = solver->describe();
   row.threads = settings.threads;
@@ -196,22 +193,9 @@ std::vector<CharacterBenchRow> run_character_bench(
     const MotionClip& clip =
         scene.clips[options.clip.empty() ? 0 : static_cast<size_t>(scene.clip_index(options.clip))];
     const int frames = std::min(options.frames, clip.frame_count);
-    // The coarse garments (options.coarse_vertices), and the reference runs by their solver's
-    // description, so that runs sharing a reference (a coarse-driven run and the scene's own at
-    // the same setting) are compared with the same one, run once.
-    std::vector<std::unique_ptr<ClothModel>> coarse_models;
-    for (int cv : options.coarse_vertices) {
-      if (cv <= 0) {
-        coarse_models.push_back(nullptr);
-        continue;
-      }
-      if (f.garment_kind != GarmentKind::Skirt || kind != SolverKind::Xpbd)
-        throw std::invalid_argument("bench character: --coarse-vertices needs an XPBD skirt");
-      SkirtSpec spec = f.skirt;
-      spec.vertices = cv;
-      const Garment g = make_skirt(scene.skeleton, spec);
-      coarse_models.push_back(std::make_unique<ClothModel>(make_model(g.mesh, f.material, g.pins)));
-    }
+    // The reference runs by their solver's description, so that runs sharing a reference (a
+    // coarse-driven run and the garment's own at the same setting: scene_reference drops
+    // coarse_vertices) are compared with the same one, run once.
     std::map<std::string, std::pair<CharacterBenchRow, std::vector<Eigen::Matrix3Xd>>> references;
     for (int requested : options.substeps) {
       SolverSettings settings = file.settings;
@@ -227,6 +211,8 @@ std::vector<CharacterBenchRow> run_character_bench(
         settings.strain_limit_relaxation = options.strain_limit_relaxation;
       if (options.chebyshev_rho >= 0.0) settings.chebyshev_rho = options.chebyshev_rho;
       if (options.tethers >= 0) settings.tethers = options.tethers != 0;
+      std::vector<int> coarse_counts = options.coarse_vertices;
+      if (coarse_counts.empty()) coarse_counts.push_back(file.settings.coarse_vertices);
       std::vector<double> self_mm = options.self_collision_mm;
       if (self_mm.empty()) {
         self_mm.push_back(file.settings.self_collision_thickness_mm);
@@ -238,19 +224,16 @@ std::vector<CharacterBenchRow> run_character_bench(
         if (motions.empty()) motions.push_back(file.collider_motion);
         for (ColliderMotion motion : motions) {
           for (double mm : self_mm)
-            for (std::size_t ci = 0; ci < coarse_models.size(); ++ci) {
+            for (int coarse : coarse_counts) {
               settings.self_collision_thickness_mm = mm;
+              settings.coarse_vertices = coarse;
               std::vector<Eigen::Matrix3Xd> run_positions;
               rows.push_back(run_one(scene, clip, kind, settings, motion, frames, progress,
-                                     options.reference ? &run_positions : nullptr,
-                                     coarse_models[ci].get()));
+                                     options.reference ? &run_positions : nullptr));
               CharacterBenchRow& r = rows.back();
-              r.coarse_vertices = coarse_models[ci] ? coarse_models[ci]->vertex_count() : 0;
               if (options.reference && r.stable) {
-                SolverCandidate ref = scene_reference(kind, settings);
-                if (const char* probe = std::getenv("CLOTHDB_PROBE_REF_SUBSTEPS"))
-                  ref.settings.substeps = std::atoi(probe);
-                const std::string key = make_solver(kind, scene.model, ref.settings)->describe() +
+                const SolverCandidate ref = scene_reference(kind, settings);
+                const std::string key = make_scene_solver(scene, kind, ref.settings)->describe() +
                                         " " + collider_motion_name(motion);
                 if (references.count(key) == 0) {
                   std::vector<Eigen::Matrix3Xd> ref_positions;
@@ -325,7 +308,7 @@ std::vector<SettleRow> run_settle_bench(const SceneFile& file, const std::string
       scene.clips[clip_name.empty() ? 0 : static_cast<size_t>(scene.clip_index(clip_name))];
   std::vector<SettleRow> rows;
   for (int f = 0; f < clip.frame_count; f += every) {
-    auto solver = make_solver(file.solver, scene.model, file.settings);
+    auto solver = make_scene_solver(scene, file.solver, file.settings);
     const auto pose = clip_pose(clip, f);
     const ClothState state = settle_garment(scene, *solver, pose);
     Environment env = scene.env;

@@ -44,11 +44,10 @@ struct CharacterBenchOptions {
   // Largest-strain targets, (l - l0) / l0: the cheapest stable run (CPU per frame) whose largest
   // strain meets each (meets_strain_target, bench/strain_study.hpp) is marked.
   std::vector<double> strain_targets;
-  // > 0: a skirt of this many vertices is solved and drives the scene's garment
-  // (make_upsampled_solver, the ninth round of docs/notebook/resolution.md); the reference is the
-  // scene's own garment at 8x the sub-steps.
-  // 0: the scene's own solve.
-  std::vector<int> coarse_vertices{0};
+  // SolverSettings::coarse_vertices to run (0: the garment solved itself; N: the garment made with
+  // N vertices solved and driving it). Empty: the scene's. With `reference`, every run of a
+  // setting is compared with the garment's own run at 8x the sub-steps (scene_reference).
+  std::vector<int> coarse_vertices;
 };
 
 struct CharacterBenchRow {
@@ -98,7 +97,6 @@ struct CharacterBenchRow {
   std::string reference;
   double reference_rms_mm = NAN, reference_max_mm = NAN, reference_cpu_ms_per_frame = NAN;
   std::vector<double> cheapest_for;  // the strain targets this run is the cheapest to meet
-  int coarse_vertices = 0;           // CharacterBenchOptions::coarse_vertices of this run
 };
 
 // The fastest point of any body capsule (its end points) over clip frames [0, frames).

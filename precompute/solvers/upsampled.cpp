@@ -2,8 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
 #include <limits>
 #include <stdexcept>
 #include <string>
@@ -145,29 +143,16 @@ void interpolate(const BarycentricEmbedding& e, const Eigen::Matrix3Xd& from,
 
 namespace {
 
-int probe_int(const char* name, int fallback) {
-  const char* s = std::getenv(name);
-  return s != nullptr ? std::atoi(s) : fallback;
-}
-
 class UpsampledSolver final : public Solver {
  public:
-  UpsampledSolver(const ClothModel& fine, const ClothModel& coarse, const SolverSettings& settings,
-                  const UpsampleSettings& passes)
-      : fine_(fine), coarse_(coarse), settings_(settings), passes_(passes) {
+  UpsampledSolver(const ClothModel& fine, const ClothModel& coarse, const SolverSettings& settings)
+      : fine_(fine), coarse_(coarse), settings_(settings) {
     coarse_solver_ = make_xpbd_solver(coarse_, settings_);
     SolverSettings f = settings_;
     f.substeps = 1;
-    f.iterations = std::max(passes_.bending_iterations, 1);
-    f.stretch_iterations = passes_.stretch_iterations;
-    f.strain_limit_iterations = std::max(passes_.strain_limit_iterations, 1);
-    if (passes_.strain_limit_iterations <= 0) f.strain_limit = 0.0;
     f.chebyshev_rho = 0.0;
-    if (probe_int("CLOTHDB_PROBE_UP_TETHERS", 1) == 0) f.tethers = false;
-    ClothModel fm = fine_;
-    if (probe_int("CLOTHDB_PROBE_UP_NOBEND", 0) != 0) fm.material.bending_stiffness = 1e-12;
-    if (probe_int("CLOTHDB_PROBE_UP_NOSTRETCH", 0) != 0) fm.material.youngs_modulus = 1e-6;
-    fine_solver_ = make_xpbd_solver(fm, f);
+    f.coarse_vertices = 0;
+    fine_solver_ = make_xpbd_projection_solver(fine_, f);
     prolong_ = embed_in_mesh(fine_.mesh.rest, coarse_.mesh);
     restrict_ = embed_in_mesh(coarse_.mesh.rest, fine_.mesh);
     // The coarse pins follow the fine ones: each as its embedding's fine pins, reweighted.
@@ -213,10 +198,11 @@ class UpsampledSolver final : public Solver {
       interpolate(pin_map_, inputs.kinematic_targets, coarse_inputs.kinematic_targets);
     StepReport report = coarse_solver_->step(coarse_state_, dt, coarse_inputs);
     if (!report.stable) return report;
-    // The fine step: from the interpolated coarse solution, at rest (no velocity, no gravity, no
-    // drag), so its prediction x~ is the interpolation and its inertial term 1/(2 h^2) |x - x~|_M^2
-    // holds the fine vertices to it while the constraints act; the colliders still at the end
-    // pose and frictionless (the coarse step had the friction).
+    // The fine pass: from the interpolated coarse solution, at rest (no velocity, no gravity, no
+    // drag), so that it only projects: the tethers, the strain limit and its contact rounds, the
+    // body (still at the end pose, frictionless: the coarse step had the friction) and
+    // self-collision. It starts from the interpolation every step and keeps no state, so the fine
+    // garment cannot drift from the coarse one.
     ClothState fine;
     interpolate(prolong_, coarse_state_.x, fine.x);
     fine.v = Eigen::Matrix3Xd::Zero(3, fine.x.cols());
@@ -228,28 +214,13 @@ class UpsampledSolver final : public Solver {
       c.a_start = c.a;
       c.b_start = c.b;
     }
-    if (probe_int("CLOTHDB_PROBE_UP_DEBUG", 0) != 0) {
-      double pin_gap = 0.0;
-      for (std::size_t k = 0; k < fine_.kinematic.size(); ++k)
-        pin_gap = std::max(pin_gap, (fine.x.col(fine_.kinematic[k]) -
-                                     inputs.kinematic_targets.col(static_cast<Eigen::Index>(k)))
-                                        .norm());
-      std::fprintf(stderr, "debug: coarse strain %.4f interp strain %.4f pin gap %.3g mm\n",
-                   max_edge_strain(coarse_, coarse_state_.x), max_edge_strain(fine_, fine.x),
-                   1e3 * pin_gap);
-    }
     StepInputs fine_inputs;
     fine_inputs.env = &env;
     fine_inputs.kinematic_targets = inputs.kinematic_targets;
-    if (passes_.bending_iterations > 0) {
-      const StepReport f = fine_solver_->step(fine, dt, fine_inputs);
-      if (!f.stable) return f;
-      if (probe_int("CLOTHDB_PROBE_UP_DEBUG", 0) != 0)
-        std::fprintf(stderr, "debug: after fine step %.4f\n", max_edge_strain(fine_, fine.x));
-      report.iterations += f.iterations;
-      report.strain_limit_passes += f.strain_limit_passes;
-      report.strain_limit_capped += f.strain_limit_capped;
-    }
+    const StepReport f = fine_solver_->step(fine, dt, fine_inputs);
+    if (!f.stable) return f;
+    report.strain_limit_passes += f.strain_limit_passes;
+    report.strain_limit_capped += f.strain_limit_capped;
     state.v = (fine.x - state.x) / dt;
     state.x = fine.x;
     last_x_ = state.x;
@@ -259,16 +230,12 @@ class UpsampledSolver final : public Solver {
 
   std::string describe() const override {
     return "upsampled coarse=" + std::to_string(coarse_.vertex_count()) + " " +
-           coarse_solver_->describe() +
-           " fine: bending=" + std::to_string(passes_.bending_iterations) +
-           " stretch=" + std::to_string(passes_.stretch_iterations) +
-           " limit_passes=" + std::to_string(passes_.strain_limit_iterations);
+           coarse_solver_->describe();
   }
 
  private:
   const ClothModel fine_, coarse_;
   SolverSettings settings_;
-  UpsampleSettings passes_;
   std::unique_ptr<Solver> coarse_solver_, fine_solver_;
   BarycentricEmbedding prolong_, restrict_, pin_map_;
   ClothState coarse_state_;
@@ -279,14 +246,8 @@ class UpsampledSolver final : public Solver {
 }  // namespace
 
 std::unique_ptr<Solver> make_upsampled_solver(const ClothModel& fine, const ClothModel& coarse,
-                                              const SolverSettings& settings,
-                                              const UpsampleSettings& fine_passes) {
-  UpsampleSettings p = fine_passes;
-  // Probe switches for the experiment (docs/notebook/resolution.md, ninth round).
-  p.bending_iterations = probe_int("CLOTHDB_PROBE_UP_BEND", p.bending_iterations);
-  p.stretch_iterations = probe_int("CLOTHDB_PROBE_UP_STRETCH", p.stretch_iterations);
-  p.strain_limit_iterations = probe_int("CLOTHDB_PROBE_UP_PASSES", p.strain_limit_iterations);
-  return std::make_unique<UpsampledSolver>(fine, coarse, settings, p);
+                                              const SolverSettings& settings) {
+  return std::make_unique<UpsampledSolver>(fine, coarse, settings);
 }
 
 }  // namespace clothdb
