@@ -218,7 +218,11 @@ class UpsampledSolver final : public Solver {
     fine_inputs.env = &env;
     fine_inputs.kinematic_targets = inputs.kinematic_targets;
     const StepReport f = fine_solver_->step(fine, dt, fine_inputs);
-    if (!f.stable) return f;
+    if (!f.stable) {
+      // The caller keeps its state: the coarse one is taken from it again at the next step.
+      have_coarse_ = false;
+      return f;
+    }
     report.strain_limit_passes += f.strain_limit_passes;
     report.strain_limit_capped += f.strain_limit_capped;
     state.v = (fine.x - state.x) / dt;
