@@ -34,7 +34,7 @@ std::string load_average() {
 void register_bench_character(CLI::App& bench) {
   struct Args {
     std::string scene, solvers, substeps = "0", threads = "1", motions, self_collision, out,
-                                strain_targets;
+                                strain_targets, coarse_vertices;
     int vertices = 0, settle_every = 0;
     CharacterBenchOptions options;
   };
@@ -83,6 +83,10 @@ void register_bench_character(CLI::App& bench) {
                   "XPBD Chebyshev acceleration of the stretch sweeps (Wang 2015): spectral radius "
                   "estimate in [0, 1), 0: off; default: the scene's (docs/guide/resolution.md)")
       ->check(CLI::Range(0.0, 0.999));
+  cmd->add_option("--coarse-vertices", args->coarse_vertices,
+                  "Comma-separated solver.coarse_vertices to run: 0, the garment solved itself; "
+                  "N, the garment made with N vertices solved and driving it, e.g. 0,3000 "
+                  "(docs/guide/resolution.md); default: the scene's");
   cmd->add_option("--tethers", args->options.tethers,
                   "XPBD long-range attachments to the pins: 1 on, 0 off; default: the scene's")
       ->check(CLI::Range(0, 1));
@@ -112,6 +116,13 @@ void register_bench_character(CLI::App& bench) {
     for (const auto& s : split_list(args->solvers)) options.solvers.push_back(parse_solver_kind(s));
     options.substeps = int_list(args->substeps, "--substeps");
     options.threads = int_list(args->threads, "--threads");
+    if (!args->coarse_vertices.empty())
+      for (int v : int_list(args->coarse_vertices, "--coarse-vertices")) {
+        if (v != 0 && v < 16)
+          throw std::invalid_argument("--coarse-vertices: expected 0 or at least 16, got " +
+                                      std::to_string(v));
+        options.coarse_vertices.push_back(v);
+      }
     for (int t : options.threads)
       if (t < 1) throw std::invalid_argument("--threads: expected thread counts >= 1");
     for (const auto& m : split_list(args->motions))

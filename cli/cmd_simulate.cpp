@@ -75,7 +75,7 @@ void register_simulate(CLI::App& app) {
       file.settings.linear_solver = parse_linear_solver_kind(args->linear_solver);
     const CharacterScene scene = build_character_scene(file);
     const MotionClip& clip = scene.clips[args->clip.empty() ? 0 : scene.clip_index(args->clip)];
-    auto solver = make_solver(file.solver, scene.model, file.settings);
+    auto solver = make_scene_solver(scene, file.solver, file.settings);
     std::fprintf(
         stderr,
         "%s: %s, %d cloth vertices, %zu colliding capsules, clip '%s' (%d frames at %g Hz), %s\n",

@@ -1,5 +1,6 @@
 #include "database/store/run_settings.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -68,6 +69,8 @@ void visit_solver_fields(SolverSettings& s, V& v) {
   v.optional_number("chebyshev_rho", s.chebyshev_rho, 0.0, 0.999, 0.0);
   // Up to 50 mm: thicker than any garment layer; 0 (off) is not written.
   v.grouped("self_collision", "thickness_mm", s.self_collision_thickness_mm, 0.0, 50.0);
+  // 0 (off) is not written; a procedural garment needs at least 16 vertices (garment.cpp).
+  v.optional_integer("coarse_vertices", s.coarse_vertices, 16, 100000000, 0);
 }
 
 template <class V>
@@ -131,6 +134,9 @@ struct Validator {
   void optional_number(const char* name, double& d, double lo, double hi, double) {
     number(name, d, lo, hi);
   }
+  void optional_integer(const char* name, int& i, int lo, int hi, int off) {
+    if (i != off) integer(name, i, lo, hi);
+  }
   void grouped(const char* group, const char* name, double& d, double lo, double hi) {
     check_range(where, prefix + group + "." + name, d, lo, hi);
   }
@@ -155,6 +161,9 @@ struct ToJson {
   // that leave it off) are written byte-identically.
   void optional_number(const char* name, double& d, double, double, double off) {
     if (d != off) out[name] = d;
+  }
+  void optional_integer(const char* name, int& i, int, int, int off) {
+    if (i != off) out[name] = i;
   }
   // A group whose only field is 0 means off and is left out.
   void grouped(const char* group, const char* name, double& d, double, double) {
@@ -204,6 +213,14 @@ struct FromJson {
   }
   void integer(const char* name, int& i, int lo, int hi) {
     if (const json* v = get(name)) i = static_cast<int>(whole(name, v, lo, hi));
+  }
+  // The off value is accepted as written (e.g. "coarse_vertices": 0).
+  void optional_integer(const char* name, int& i, int lo, int hi, int off) {
+    if (const json* v = get(name)) {
+      const long long k = whole(name, v, std::min<long long>(lo, off), hi);
+      if (k != off && k < lo) check_range(where, prefix + name, k, lo, hi);
+      i = static_cast<int>(k);
+    }
   }
   void integer64(const char* name, long& i, long lo, long hi) {
     if (const json* v = get(name)) i = static_cast<long>(whole(name, v, lo, hi));

@@ -134,6 +134,13 @@ struct SolverSettings {
   // only when on so records made without it read and compare as before. 0: off. Newton, PBD and
   // mass-spring refuse a setting with it on.
   double self_collision_thickness_mm = 0.0;
+  // XPBD on a procedural garment (skirt or cape): > 0 solves the same garment made with this many
+  // vertices and drives the scene's garment from it: the coarse solution interpolated
+  // barycentrically to the fine vertices, then one pass of the fine strain limit, tethers, body
+  // collisions and self-collision (precompute/solvers/upsampled.hpp; docs/guide/resolution.md).
+  // Every other field applies to the coarse solve; the fine pass takes the strain limit's fields.
+  // Written only when on. 0: off (the garment is solved itself).
+  int coarse_vertices = 0;
 };
 
 // Thrown for an invalid setting; what() is "<where>: <field>: <problem>".

@@ -3,8 +3,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <ctime>
 #include <limits>
+#include <map>
+#include <memory>
 #include <sstream>
 #include <stdexcept>
 
@@ -73,7 +76,7 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
                           const std::function<void(const std::string&)>& progress,
                           std::vector<Eigen::Matrix3Xd>* positions = nullptr) {
   scene.env.collider_motion = motion;
-  auto solver = make_solver(kind, scene.model, settings);
+  auto solver = make_scene_solver(scene, kind, settings);
   CharacterBenchRow row;
   row.solver = solver->describe();
   row.threads = settings.threads;
@@ -190,6 +193,10 @@ std::vector<CharacterBenchRow> run_character_bench(
     const MotionClip& clip =
         scene.clips[options.clip.empty() ? 0 : static_cast<size_t>(scene.clip_index(options.clip))];
     const int frames = std::min(options.frames, clip.frame_count);
+    // The reference runs by their solver's description, so that runs sharing a reference (a
+    // coarse-driven run and the garment's own at the same setting: scene_reference drops
+    // coarse_vertices) are compared with the same one, run once.
+    std::map<std::string, std::pair<CharacterBenchRow, std::vector<Eigen::Matrix3Xd>>> references;
     for (int requested : options.substeps) {
       SolverSettings settings = file.settings;
       settings.substeps = substeps_for(kind, requested, scene, 1.0 / clip.rate);
@@ -204,6 +211,8 @@ std::vector<CharacterBenchRow> run_character_bench(
         settings.strain_limit_relaxation = options.strain_limit_relaxation;
       if (options.chebyshev_rho >= 0.0) settings.chebyshev_rho = options.chebyshev_rho;
       if (options.tethers >= 0) settings.tethers = options.tethers != 0;
+      std::vector<int> coarse_counts = options.coarse_vertices;
+      if (coarse_counts.empty()) coarse_counts.push_back(file.settings.coarse_vertices);
       std::vector<double> self_mm = options.self_collision_mm;
       if (self_mm.empty()) {
         self_mm.push_back(file.settings.self_collision_thickness_mm);
@@ -214,48 +223,67 @@ std::vector<CharacterBenchRow> run_character_bench(
         std::vector<ColliderMotion> motions = options.collider_motions;
         if (motions.empty()) motions.push_back(file.collider_motion);
         for (ColliderMotion motion : motions) {
-          for (double mm : self_mm) {
-            settings.self_collision_thickness_mm = mm;
-            std::vector<Eigen::Matrix3Xd> run_positions;
-            rows.push_back(run_one(scene, clip, kind, settings, motion, frames, progress,
-                                   options.reference ? &run_positions : nullptr));
-            CharacterBenchRow& r = rows.back();
-            if (options.reference && r.stable) {
-              const SolverCandidate ref = scene_reference(kind, settings);
-              std::vector<Eigen::Matrix3Xd> ref_positions;
-              const CharacterBenchRow rr = run_one(scene, clip, kind, ref.settings, motion, frames,
-                                                   progress, &ref_positions);
-              r.reference = rr.solver;
-              if (rr.stable && rr.frames > 0) {
-                const FrameErrors e = compare_frames(run_positions, ref_positions, 1);
-                r.reference_rms_mm = 1e3 * e.rms;
-                r.reference_max_mm = 1e3 * e.max;
-                r.reference_cpu_ms_per_frame = rr.cpu_ms_per_frame;
-              } else {
-                r.reference += " (unstable: " + rr.message + ")";
+          for (double mm : self_mm)
+            for (int coarse : coarse_counts) {
+              settings.self_collision_thickness_mm = mm;
+              settings.coarse_vertices = coarse;
+              std::vector<Eigen::Matrix3Xd> run_positions;
+              rows.push_back(run_one(scene, clip, kind, settings, motion, frames, progress,
+                                     options.reference ? &run_positions : nullptr));
+              CharacterBenchRow& r = rows.back();
+              if (options.reference && r.stable) {
+                const SolverCandidate ref = scene_reference(kind, settings);
+                const std::string key = make_scene_solver(scene, kind, ref.settings)->describe() +
+                                        " " + collider_motion_name(motion);
+                if (references.count(key) == 0) {
+                  std::vector<Eigen::Matrix3Xd> ref_positions;
+                  CharacterBenchRow rr = run_one(scene, clip, kind, ref.settings, motion, frames,
+                                                 progress, &ref_positions);
+                  references[key] = {std::move(rr), std::move(ref_positions)};
+                }
+                const CharacterBenchRow& rr = references[key].first;
+                const std::vector<Eigen::Matrix3Xd>& ref_positions = references[key].second;
+                r.reference = rr.solver;
+                if (rr.stable && rr.frames > 0) {
+                  const FrameErrors e = compare_frames(run_positions, ref_positions, 1);
+                  r.reference_rms_mm = 1e3 * e.rms;
+                  r.reference_max_mm = 1e3 * e.max;
+                  r.reference_cpu_ms_per_frame = rr.cpu_ms_per_frame;
+                  for (std::size_t window : {5, 15, 30}) {
+                    if (run_positions.size() <= window) continue;
+                    const std::vector<Eigen::Matrix3Xd> a(run_positions.begin(),
+                                                          run_positions.begin() + window + 1);
+                    const FrameErrors w = compare_frames(a, ref_positions, 1);
+                    if (progress)
+                      progress("  frames 1-" + std::to_string(window) + ": " +
+                               fixed(1e3 * w.rms, 2) + " / " + fixed(1e3 * w.max, 2) +
+                               " mm RMS / max from the reference");
+                  }
+                } else {
+                  r.reference += " (unstable: " + rr.message + ")";
+                }
               }
+              if (progress)
+                progress(r.solver + " threads=" + std::to_string(threads) + " " +
+                         collider_motion_name(motion) + ": " + fixed(r.ms_per_frame, 2) +
+                         " ms/frame (CPU " + fixed(r.cpu_ms_per_frame, 2) + "), strain p99 " +
+                         fixed(100 * r.p99_strain, 2) + " % max " + fixed(100 * r.max_strain, 2) +
+                         " %, max penetration " + fixed(1e3 * r.max_penetration, 2) +
+                         " mm, tunnelled " + std::to_string(r.tunnelled) + ", worst edge " +
+                         worst_edge_text(r) + ", self-intersections max " +
+                         std::to_string(r.self_intersections) + " in " +
+                         std::to_string(r.self_intersection_frames) + " frames" +
+                         (settings.strain_limit > 0.0
+                              ? ", strain-limit passes per sub-step " +
+                                    fixed(r.strain_limit_passes_per_substep, 2) + " (capped " +
+                                    std::to_string(r.strain_limit_capped) + ")"
+                              : std::string()) +
+                         (std::isfinite(r.reference_rms_mm)
+                              ? ", " + fixed(r.reference_rms_mm, 2) + " / " +
+                                    fixed(r.reference_max_mm, 2) + " mm RMS / max from 8x sub-steps"
+                              : std::string()) +
+                         (r.stable ? "" : ", UNSTABLE: " + r.message));
             }
-            if (progress)
-              progress(r.solver + " threads=" + std::to_string(threads) + " " +
-                       collider_motion_name(motion) + ": " + fixed(r.ms_per_frame, 2) +
-                       " ms/frame (CPU " + fixed(r.cpu_ms_per_frame, 2) + "), strain p99 " +
-                       fixed(100 * r.p99_strain, 2) + " % max " + fixed(100 * r.max_strain, 2) +
-                       " %, max penetration " + fixed(1e3 * r.max_penetration, 2) +
-                       " mm, tunnelled " + std::to_string(r.tunnelled) + ", worst edge " +
-                       worst_edge_text(r) + ", self-intersections max " +
-                       std::to_string(r.self_intersections) + " in " +
-                       std::to_string(r.self_intersection_frames) + " frames" +
-                       (settings.strain_limit > 0.0
-                            ? ", strain-limit passes per sub-step " +
-                                  fixed(r.strain_limit_passes_per_substep, 2) + " (capped " +
-                                  std::to_string(r.strain_limit_capped) + ")"
-                            : std::string()) +
-                       (std::isfinite(r.reference_rms_mm)
-                            ? ", " + fixed(r.reference_rms_mm, 2) + " / " +
-                                  fixed(r.reference_max_mm, 2) + " mm RMS / max from 8x sub-steps"
-                            : std::string()) +
-                       (r.stable ? "" : ", UNSTABLE: " + r.message));
-          }
         }
       }
     }
@@ -280,7 +308,7 @@ std::vector<SettleRow> run_settle_bench(const SceneFile& file, const std::string
       scene.clips[clip_name.empty() ? 0 : static_cast<size_t>(scene.clip_index(clip_name))];
   std::vector<SettleRow> rows;
   for (int f = 0; f < clip.frame_count; f += every) {
-    auto solver = make_solver(file.solver, scene.model, file.settings);
+    auto solver = make_scene_solver(scene, file.solver, file.settings);
     const auto pose = clip_pose(clip, f);
     const ClothState state = settle_garment(scene, *solver, pose);
     Environment env = scene.env;

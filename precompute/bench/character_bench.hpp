@@ -44,6 +44,10 @@ struct CharacterBenchOptions {
   // Largest-strain targets, (l - l0) / l0: the cheapest stable run (CPU per frame) whose largest
   // strain meets each (meets_strain_target, bench/strain_study.hpp) is marked.
   std::vector<double> strain_targets;
+  // SolverSettings::coarse_vertices to run (0: the garment solved itself; N: the garment made with
+  // N vertices solved and driving it). Empty: the scene's. With `reference`, every run of a
+  // setting is compared with the garment's own run at 8x the sub-steps (scene_reference).
+  std::vector<int> coarse_vertices;
 };
 
 struct CharacterBenchRow {

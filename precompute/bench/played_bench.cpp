@@ -92,7 +92,7 @@ Simulated simulate_walk(const CharacterScene& scene, const ExploreGraph& graph, 
                         SolverKind kind, const SolverSettings& settings, ClothState state,
                         const std::function<void(size_t)>& on_frames) {
   Simulated out;
-  auto solver = make_solver(kind, scene.model, settings);
+  auto solver = make_scene_solver(scene, kind, settings);
   const double t0 = thread_cpu_seconds();
   auto local = [&](const Eigen::Matrix3Xd& x, size_t f) {
     const Eigen::Isometry3d inv = character_frame(scene, walk.poses[f]).inverse();

@@ -8,6 +8,8 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "solvers/upsampled.hpp"
+
 namespace clothdb {
 
 namespace {
@@ -210,6 +212,12 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
     f.fail("solver.self_collision.thickness_mm",
            std::string("self-collision is implemented for xpbd only, not for ") +
                solver_name(s.solver));
+  if (s.settings.coarse_vertices > 0 && s.solver != SolverKind::Xpbd)
+    f.fail("solver.coarse_vertices",
+           std::string("a coarse garment drives xpbd only, not ") + solver_name(s.solver));
+  if (s.settings.coarse_vertices > 0 && s.garment_kind == GarmentKind::Mesh)
+    f.fail("solver.coarse_vertices",
+           "needs a procedural garment (skirt or cape): a mesh garment has no coarser copy");
 
   const json& c = f.object(j, "colliders", "");
   f.only(c,
@@ -358,6 +366,37 @@ std::vector<JointPose> blend_pose(const std::vector<JointPose>& pose,
 }
 
 }  // namespace
+
+std::unique_ptr<Solver> make_scene_solver(const CharacterScene& scene, SolverKind kind,
+                                          const SolverSettings& settings) {
+  if (settings.coarse_vertices <= 0) return make_solver(kind, scene.model, settings);
+  if (kind != SolverKind::Xpbd)
+    throw SceneError(scene.file.path.string() +
+                     ": solver.coarse_vertices: a coarse garment drives "
+                     "xpbd only, not " +
+                     solver_name(kind));
+  // The same garment from the same parameters at the coarse count: the same rest surface.
+  Garment coarse;
+  switch (scene.file.garment_kind) {
+    case GarmentKind::Skirt: {
+      SkirtSpec spec = scene.file.skirt;
+      spec.vertices = settings.coarse_vertices;
+      coarse = make_skirt(scene.skeleton, spec);
+      break;
+    }
+    case GarmentKind::Cape: {
+      CapeSpec spec = scene.file.cape;
+      spec.vertices = settings.coarse_vertices;
+      coarse = make_cape(scene.skeleton, spec);
+      break;
+    }
+    case GarmentKind::Mesh:
+      throw SceneError(scene.file.path.string() +
+                       ": solver.coarse_vertices: needs a procedural garment (skirt or cape)");
+  }
+  return make_upsampled_solver(scene.model,
+                               make_model(coarse.mesh, scene.file.material, coarse.pins), settings);
+}
 
 ClothState settle_garment(const CharacterScene& scene, Solver& solver,
                           const std::vector<JointPose>& pose) {

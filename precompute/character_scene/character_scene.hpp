@@ -18,7 +18,10 @@
 //     "solver": {"name": "xpbd", "substeps": 10, "iterations": 1, "tolerance": 1e-6,
 //                "linear_solver": "ldlt", "threads": 1, "tethers": true,
 //                "stretch_iterations": 2, "strain_limit": 0.025,
-//                "strain_limit_iterations": 64, "strain_limit_contact_rounds": 1},
+//                "strain_limit_iterations": 64, "strain_limit_contact_rounds": 1,
+//                "coarse_vertices": 3000},
+//        // coarse_vertices (skirt or cape, xpbd; default 0, off): the garment made with this many
+//        // vertices is solved and drives the scene's garment (docs/guide/resolution.md)
 //        // any field of SolverSettings, read and checked by its one serialiser
 //        // (database/run_settings.hpp: solver_settings_json); defaults as above
 //     "colliders": {"bones": ["Hips", "LeftUpLeg"], "auto_distance": 0.2,
@@ -36,6 +39,7 @@
 
 #include <filesystem>
 #include <functional>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
@@ -114,6 +118,13 @@ struct CharacterScene {
 // Loads the motions, builds the garment, the cloth model and the body colliders. Throws
 // SceneError / MotionError / GarmentError naming the file and what is wrong.
 CharacterScene build_character_scene(const SceneFile& file);
+
+// The scene's solver with `settings`: make_solver on the scene's model, or with
+// settings.coarse_vertices > 0 the same garment made with that many vertices solved and driving
+// this one (make_upsampled_solver). Throws SceneError for a mesh garment or a solver other than
+// XPBD with coarse_vertices.
+std::unique_ptr<Solver> make_scene_solver(const CharacterScene& scene, SolverKind kind,
+                                          const SolverSettings& settings);
 
 // Joint poses of one clip frame.
 std::vector<JointPose> clip_pose(const MotionClip& clip, int frame);

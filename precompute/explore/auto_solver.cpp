@@ -52,7 +52,7 @@ constexpr double kFloorShare = 0.25;
 Trial simulate(const CharacterScene& scene, const SolverCandidate& c, const ClothState& start,
                const std::vector<std::vector<JointPose>>& poses, double rate) {
   Trial t;
-  auto solver = make_solver(c.kind, scene.model, c.settings);
+  auto solver = make_scene_solver(scene, c.kind, c.settings);
   t.end = start;
   const double t0 = thread_cpu_seconds();
   t.run = simulate_poses(scene, *solver, poses, rate, t.end);
@@ -103,7 +103,7 @@ AutoCalibration calibrate_solvers(const CharacterScene& scene,
     cal.reference = on_scene(calibration_reference(kinds.front(), false), scene.file.settings);
   cal.reference.settings.threads = 1;
   // Every run starts from the garment settled by the reference solver.
-  auto settler = make_solver(cal.reference.kind, scene.model, cal.reference.settings);
+  auto settler = make_scene_solver(scene, cal.reference.kind, cal.reference.settings);
   const ClothState start = settle_garment(scene, *settler, poses.front());
   const Trial ref = simulate(scene, cal.reference, start, poses, rate);
   if (!ref.run.stable)

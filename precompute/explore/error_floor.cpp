@@ -352,7 +352,7 @@ ErrorFloor measure_error_floor(const CharacterScene& scene, const ExploreGraph& 
   ClothState shared_state;
   size_t shared_frames = 0;
   if (!floor.fallback) {
-    auto solver = make_solver(scene.file.solver, scene.model, settings);
+    auto solver = make_scene_solver(scene, scene.file.solver, settings);
     shared_state = settle_garment(scene, *solver, first.poses.front());
     floor.frames += scene.file.settle_frames;
     size_t common_edges = 0;
@@ -374,7 +374,7 @@ ErrorFloor measure_error_floor(const CharacterScene& scene, const ExploreGraph& 
     const HistoryPlan& p = plans[static_cast<size_t>(k)];
     const double t0 = thread_cpu_seconds();
     try {
-      auto solver = make_solver(scene.file.solver, scene.model, settings);
+      auto solver = make_scene_solver(scene, scene.file.solver, settings);
       ClothState state;
       if (floor.fallback) {
         state = settle_garment(scene, *solver, p.poses.front());

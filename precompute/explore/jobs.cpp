@@ -86,13 +86,13 @@ PoseRun simulate_with_steering(const CharacterScene& scene, const ExploreGraph& 
                        ? std::min(static_cast<size_t>(scene.file.steering.frames), poses - 2)
                        : 0;
   if (k == 0) {
-    auto solver = make_solver(input.solver, scene.model, input.settings);
+    auto solver = make_scene_solver(scene, input.solver, input.settings);
     return simulate_poses(scene, *solver, edge.poses, graph.rate, state);
   }
   const std::vector<std::vector<JointPose>> head(edge.poses.begin(),
                                                  edge.poses.end() - static_cast<long>(k)),
       tail(edge.poses.end() - static_cast<long>(k) - 1, edge.poses.end());
-  auto solver = make_solver(input.solver, scene.model, input.settings);
+  auto solver = make_scene_solver(scene, input.solver, input.settings);
   PoseRun run = simulate_poses(scene, *solver, head, graph.rate, state);
   if (!run.stable) return run;
   const ClothState before_tail = state;
@@ -179,7 +179,7 @@ PoseRun simulate_with_steering(const CharacterScene& scene, const ExploreGraph& 
     }
   };
   state = before_tail;
-  auto fresh = make_solver(input.solver, scene.model, input.settings);
+  auto fresh = make_scene_solver(scene, input.solver, input.settings);
   PoseRun steered = simulate_poses(scene, *fresh, tail, graph.rate, state, pull);
   // What the velocity pull left (a few mm RMS on the test scene) is closed after the last step:
   // the free vertices are put on the target (positions and velocities), so the clip ends on it;

@@ -338,7 +338,7 @@ std::vector<float> roundtrip(const std::vector<float>& values, double bound) {
 void add_start_state(const CharacterScene& scene, const ExploreGraph& graph, db::Writer& writer,
                      int64_t run_id, SecondaryGraph& sg) {
   SolverSettings settings = scene.file.settings;
-  auto solver = make_solver(scene.file.solver, scene.model, settings);
+  auto solver = make_scene_solver(scene, scene.file.solver, settings);
   const ExploreEdge& first =
       graph.edges[static_cast<size_t>(sg.out_edges[static_cast<size_t>(graph.start_node)].front())];
   const ClothState rest = settle_garment(scene, *solver, first.poses.front());

@@ -67,6 +67,11 @@ std::unique_ptr<Solver> make_solver(SolverKind kind, const ClothModel& model,
 std::unique_ptr<Solver> make_mass_spring_solver(const ClothModel& model, const SolverSettings& s);
 std::unique_ptr<Solver> make_pbd_solver(const ClothModel& model, const SolverSettings& s);
 std::unique_ptr<Solver> make_xpbd_solver(const ClothModel& model, const SolverSettings& s);
+// XPBD's step without its bending and stretch sweeps: the tethers, the strain limit with its
+// contact rounds, the body collisions and self-collision only (the fine pass of an upsampled
+// solve, solvers/upsampled.hpp).
+std::unique_ptr<Solver> make_xpbd_projection_solver(const ClothModel& model,
+                                                    const SolverSettings& s);
 std::unique_ptr<Solver> make_newton_solver(const ClothModel& model, const SolverSettings& s);
 // Mass-spring (mass_spring.cpp): the recommended largest sub-step (s) for its explicit
 // integration on `model`: 80 % of the linear stability limit of the stiffest spring mode, with

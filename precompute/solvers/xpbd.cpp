@@ -115,8 +115,9 @@ double wrap_angle(double d) {
 
 class XpbdSolver final : public Solver {
  public:
-  XpbdSolver(const ClothModel& model, const SolverSettings& settings)
-      : model_(model), settings_(settings) {
+  // sweeps false: the step runs no bending or stretch sweeps (make_xpbd_projection_solver).
+  XpbdSolver(const ClothModel& model, const SolverSettings& settings, bool sweeps = true)
+      : model_(model), settings_(settings), sweeps_(sweeps) {
     if (settings.substeps < 1) throw std::invalid_argument("xpbd: substeps must be at least 1");
     if (settings.iterations < 1) throw std::invalid_argument("xpbd: iterations must be at least 1");
     if (settings.stretch_iterations < 0)
@@ -143,9 +144,12 @@ class XpbdSolver final : public Solver {
   }
 
   std::string describe() const override {
-    std::string out = "xpbd substeps=" + std::to_string(settings_.substeps) +
-                      " iterations=" + std::to_string(settings_.iterations);
-    if (stretch_iterations() != settings_.iterations)
+    std::string out = "xpbd substeps=" + std::to_string(settings_.substeps);
+    if (!sweeps_)
+      out += " projections only";
+    else
+      out += " iterations=" + std::to_string(settings_.iterations);
+    if (sweeps_ && stretch_iterations() != settings_.iterations)
       out += " stretch_iterations=" + std::to_string(stretch_iterations());
     if (settings_.strain_limit > 0.0) {
       char buf[64];
@@ -234,6 +238,7 @@ class XpbdSolver final : public Solver {
   // A copy: the solver must not dangle if the caller's model (e.g. a temporary scene) goes away.
   const ClothModel model_;
   SolverSettings settings_;
+  bool sweeps_ = true;
   ConstraintSet<2> stretch_;
   ConstraintSet<4> bend_;
   // Long-range attachments: free vertex, its nearest pin along the mesh, and that path's rest
@@ -594,8 +599,8 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
   const double alpha_scale = 1.0 / (h * h);
   const double gamma = model_.material.damping / h;
   const int stretch_sweeps = stretch_iterations();
-  const int sweeps = std::max(settings_.iterations, stretch_sweeps);
-  const double rho = settings_.chebyshev_rho;
+  const int sweeps = sweeps_ ? std::max(settings_.iterations, stretch_sweeps) : 0;
+  const double rho = sweeps_ ? settings_.chebyshev_rho : 0.0;
   if (rho > 0.0 && cheb_cur_.cols() != n) {
     cheb_prev_.resize(3, n);
     cheb_cur_.resize(3, n);
@@ -809,6 +814,11 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
 
 std::unique_ptr<Solver> make_xpbd_solver(const ClothModel& model, const SolverSettings& s) {
   return std::make_unique<XpbdSolver>(model, s);
+}
+
+std::unique_ptr<Solver> make_xpbd_projection_solver(const ClothModel& model,
+                                                    const SolverSettings& s) {
+  return std::make_unique<XpbdSolver>(model, s, false);
 }
 
 }  // namespace clothdb
