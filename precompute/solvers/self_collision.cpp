@@ -6,34 +6,12 @@
 #include <stdexcept>
 #include <string>
 
+#include "cloth/closest_point.hpp"
 #include "cloth/self_intersection.hpp"
 
 namespace clothdb {
 
 namespace {
-
-// Closest point to p on triangle (a, b, c) (Ericson 2005, "Real-Time Collision Detection",
-// sec. 5.1.5, by Voronoi regions).
-Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
-  const Vec3 ab = b - a, ac = c - a, ap = p - a;
-  const double d1 = ab.dot(ap), d2 = ac.dot(ap);
-  if (d1 <= 0.0 && d2 <= 0.0) return a;
-  const Vec3 bp = p - b;
-  const double d3 = ab.dot(bp), d4 = ac.dot(bp);
-  if (d3 >= 0.0 && d4 <= d3) return b;
-  const double vc = d1 * d4 - d3 * d2;
-  if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) return a + (d1 / (d1 - d3)) * ab;
-  const Vec3 cp = p - c;
-  const double d5 = ab.dot(cp), d6 = ac.dot(cp);
-  if (d6 >= 0.0 && d5 <= d6) return c;
-  const double vb = d5 * d2 - d1 * d6;
-  if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) return a + (d2 / (d2 - d6)) * ac;
-  const double va = d3 * d6 - d5 * d4;
-  if (va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0)
-    return b + ((d4 - d3) / ((d4 - d3) + (d5 - d6))) * (c - b);
-  const double denom = 1.0 / (va + vb + vc);
-  return a + ab * (vb * denom) + ac * (vc * denom);
-}
 
 // Parameters s, t in [0, 1] of the closest points p1 + s (q1 - p1) and p2 + t (q2 - p2) of two
 // segments (Ericson 2005, sec. 5.1.9).
@@ -780,7 +758,7 @@ struct PairSearch {
     if (skip_rest && listed(sc.rest_vt_begin, sc.rest_vt, tri, v)) return;
     const Vec3 p = x.col(v);
     const double d_sq =
-        (closest_on_triangle(p, x.col(t[0]), x.col(t[1]), x.col(t[2])) - p).squaredNorm();
+        (closest_on_triangle(p, x.col(t[0]), x.col(t[1]), x.col(t[2])).point - p).squaredNorm();
     if (d_sq >= reach_sq) return;
     vt.push_back({tri, v});
     if (vt_gap) vt_gap->push_back(float_below(std::sqrt(d_sq) - thickness));

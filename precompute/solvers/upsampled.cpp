@@ -7,44 +7,9 @@
 #include <string>
 #include <unordered_map>
 
+#include "cloth/closest_point.hpp"
+
 namespace clothdb {
-
-namespace {
-
-// Barycentric coordinates of the point of triangle abc nearest p (Ericson 2004, "Real-Time
-// Collision Detection", sec. 5.1.5, by Voronoi regions).
-std::array<double, 3> nearest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b,
-                                          const Vec3& c) {
-  const Vec3 ab = b - a, ac = c - a, ap = p - a;
-  const double d1 = ab.dot(ap), d2 = ac.dot(ap);
-  if (d1 <= 0.0 && d2 <= 0.0) return {1.0, 0.0, 0.0};
-  const Vec3 bp = p - b;
-  const double d3 = ab.dot(bp), d4 = ac.dot(bp);
-  if (d3 >= 0.0 && d4 <= d3) return {0.0, 1.0, 0.0};
-  const double vc = d1 * d4 - d3 * d2;
-  if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) {
-    const double v = d1 / (d1 - d3);
-    return {1.0 - v, v, 0.0};
-  }
-  const Vec3 cp = p - c;
-  const double d5 = ab.dot(cp), d6 = ac.dot(cp);
-  if (d6 >= 0.0 && d5 <= d6) return {0.0, 0.0, 1.0};
-  const double vb = d5 * d2 - d1 * d6;
-  if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) {
-    const double w = d2 / (d2 - d6);
-    return {1.0 - w, 0.0, w};
-  }
-  const double va = d3 * d6 - d5 * d4;
-  if (va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0) {
-    const double w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-    return {0.0, 1.0 - w, w};
-  }
-  const double denom = 1.0 / (va + vb + vc);
-  const double v = vb * denom, w = vc * denom;
-  return {1.0 - v - w, v, w};
-}
-
-}  // namespace
 
 BarycentricEmbedding embed_in_mesh(const Eigen::Matrix3Xd& points, const ClothMesh& mesh) {
   if (mesh.triangles.empty()) throw std::invalid_argument("embed_in_mesh: the mesh has no faces");
@@ -100,7 +65,7 @@ BarycentricEmbedding embed_in_mesh(const Eigen::Matrix3Xd& points, const ClothMe
     auto consider = [&](int t) {
       const auto& tri = mesh.triangles[static_cast<std::size_t>(t)];
       const std::array<double, 3> w =
-          nearest_on_triangle(p, r.col(tri[0]), r.col(tri[1]), r.col(tri[2]));
+          closest_on_triangle(p, r.col(tri[0]), r.col(tri[1]), r.col(tri[2])).weight;
       const Vec3 q = w[0] * r.col(tri[0]) + w[1] * r.col(tri[1]) + w[2] * r.col(tri[2]);
       const double d = (q - p).squaredNorm();
       if (d < best) {
