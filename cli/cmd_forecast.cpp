@@ -70,7 +70,13 @@ void register_forecast(CLI::App& app) {
           "note         %s starts with %ld frames stored: the curve of a resumed run, "
           "whose earlier runs' CPU time is not counted (give their curves first)\n",
           args->curves.front().c_str(), runs.front().front().frames);
-    for (double share : args->at) {
+    // A rerun of a run that had nothing left to do (the demo run again on its converged file)
+    // writes a curve with no CPU time: there are no shares of it to replay.
+    if (!(total > 0.0))
+      std::printf(
+          "at           no forecasts to replay: the curves hold no CPU time (a resumed run "
+          "that had nothing left to explore; give the first run's curve too)\n");
+    for (double share : total > 0.0 ? args->at : std::vector<double>{}) {
       // The point whose CPU time is nearest the share (ties: the earlier point).
       const ReplayedForecast* best = &replayed.front();
       for (const ReplayedForecast& r : replayed)

@@ -55,3 +55,19 @@ TEST(ForecastCli, RefusesCurvesOutOfOrderAndAFileThatIsNotACurve) {
   EXPECT_NE(not_curve.output.find(bad + ": no column 'states'"), std::string::npos)
       << not_curve.output;
 }
+
+// A rerun of a converged run (the demo's second run) writes a one-point curve with no CPU time:
+// no shares of it to replay, said in words rather than as "at -nan %".
+TEST(ForecastCli, SaysSoWhenTheCurveHoldsNoCpuTime) {
+  TempDir dir;
+  const std::string log = dir.file("log.txt"), curve = dir.file("rerun.csv");
+  std::ofstream(curve)
+      << "cpu_seconds,frames,states,dead_ends,unexplored,worst_error_mm,weighted_worst_error_mm,"
+         "mean_error_mm,linked_percent,forecast_cpu_hours,forecast_low_cpu_hours,"
+         "forecast_high_cpu_hours,clips\n"
+         "0,1782,53,0,0,0,0,0,24.6377,0.0289207,0.0289207,0.0289207,69\n";
+  const CliResult r = run_clothdb({"forecast", curve, "--at", "0.25,0.5"}, log);
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_EQ(r.output.find("nan"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("no forecasts to replay"), std::string::npos) << r.output;
+}
