@@ -8,6 +8,7 @@
 #include <unordered_map>
 
 #include "cloth/closest_point.hpp"
+#include "cloth/self_intersection.hpp"
 
 namespace clothdb {
 
@@ -22,15 +23,12 @@ BarycentricEmbedding embed_in_mesh(const Eigen::Matrix3Xd& points, const ClothMe
   if (!(cell > 0.0)) throw std::invalid_argument("embed_in_mesh: degenerate mesh");
   const Vec3 origin = r.rowwise().minCoeff();
   auto key = [&](const Vec3& p) {
-    const Vec3 q = (p - origin) / cell;
-    return std::array<long, 3>{static_cast<long>(std::floor(q.x())),
-                               static_cast<long>(std::floor(q.y())),
-                               static_cast<long>(std::floor(q.z()))};
+    const Vec3 q = p - origin;
+    return std::array<long, 3>{grid_cell_index(q.x(), cell), grid_cell_index(q.y(), cell),
+                               grid_cell_index(q.z(), cell)};
   };
-  auto hash = [](const std::array<long, 3>& k) {
-    return (k[0] * 73856093L) ^ (k[1] * 19349663L) ^ (k[2] * 83492791L);
-  };
-  std::unordered_map<long, std::vector<int>> grid;
+  auto hash = [](const std::array<long, 3>& k) { return grid_cell_hash(k[0], k[1], k[2]); };
+  std::unordered_map<std::uint64_t, std::vector<int>> grid;
   for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
     const auto& tri = mesh.triangles[t];
     Vec3 lo = r.col(tri[0]), hi = lo;
@@ -168,9 +166,9 @@ class UpsampledSolver final : public Solver {
     // body (still at the end pose, frictionless: the coarse step had the friction) and
     // self-collision. It starts from the interpolation every step and keeps no state, so the fine
     // garment cannot drift from the coarse one.
-    ClothState fine;
+    ClothState& fine = fine_state_;  // kept between steps: no allocation per step
     interpolate(prolong_, coarse_state_.x, fine.x);
-    fine.v = Eigen::Matrix3Xd::Zero(3, fine.x.cols());
+    fine.v.setZero(3, fine.x.cols());
     Environment env = *inputs.env;
     env.gravity = Vec3::Zero();
     env.air_drag = 0.0;
@@ -207,7 +205,7 @@ class UpsampledSolver final : public Solver {
   SolverSettings settings_;
   std::unique_ptr<Solver> coarse_solver_, fine_solver_;
   BarycentricEmbedding prolong_, restrict_, pin_map_;
-  ClothState coarse_state_;
+  ClothState coarse_state_, fine_state_;
   bool have_coarse_ = false;
   Eigen::Matrix3Xd last_x_, last_v_;
 };
