@@ -107,10 +107,11 @@ void interpolate(const BarycentricEmbedding& e, const Eigen::Matrix3Xd& from,
 // Gauss-Seidel rounds of the coarse projection: each round visits the fine constraints at a coarse
 // vertex the previous round moved. It projects a fine edge only when it is more than kCoarseSlack
 // (relative) over the strain limit and leaves the last half percent to the fine passes, whose
-// work it is (local): on the 12k skirt driven by 3k over frames 1-129 of 01_01, 604 edge
-// projections and 2.3 CPU ms a frame instead of 9,870 and 6.2 ms with no slack, the same largest
-// strain to 0.02 %. 8 rounds left more over the coarse skirt's own strain after 4 fine passes
-// than the test allows (0.63 %), 32 rounds 0.40 % (docs/notebook/resolution.md, "Tenth round").
+// work it is (local): on the 12k skirt driven by 3k over frames 1-129 of 01_01 (16 rounds), 604
+// edge projections and 2.3 CPU ms a frame instead of 9,870 and 6.2 ms with no slack, the same
+// largest strain to 0.02 %. 8 rounds left more over the coarse skirt's own strain after 4 fine
+// passes than the test allows (0.63 %), 32 rounds 0.40 % (docs/notebook/resolution.md, "Tenth
+// round").
 constexpr int kCoarseRounds = 32;
 constexpr double kCoarseSlack = 0.005;
 
@@ -124,7 +125,7 @@ FinePass::FinePass(const ClothModel& fine, const ClothModel& coarse, const Solve
   // No tethers: their rest paths along the fine mesh are shorter than along the coarse one, whose
   // tethers the coarse solution obeys, so the fine ones pulled interpolated vertices in and
   // stretched the edges beside them (with them the test below left 6.1 % at 12k and 8.3 % at 30k
-  // after one fine pass, without 4.2 % at both; tests/test_upsampled.cpp, FinePassConverges...).
+  // after one fine pass, without 4.2 % at both: tests/test_upsampled.cpp, FinePassConverges...).
   // The coarse solve's tethers carry the long-range bound.
   f.tethers = false;
   projection_ = make_xpbd_projection_solver(fine_, f);
@@ -159,13 +160,14 @@ FinePass::~FinePass() = default;
 // order: the same for any thread count). A constraint on the embedded point p = sum_k w_k y_k
 // (or on an embedded edge d = sum_k c_k y_k) is projected as a PBD constraint of the coarse
 // vertices with gradient w_k n on vertex k and generalized inverse mass sum_k w_k^2 invm_k
-// (Mueller et al. 2007, "Position based dynamics", eq. 8-9; Macklin et al. 2016, eq. 18 with
-// alpha = 0): the coarse vertices move as little as mass allows for the fine point or edge to
-// meet its bound. Edges: the strain limit with the block's relaxation (xpbd.cpp, shorten_edge).
-// Points: out of the body's surface (no margin: the coarse solve's contact round leaves its own
-// vertices anywhere between the surface and the margin, and pushing the fine ones out to the
-// margin stretched the hem where the body holds it: 6.2 % at 12k and 5.4 % at 30k left after 16
-// fine passes in the same test, against 3.9 % and 3.7 %).
+// (Mueller et al. 2007, "Position based dynamics", sec. 3.3, the projection weighted by inverse
+// mass; Macklin et al. 2016, eq. 18 with alpha = 0): the coarse vertices move as little as mass
+// allows for the fine point or edge to meet its bound. Edges: the strain limit with the block's
+// relaxation (xpbd.cpp, shorten_edge). Points: out of the body's surface (no margin: the coarse
+// solve's contact round leaves its own vertices anywhere between the surface and the margin, and
+// pushing the fine ones out to the margin stretched the hem where the body holds it: 6.2 % at 12k
+// and 5.4 % at 30k left after 16 fine passes in tests/test_upsampled.cpp's FinePassConverges...,
+// against 3.9 % and 3.7 %).
 void FinePass::project_on_coarse(Eigen::Matrix3Xd& y, const Environment& env) {
   const double* w = coarse_.inv_mass.data();
   const double max_stretch = 1.0 + settings_.strain_limit;

@@ -56,7 +56,6 @@ class FinePass {
   // Returns the fine projection's report (stable false: fine_x is not to be used).
   StepReport run(const Eigen::Matrix3Xd& coarse_x, const Environment& env,
                  const Eigen::Matrix3Xd& fine_targets, double dt, Eigen::Matrix3Xd& fine_x);
-  const BarycentricEmbedding& embedding() const { return prolong_; }
 
  private:
   // Each fine edge's vector as a combination of at most six coarse vertices (the difference of
