@@ -194,11 +194,11 @@ void register_db_commands(CLI::App& app) {
       ->add_option("--bound-mm", rargs->bound_mm,
                    "Position bound in mm per coordinate, against the stored frames (default: "
                    "the file's codec.position_bound)")
-      ->check(CLI::PositiveNumber);
+      ->check(number_in(1e-6, 1e3));
   recode
       ->add_option("--velocity-bound-mm-s", rargs->velocity_bound_mm_s,
                    "State velocity bound in mm/s (default: the file's codec.velocity_bound)")
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   recode->add_option("--modes", rargs->options.modes, "Basis modes (v2, v3)")
       ->capture_default_str()
       ->check(CLI::Range(1u, codec::kMaxBasisModes));
@@ -211,7 +211,7 @@ void register_db_commands(CLI::App& app) {
       ->add_option("--coefficient-step", rargs->options.coefficient_step_factor,
                    "Coefficient quantisation step as a multiple of the bound (v2)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   recode->add_option("--batch", rargs->options.batch, "Rows per transaction")
       ->capture_default_str()
       ->check(CLI::Range(1u, 100000u));

@@ -719,11 +719,14 @@ void register_bench_runtime(CLI::App& bench) {
       "directory; a real file is used for all scenarios.");
   cmd->add_option("FILE", a->file, "Database, or 'synthetic'")->required();
   cmd->add_option("--frames", a->frames, "Timed frames per single-player scenario")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(number_in(1, 1e7));
   cmd->add_option("--players", a->players, "Players in the shared-database scenario")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(number_in(1, 1e4));
   cmd->add_option("--cache-mb", a->cache_mb, "Cache cap of the shared-database scenario, MB")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(number_in(1, 1e6));
   cmd->add_option("--codec", a->codec,
                   "With FILE synthetic: v1, v2 or v3 (every blob recoded to the subspace codec; "
                   "v3 within RMS 1 / max 3 / jitter 0.1 mm; "

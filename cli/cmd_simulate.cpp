@@ -45,9 +45,11 @@ void register_simulate(CLI::App& app) {
   cmd->add_option("--clip", args->clip, "Clip name (default: the scene's first clip)");
   cmd->add_option("--out", args->out, "Output directory")->required();
   cmd->add_option("--frames", args->frames, "Simulate only the first N frames (0: all)")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(number_in(0, 1e9));
   cmd->add_option("--preview-every", args->preview_every, "A PNG preview every N frames (0: none)")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(number_in(0, 1e9));
   cmd->add_option("--solver", args->solver,
                   "Override the scene's solver: mass-spring | pbd | xpbd | newton");
   cmd->add_option("--substeps", args->substeps, "Override the scene's sub-steps")

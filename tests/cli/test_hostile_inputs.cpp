@@ -162,6 +162,49 @@ TEST(HostileInputs, RangeErrorsAreShortAndRefuseNan) {
       {"nan is not a number in [0, 1e+12]"});
 }
 
+// NaN passes CLI11's Range and PositiveNumber (every comparison with it is false), and a negative
+// count wraps in an unsigned option: each of these ran before (some with NaN as a setting, `bench
+// nearest --synthetic -5` for ever); now each is refused at parsing, naming the option and its
+// range.
+TEST(HostileInputs, NonsenseNumbersAreRefusedBeforeAnyWork) {
+  const std::string db = demo_db();
+  const std::string scene = scene_with("nonsense", "");
+  const std::string out = (work_dir() / "nonsense_out").string();
+  const std::string new_db = (work_dir() / "nonsense.clothdb").string();
+  const std::string curve = (work_dir() / "curve.csv").string();
+  std::ofstream(curve) << "cpu_seconds,frames,states,dead_ends,unexplored\n0,0,1,1,1\n1,10,2,1,1\n";
+  const std::vector<std::pair<std::vector<std::string>, std::string>> cases = {
+      {{"precompute", scene, "--db", new_db, "--epsilon", "nan"},
+       "--epsilon: nan is not a number in (0, 1000]"},
+      {{"precompute", scene, "--db", new_db, "--epsilon", "inf"}, "--epsilon: inf is not a number"},
+      {{"precompute", scene, "--db", new_db, "--percentile", "-3"},
+       "--percentile: -3 is not a number in (0, 100]"},
+      {{"precompute", scene, "--db", new_db, "--state-cache-mb", "nan"}, "--state-cache-mb: nan"},
+      {{"precompute", scene, "--db", new_db, "--floor-seconds", "nan"}, "--floor-seconds: nan"},
+      {{"precompute", scene, "--db", new_db, "--auto-fraction", "nan"}, "--auto-fraction: nan"},
+      {{"floor", scene, "--seconds", "nan"}, "--seconds: nan is not a number in [0, 600]"},
+      {{"floor", scene, "--percentile", "nan"}, "--percentile: nan"},
+      {{"db", "recode", db, "--bound-mm", "nan"},
+       "--bound-mm: nan is not a number in [1e-06, 1000]"},
+      {{"db", "recode", db, "--bound-mm", "-1"}, "--bound-mm: -1 is not a number"},
+      {{"db", "recode", db, "--coefficient-step", "nan"}, "--coefficient-step: nan"},
+      {{"forecast", curve, "--at", "0.5,nan"}, "--at: nan is not a number in [0, 1]"},
+      {{"bench", "nearest", "--synthetic", "-5"}, "--synthetic: -5 is not a number"},
+      {{"bench", "runtime", db, "--players", "-1"}, "--players: -1 is not a number"},
+      {{"bench", "codec", "--db", db, "--rms-mm", "nan"}, "--rms-mm: nan"},
+      {{"bench", "codec", "--db", db, "--codecs", "v1,v9"}, "--codecs: unknown codec 'v9'"},
+      {{"bench", "character", scene, "--chebyshev-rho", "nan"}, "--chebyshev-rho: nan"},
+      {{"simulate", scene, "--out", out, "--frames", "-1"}, "--frames: -1 is not a number"},
+      {{"simulate", scene, "--out", out, "--preview-every", "-1"}, "--preview-every: -1"},
+      {{"clip", "resim", db, "1", "--max-frames", "-1"}, "--max-frames: -1 is not a number"},
+  };
+  for (const auto& [args, words] : cases) expect_refused(args, {words});
+  EXPECT_FALSE(fs::exists(new_db));
+  EXPECT_FALSE(fs::exists(out));
+  fs::remove(curve);
+  fs::remove(work_dir() / "nonsense.json");
+}
+
 TEST(HostileInputs, DirectoriesAreReportedAsDirectories) {
   const fs::path dir = work_dir() / "a_directory";
   fs::create_directories(dir);
