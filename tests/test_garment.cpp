@@ -278,6 +278,11 @@ TEST(Garment, BadScenesNameFileAndField) {
       "colliders.motion");
   expect_error(write_temp("not_json.json", "{ garment: "), "not valid JSON");
   expect_error(write_temp("no_manifest.json", "{\"garment\": {\"type\": \"skirt\"}}"), "manifest");
+  // A manifest that is not there: the scene and its field, then the path.
+  expect_error(write_temp("lost_manifest.json",
+                          "{\"manifest\": \"no_such_manifest.json\", \"garment\": {\"type\": "
+                          "\"skirt\"}}"),
+               "lost_manifest.json: manifest: ");
   // A bone the scene asks for that the skeleton does not have: named at build time.
   const SceneFile bad_bone = load_scene_file(
       temp_scene("bad_bone.json",
@@ -287,6 +292,21 @@ TEST(Garment, BadScenesNameFileAndField) {
     FAIL();
   } catch (const std::exception& e) {
     EXPECT_NE(std::string(e.what()).find("Tail"), std::string::npos) << e.what();
+  }
+  // An empty mesh garment: the scene, its field and the mesh file, at build time.
+  const std::string empty_obj = write_temp("empty_garment.obj", "");
+  try {
+    build_character_scene(load_scene_file(temp_scene(
+        "empty_garment.json",
+        "\"clips\": [\"01_01\"], \"garment\": {\"type\": \"mesh\", "
+        "\"file\": \"" +
+            empty_obj + "\", \"bone\": \"Hips\", \"pins\": {\"height_band\": [0.9, 1]}}")));
+    FAIL() << "an empty OBJ garment was accepted";
+  } catch (const GarmentError& e) {
+    EXPECT_NE(std::string(e.what()).find("empty_garment.json: garment.file: "), std::string::npos)
+        << e.what();
+    EXPECT_NE(std::string(e.what()).find("empty_garment.obj: no vertices"), std::string::npos)
+        << e.what();
   }
 }
 
@@ -382,6 +402,11 @@ TEST(Garment, ImportRefusesDamagedAndImplausibleGeometry) {
   auto [weld, weld_log] = import_obj("weld.obj", two_quads(0.0), 0.3);
   EXPECT_NE(weld.find("garment.weld_tolerance 0.3 m merges over"), std::string::npos) << weld;
   EXPECT_NE(weld.find("lower it"), std::string::npos) << weld;
+  // A face naming a vertex the file does not have: its line and the count, in plain English.
+  auto [index, index_log] = import_obj("index.obj", "v 0 1 0\nv 0.2 1 0\nv 0 0.8 0\nf 1 2 9\n");
+  EXPECT_NE(index.find("index.obj:4: face vertex index 9 outside the 3 vertices so far"),
+            std::string::npos)
+      << index;
 }
 
 TEST(Garment, ImportWarnsOfAnOpenSeamJustAboveTheWeldTolerance) {

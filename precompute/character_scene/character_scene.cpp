@@ -105,7 +105,12 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   if (manifest.empty()) f.fail("manifest", "required: the motion manifest (JSON) this scene uses");
   std::filesystem::path manifest_path = manifest;
   if (manifest_path.is_relative()) manifest_path = file.parent_path() / manifest_path;
-  s.manifest = load_manifest(manifest_path);
+  // The manifest's own errors name the manifest; the scene and its field say where it was named.
+  try {
+    s.manifest = load_manifest(manifest_path);
+  } catch (const MotionError& e) {
+    f.fail("manifest", e.what());
+  }
   if (j.contains("clips")) {
     if (!j["clips"].is_array() || j["clips"].empty())
       f.fail("clips", "expected a non-empty array of clip names");
@@ -292,7 +297,12 @@ CharacterScene build_character_scene(const SceneFile& file) {
       scene.garment = make_cape(scene.skeleton, file.cape);
       break;
     case GarmentKind::Mesh:
-      scene.garment = import_garment(scene.skeleton, file.mesh);
+      // The mesh's errors name the mesh file; the scene and its field say where it was named.
+      try {
+        scene.garment = import_garment(scene.skeleton, file.mesh);
+      } catch (const GarmentError& e) {
+        throw GarmentError(file.path.string() + ": garment.file: " + e.what());
+      }
       break;
   }
   scene.model = make_model(scene.garment.mesh, file.material, scene.garment.pins);
