@@ -283,6 +283,16 @@ TEST(Garment, BadScenesNameFileAndField) {
                           "{\"manifest\": \"no_such_manifest.json\", \"garment\": {\"type\": "
                           "\"skirt\"}}"),
                "lost_manifest.json: manifest: ");
+  // A coarse copy as fine as the garment (or finer) drives nothing (docs/guide/resolution.md).
+  expect_error(temp_scene("coarse_finer.json",
+                          "\"garment\": {\"type\": \"skirt\", \"vertices\": 200}, \"solver\": "
+                          "{\"name\": \"xpbd\", \"coarse_vertices\": 3000}"),
+               "solver.coarse_vertices: must be fewer than garment.vertices (got 3000, "
+               "garment.vertices 200)");
+  expect_error(temp_scene("coarse_same.json",
+                          "\"garment\": {\"type\": \"cape\", \"vertices\": 300}, \"solver\": "
+                          "{\"name\": \"xpbd\", \"coarse_vertices\": 300}"),
+               "solver.coarse_vertices: must be fewer");
   // A bone the scene asks for that the skeleton does not have: named at build time.
   const SceneFile bad_bone = load_scene_file(
       temp_scene("bad_bone.json",
@@ -306,6 +316,20 @@ TEST(Garment, BadScenesNameFileAndField) {
     EXPECT_NE(std::string(e.what()).find("empty_garment.json: garment.file: "), std::string::npos)
         << e.what();
     EXPECT_NE(std::string(e.what()).find("empty_garment.obj: no vertices"), std::string::npos)
+        << e.what();
+  }
+  // A coarse count given beside the scene (`bench character --coarse-vertices`) that is not
+  // coarser: refused when the solver is made.
+  const CharacterScene small = build_character_scene(load_scene_file(
+      temp_scene("coarse_override.json",
+                 "\"clips\": [\"01_01\"], \"garment\": {\"type\": \"skirt\", \"vertices\": 200}")));
+  SolverSettings finer = small.file.settings;
+  finer.coarse_vertices = 5000;
+  try {
+    make_scene_solver(small, SolverKind::Xpbd, finer);
+    FAIL() << "a coarse copy finer than the garment was accepted";
+  } catch (const SceneError& e) {
+    EXPECT_NE(std::string(e.what()).find("not fewer than the garment's"), std::string::npos)
         << e.what();
   }
 }

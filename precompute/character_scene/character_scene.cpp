@@ -223,6 +223,16 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   if (s.settings.coarse_vertices > 0 && s.garment_kind == GarmentKind::Mesh)
     f.fail("solver.coarse_vertices",
            "needs a procedural garment (skirt or cape): a mesh garment has no coarser copy");
+  // The coarse copy drives the garment (docs/guide/resolution.md): one as fine or finer only costs
+  // more and gives the garment nothing it would not get solved itself.
+  if (s.settings.coarse_vertices > 0) {
+    const int fine = s.garment_kind == GarmentKind::Cape ? s.cape.vertices : s.skirt.vertices;
+    if (s.settings.coarse_vertices >= fine)
+      f.fail("solver.coarse_vertices", "must be fewer than garment.vertices (got " +
+                                           std::to_string(s.settings.coarse_vertices) +
+                                           ", garment.vertices " + std::to_string(fine) +
+                                           "); 0 or absent solves the garment itself");
+  }
 
   const json& c = f.object(j, "colliders", "");
   f.only(c,
@@ -404,6 +414,14 @@ std::unique_ptr<Solver> make_scene_solver(const CharacterScene& scene, SolverKin
       throw SceneError(scene.file.path.string() +
                        ": solver.coarse_vertices: needs a procedural garment (skirt or cape)");
   }
+  // The same rule as the scene file's (load_scene_file), for a count given elsewhere (`bench
+  // character --coarse-vertices`), on the meshes as made.
+  if (coarse.mesh.vertex_count() >= scene.model.vertex_count())
+    throw SceneError(scene.file.path.string() + ": solver.coarse_vertices " +
+                     std::to_string(settings.coarse_vertices) + " makes " +
+                     std::to_string(coarse.mesh.vertex_count()) +
+                     " vertices, not fewer than the garment's " +
+                     std::to_string(scene.model.vertex_count()) + ": nothing to drive");
   return make_upsampled_solver(scene.model,
                                make_model(coarse.mesh, scene.file.material, coarse.pins), settings);
 }
