@@ -122,6 +122,34 @@ TEST(HostileInputs, PlayWritesEverythingOrNothing) {
   fs::remove_all(out);
 }
 
+// `simulate` writes into a hidden directory inside --out made before it simulates, and moves the
+// files into place at the end: a bad --out is refused before any frame is simulated (it was found
+// only after the whole clip), and no staging directory is left behind.
+TEST(HostileInputs, SimulateChecksItsOutputFirstAndWritesEverythingOrNothing) {
+  const std::string scene = scene_with("sim_stage", "");
+  const fs::path file = work_dir() / "not_a_directory";
+  std::ofstream(file) << "a file\n";
+  expect_refused({"simulate", scene, "--frames", "3", "--out", file.string()},
+                 {file.string() + ": exists and is not a directory"});
+  const Result refused = clothdb({"simulate", scene, "--frames", "3", "--out", file.string()});
+  EXPECT_EQ(refused.output.find("ms/frame"), std::string::npos)
+      << "simulated before the output was checked:\n"
+      << refused.output;
+  const fs::path out = work_dir() / "sim_stage_out";
+  const Result r =
+      clothdb({"simulate", scene, "--frames", "3", "--preview-every", "2", "--out", out.string()});
+  ASSERT_EQ(r.code, 0) << r.output;
+  for (const char* f : {"garment.obj", "cloth.pc2", "body.obj", "body.pc2", "metrics.csv",
+                        "summary.json", "previews/frame_0002.png"})
+    EXPECT_TRUE(fs::exists(out / f)) << f;
+  for (const auto& e : fs::directory_iterator(out))
+    EXPECT_EQ(e.path().filename().string().find("-partial"), std::string::npos)
+        << "staging directory left behind";
+  fs::remove_all(out);
+  fs::remove(file);
+  fs::remove(scene);
+}
+
 TEST(HostileInputs, ThreadCountsAreCapped) {
   const std::string scene = scene_with("threads_ok", "");
   const std::string out = (work_dir() / "sim_out").string();
