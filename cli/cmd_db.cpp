@@ -140,7 +140,16 @@ void print_info(const db::DatabaseInfo& i) {
   if (!i.clips_per_edge.empty()) print_clips_per_edge(i.clips_per_edge);
   std::printf("runs            %llu, %.1f CPU s; %llu edits logged\n", (unsigned long long)i.runs,
               i.run_cpu_seconds, (unsigned long long)i.edits);
-  if (!i.last_run_notes.empty()) std::printf("last run        %s\n", i.last_run_notes.c_str());
+  if (i.last_run_unfinished) {
+    // A killed precompute left no summary: say so, rather than show an earlier run's as the last.
+    std::printf(
+        "last run        run %lld (started %s) did not finish: killed, or still running; its "
+        "committed batches are kept, and the same command resumes it\n",
+        (long long)i.last_run_id, i.last_run_started.c_str());
+    if (!i.last_run_notes.empty()) std::printf("last finished   %s\n", i.last_run_notes.c_str());
+  } else if (!i.last_run_notes.empty()) {
+    std::printf("last run        %s\n", i.last_run_notes.c_str());
+  }
   print_error_floor(i);
   print_forecast(i);
   for (const auto& [key, value] : i.meta) {

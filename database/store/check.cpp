@@ -554,6 +554,14 @@ DatabaseInfo read_database_info(const std::string& path) {
     Stmt s(db, "SELECT notes FROM run WHERE notes != '' ORDER BY id DESC LIMIT 1");
     if (s.ok() && s.step() == SQLITE_ROW) info.last_run_notes = s.text(0);
   }
+  {
+    Stmt s(db, "SELECT id, started, finished IS NULL FROM run ORDER BY id DESC LIMIT 1");
+    if (s.ok() && s.step() == SQLITE_ROW) {
+      info.last_run_id = s.i64(0);
+      info.last_run_started = s.text(1);
+      info.last_run_unfinished = s.i64(2) != 0;
+    }
+  }
   sqlite3_exec(db, "COMMIT", nullptr, nullptr, nullptr);
   return info;
 }
