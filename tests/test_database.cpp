@@ -705,7 +705,10 @@ void expect_refused(const std::string& sql, const std::string& words,
 }
 
 TEST(DatabaseCheck, DeletedGarmentRow) {
-  expect_refused("DELETE FROM garment;", "no garment row", "no garment");
+  expect_refused(
+      "DELETE FROM garment;",
+      "no garment row: the runtime cannot open this file (a file holding only a motion graph",
+      "no garment");
 }
 
 TEST(DatabaseCheck, TruncatedTriangleArray) {

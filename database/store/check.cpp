@@ -130,7 +130,9 @@ void check_garment(sqlite3* db, CheckReport& report) {
   Findings f(&report.problems, "garment");
   const uint64_t rows = count(db, "SELECT count(*) FROM garment");
   if (rows != 1) {
-    f.add(rows == 0 ? "no garment row: the runtime cannot open this file"
+    // `graph build --db` makes such a file on purpose, before the precompute fills it.
+    f.add(rows == 0 ? "no garment row: the runtime cannot open this file (a file holding only a "
+                      "motion graph: `clothdb precompute SCENE --db FILE` explores into it)"
                     : format_message("%llu garment rows, expected one", (unsigned long long)rows));
     if (rows == 0) return;
   }
