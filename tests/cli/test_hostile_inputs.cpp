@@ -233,6 +233,28 @@ TEST(HostileInputs, NonsenseNumbersAreRefusedBeforeAnyWork) {
   fs::remove(work_dir() / "nonsense.json");
 }
 
+// `graph show` reads a graph JSON or a database: a file that is neither is named as such (it was
+// reported as bad JSON at its first byte), and a database's own error is not prefixed twice.
+TEST(HostileInputs, GraphShowNamesAFileThatIsNeitherKind) {
+  const fs::path text = work_dir() / "notes.db";
+  std::ofstream(text) << "hello, not a database\n";
+  expect_refused({"graph", "show", text.string()},
+                 {text.string() + ": neither a clothdb database nor a motion graph"});
+  const fs::path empty = work_dir() / "empty.db";
+  std::ofstream{empty};
+  expect_refused({"graph", "show", empty.string()},
+                 {empty.string() + ": neither a clothdb database nor a motion graph"});
+  const fs::path cut = work_dir() / "cut.db";
+  {
+    const std::string whole = read_file(demo_db());
+    std::ofstream(cut, std::ios::binary) << whole.substr(0, whole.size() / 3);
+  }
+  const Result r = clothdb({"graph", "show", cut.string()});
+  EXPECT_GT(r.code, 0) << r.output;
+  EXPECT_EQ(r.output.find(cut.string() + ": " + cut.string()), std::string::npos) << r.output;
+  for (const fs::path& f : {text, empty, cut}) fs::remove(f);
+}
+
 TEST(HostileInputs, DirectoriesAreReportedAsDirectories) {
   const fs::path dir = work_dir() / "a_directory";
   fs::create_directories(dir);
