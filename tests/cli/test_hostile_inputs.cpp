@@ -255,6 +255,27 @@ TEST(HostileInputs, GraphShowNamesAFileThatIsNeitherKind) {
   for (const fs::path& f : {text, empty, cut}) fs::remove(f);
 }
 
+// A file that is not a database, given to the commands that open one through the reader: refused,
+// unchanged, its name said once (precompute and bench nearest said "x.db: x.db is not ...").
+TEST(HostileInputs, NotADatabaseIsNamedOnceAndLeftAlone) {
+  const fs::path text = work_dir() / "notes.clothdb";
+  std::ofstream(text) << "hello, not a database\n";
+  const std::string scene = scene_with("not_a_db", "");
+  const std::vector<std::vector<std::string>> commands = {
+      {"precompute", scene, "--db", text.string(), "--no-floor", "--quiet"},
+      {"bench", "nearest", "--db", text.string()},
+      {"db", "info", text.string()},
+      {"clips", "list", text.string()},
+      {"play", text.string(), "--out", (work_dir() / "p").string()}};
+  for (const auto& args : commands) {
+    expect_refused(args, {text.string() + " is not a clothdb database (not even SQLite)"});
+    const Result r = clothdb(args);
+    EXPECT_EQ(r.output.find(text.string() + ": " + text.string()), std::string::npos) << r.output;
+  }
+  fs::remove(text);
+  fs::remove(scene);
+}
+
 TEST(HostileInputs, DirectoriesAreReportedAsDirectories) {
   const fs::path dir = work_dir() / "a_directory";
   fs::create_directories(dir);
