@@ -278,6 +278,12 @@ TEST(Garment, BadScenesNameFileAndField) {
       "colliders.motion");
   expect_error(write_temp("not_json.json", "{ garment: "), "not valid JSON");
   expect_error(write_temp("no_manifest.json", "{\"garment\": {\"type\": \"skirt\"}}"), "manifest");
+  // A motion manifest where a scene is asked for: the mix-up is named (it said "output_rate:
+  // unknown field").
+  expect_error(
+      write_temp("a_manifest.json",
+                 "{\"output_rate\": 30, \"clips\": [{\"name\": \"a\", \"file\": \"a.bvh\"}]}"),
+      "a_manifest.json: (top level): a motion manifest, not a scene file");
   // A manifest that is not there: the scene and its field, then the path.
   expect_error(write_temp("lost_manifest.json",
                           "{\"manifest\": \"no_such_manifest.json\", \"garment\": {\"type\": "

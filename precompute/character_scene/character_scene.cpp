@@ -96,6 +96,13 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   }
   const Fields f{file.string()};
   if (!j.is_object()) f.fail("(top level)", "expected an object");
+  // A manifest given where a scene is asked for (`simulate motions/cmu_walk.json`): name the
+  // mix-up, not the manifest's first field as unknown.
+  if (!j.contains("garment") && !j.contains("manifest") && j.contains("clips") &&
+      j["clips"].is_array() && !j["clips"].empty() && j["clips"][0].is_object())
+    f.fail("(top level)",
+           "a motion manifest, not a scene file; a scene names a manifest, the garment, the "
+           "material and the solver (motions/README.md; e.g. motions/skirt_walk.json)");
   f.only(j,
          {"name", "manifest", "clips", "garment", "material", "solver", "colliders", "air_drag",
           "settle_frames", "steering", "graph"},
