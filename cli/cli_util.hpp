@@ -1,10 +1,13 @@
 // Small helpers shared by the command files.
 #pragma once
 
+#include <unistd.h>
+
 #include <CLI/CLI.hpp>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
@@ -13,6 +16,7 @@
 
 #include "database/codec/contract.hpp"
 #include "database/store/writer.hpp"
+#include "report/output.hpp"
 #include "solvers/solver.hpp"
 
 namespace clothdb::cli {
@@ -181,6 +185,47 @@ struct ContractOptions {
     if (!(rms_mm > 0) || !(max_mm > 0))
       throw CLI::ValidationError("--codec v3", "needs --rms-mm and --max-mm");
     return {1e-3 * rms_mm, 1e-3 * max_mm, 1e-3 * jitter_mm};
+  }
+};
+
+// Where a command that writes several files into --out (`play`, `simulate`) writes them before
+// everything is in place: a hidden directory inside --out, made before any work (so a bad --out
+// is refused at once, not after the simulation), moved into place file by file once all are
+// written, and removed on failure (with --out itself if this run created it), so a failed run
+// changes nothing.
+struct Staging {
+  std::filesystem::path out, dir;
+  bool created_out = false, done = false;
+  // `command`: names the hidden directory, .COMMAND-partial-PID.
+  Staging(const std::string& o, const std::string& command) : out(o) {
+    std::error_code ec;
+    if (std::filesystem::exists(out, ec) && !std::filesystem::is_directory(out, ec))
+      throw std::runtime_error(o + ": exists and is not a directory");
+    created_out = !std::filesystem::exists(out, ec);
+    dir = out / ("." + command + "-partial-" + std::to_string(::getpid()));
+    make_directories(dir.string());
+  }
+  Staging(const Staging&) = delete;
+  Staging& operator=(const Staging&) = delete;
+  std::string path(const std::string& name) const { return (dir / name).string(); }
+  void commit(const std::vector<std::string>& names) {
+    for (const std::string& name : names) {
+      const std::filesystem::path target = out / name;
+      std::error_code ec;
+      if (std::filesystem::is_directory(dir / name)) std::filesystem::remove_all(target, ec);
+      std::filesystem::rename(dir / name, target, ec);
+      if (ec)
+        throw std::runtime_error(target.string() + ": cannot move into place: " + ec.message());
+    }
+    std::error_code ec;
+    std::filesystem::remove_all(dir, ec);
+    done = true;
+  }
+  ~Staging() {
+    if (done) return;
+    std::error_code ec;
+    std::filesystem::remove_all(dir, ec);
+    if (created_out) std::filesystem::remove(out, ec);  // only if empty
   }
 };
 

@@ -78,11 +78,11 @@ void register_bench_character(CLI::App& bench) {
   cmd->add_option("--strain-limit-relaxation", args->options.strain_limit_relaxation,
                   "XPBD over-relaxation of the strain limit's passes in [1, 2), 1: off; default: "
                   "the scene's (docs/guide/resolution.md)")
-      ->check(CLI::Range(1.0, 1.99));
+      ->check(number_in(1.0, 1.99));
   cmd->add_option("--chebyshev-rho", args->options.chebyshev_rho,
                   "XPBD Chebyshev acceleration of the stretch sweeps (Wang 2015): spectral radius "
                   "estimate in [0, 1), 0: off; default: the scene's (docs/guide/resolution.md)")
-      ->check(CLI::Range(0.0, 0.999));
+      ->check(number_in(0.0, 0.999));
   cmd->add_option("--coarse-vertices", args->coarse_vertices,
                   "Comma-separated solver.coarse_vertices to run: 0, the garment solved itself; "
                   "N, the garment made with N vertices solved and driving it, e.g. 0,3000 "

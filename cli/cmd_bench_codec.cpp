@@ -12,6 +12,7 @@
 #include <fstream>
 #include <memory>
 #include <random>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -690,14 +691,14 @@ void register_bench_codec(CLI::App& bench) {
   cmd->add_option("--rms-mm", args->rms_mm,
                   "v3 and kim: contract cap on each frame's RMS vertex distance (mm)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number(1e3));
   cmd->add_option("--max-mm", args->max_mm, "v3: contract cap on any vertex distance (mm)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number(1e3));
   cmd->add_option("--jitter-mm", args->jitter_mm,
                   "v3: contract cap on the second difference in time of the coding error (mm)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number(1e3));
   cmd->add_option("--segment-frames", args->segment_frames,
                   "v3: frames per segment (each decodes on its own; what a player stages)")
       ->capture_default_str()
@@ -724,6 +725,11 @@ void register_bench_codec(CLI::App& bench) {
     number_list("--modes", args->modes, 0, 1024, true);
     number_list("--key-intervals", args->key_intervals, 0, 1 << 20, true);
     number_list("--levels", args->levels, 1, 22, true);
+    // A misspelt codec would otherwise drop its rows from the table without a word.
+    for (const std::string& c : split_list(args->codecs))
+      if (c != "v1" && c != "v2" && c != "v2-body" && c != "meshopt" && c != "v3" && c != "kim")
+        throw std::runtime_error("--codecs: unknown codec '" + c +
+                                 "' (known: v1, v2, v2-body, meshopt, v3, kim)");
     Frames f;
     if (!args->db.empty()) {
       f = frames_from_db(args->db, args->db_frames);

@@ -6,6 +6,7 @@
 #include <string>
 
 #include "bench/nearest_bench.hpp"
+#include "cli_util.hpp"
 #include "commands.hpp"
 #include "explore/secondary_graph.hpp"
 
@@ -31,7 +32,8 @@ void register_bench_nearest(CLI::App& bench) {
   cmd->add_option("--db", args->db, "A database: its cloth states, in the order they were added")
       ->check(CLI::ExistingFile);
   cmd->add_option("--synthetic", args->synthetic,
-                  "Instead, this many synthetic states clustered at one node");
+                  "Instead, this many synthetic states clustered at one node")
+      ->check(number_in(1, 1e7));
   cmd->add_option("--vertices", args->vertices, "Synthetic: vertices per state")
       ->capture_default_str()
       ->check(CLI::Range(8u, 100000u));

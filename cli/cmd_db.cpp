@@ -140,7 +140,16 @@ void print_info(const db::DatabaseInfo& i) {
   if (!i.clips_per_edge.empty()) print_clips_per_edge(i.clips_per_edge);
   std::printf("runs            %llu, %.1f CPU s; %llu edits logged\n", (unsigned long long)i.runs,
               i.run_cpu_seconds, (unsigned long long)i.edits);
-  if (!i.last_run_notes.empty()) std::printf("last run        %s\n", i.last_run_notes.c_str());
+  if (i.last_run_unfinished) {
+    // A killed precompute left no summary: say so, rather than show an earlier run's as the last.
+    std::printf(
+        "last run        run %lld (started %s) did not finish: killed, or still running; its "
+        "committed batches are kept, and the same command resumes it\n",
+        (long long)i.last_run_id, i.last_run_started.c_str());
+    if (!i.last_run_notes.empty()) std::printf("last finished   %s\n", i.last_run_notes.c_str());
+  } else if (!i.last_run_notes.empty()) {
+    std::printf("last run        %s\n", i.last_run_notes.c_str());
+  }
   print_error_floor(i);
   print_forecast(i);
   for (const auto& [key, value] : i.meta) {
@@ -194,11 +203,11 @@ void register_db_commands(CLI::App& app) {
       ->add_option("--bound-mm", rargs->bound_mm,
                    "Position bound in mm per coordinate, against the stored frames (default: "
                    "the file's codec.position_bound)")
-      ->check(CLI::PositiveNumber);
+      ->check(number_in(1e-6, 1e3));
   recode
       ->add_option("--velocity-bound-mm-s", rargs->velocity_bound_mm_s,
                    "State velocity bound in mm/s (default: the file's codec.velocity_bound)")
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   recode->add_option("--modes", rargs->options.modes, "Basis modes (v2, v3)")
       ->capture_default_str()
       ->check(CLI::Range(1u, codec::kMaxBasisModes));
@@ -211,7 +220,7 @@ void register_db_commands(CLI::App& app) {
       ->add_option("--coefficient-step", rargs->options.coefficient_step_factor,
                    "Coefficient quantisation step as a multiple of the bound (v2)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   recode->add_option("--batch", rargs->options.batch, "Rows per transaction")
       ->capture_default_str()
       ->check(CLI::Range(1u, 100000u));

@@ -200,7 +200,8 @@ void register_edit_commands(CLI::App& app) {
   res->add_option("--max-frames", ra->max_frames,
                   "Budget for carrying the change forward, frames simulated (0: until every new "
                   "end links back, which on a database that has not converged may not happen)")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(number_in(0, 1e12));
   res->add_option("--batch", ra->batch, "Carried-forward dead ends per batch")
       ->capture_default_str()
       ->check(positive_number());

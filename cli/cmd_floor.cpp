@@ -48,17 +48,18 @@ void register_floor(CLI::App& app) {
                   "scene's clips as `precompute` builds it");
   cmd->add_option("--percentile", args->percentile,
                   "Motion graph: transition threshold percentile (default: the scene's graph "
-                  "block, else graph build's; refused beside a graph block)");
+                  "block, else graph build's; refused beside a graph block)")
+      ->check(number_in(0.0, 100.0, true));
   cmd->add_option("--histories", args->options.histories, "Different histories (K)")
       ->capture_default_str()
       ->check(CLI::Range(2, 64));
   cmd->add_option("--seconds", args->seconds,
                   "Seconds of the common continuation and of holding still (each; default 2)")
-      ->check(CLI::Range(0.0, 600.0));
+      ->check(number_in(0.0, 600.0));
   cmd->add_option("--history-seconds", args->options.history_seconds,
                   "Seconds each history walks at random after its first choice")
       ->capture_default_str()
-      ->check(CLI::Range(0.0, 600.0));
+      ->check(number_in(0.0, 600.0));
   cmd->add_option("--seed", args->options.seed, "Seed of the random walks")->capture_default_str();
   cmd->add_option("--threads", args->options.threads,
                   "OpenMP threads across histories (0: all cores); the result does not depend on "

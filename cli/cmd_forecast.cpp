@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "cli_util.hpp"
 #include "commands.hpp"
 #include "explore/explorer.hpp"
 #include "explore/forecast.hpp"
@@ -45,7 +46,7 @@ void register_forecast(CLI::App& app) {
   cmd->add_option("--at", args->at, "Shares of the whole run's CPU time to show the forecast at")
       ->delimiter(',')
       ->capture_default_str()
-      ->check(CLI::Range(0.0, 1.0));
+      ->check(number_in(0.0, 1.0));
   cmd->add_option("--csv", args->csv,
                   "Also write every point's forecast: cpu_hours, forecast, low and high CPU-h");
   cmd->callback([args] {

@@ -141,11 +141,21 @@ MotionGraph load_graph_or_database(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   char magic[16] = {};
   in.read(magic, sizeof magic);
-  if (std::string(magic, 15) != "SQLite format 3") return load_motion_graph(path);
+  if (std::string(magic, 15) != "SQLite format 3") {
+    // Neither kind: say so, rather than report a text or binary file as bad JSON at its first byte.
+    const size_t start = std::string(magic, size_t(in.gcount())).find_first_not_of(" \t\r\n");
+    if (in.gcount() > 0 && (start == std::string::npos || magic[start] == '{'))
+      return load_motion_graph(path);
+    std::error_code ec;
+    if (std::filesystem::is_regular_file(path, ec))
+      throw std::runtime_error(path +
+                               ": neither a clothdb database nor a motion graph (the JSON "
+                               "`clothdb graph build --out` writes)");
+    return load_motion_graph(path);  // names what is missing
+  }
   db::Reader reader;
   db::Error err;
-  if (reader.open(path, &err) != db::Status::Ok)
-    throw std::runtime_error(path + ": " + std::string(err.message));
+  if (reader.open(path, &err) != db::Status::Ok) throw std::runtime_error(err.message);
   std::string text;
   if (reader.meta(db::meta::kMotionGraph, &text, &err) != db::Status::Ok)
     throw std::runtime_error(path +

@@ -154,42 +154,6 @@ void validate_play(const PlayArgs& a) {
         ": preview sides must be in [16, " + std::to_string(kMaxPreviewSide) + "] pixels");
 }
 
-// Where `play` writes before everything is in place: a hidden directory inside --out, moved into
-// place file by file once all are written, and removed on failure (with --out itself if this run
-// created it), so a failed run changes nothing.
-struct Staging {
-  std::filesystem::path out, dir;
-  bool created_out = false, done = false;
-  explicit Staging(const std::string& o) : out(o) {
-    std::error_code ec;
-    if (std::filesystem::exists(out, ec) && !std::filesystem::is_directory(out, ec))
-      throw std::runtime_error(o + ": exists and is not a directory");
-    created_out = !std::filesystem::exists(out, ec);
-    dir = out / (".play-partial-" + std::to_string(::getpid()));
-    make_directories(dir.string());
-  }
-  std::string path(const std::string& name) const { return (dir / name).string(); }
-  void commit(const std::vector<std::string>& names) {
-    for (const std::string& name : names) {
-      const std::filesystem::path target = out / name;
-      std::error_code ec;
-      if (std::filesystem::is_directory(dir / name)) std::filesystem::remove_all(target, ec);
-      std::filesystem::rename(dir / name, target, ec);
-      if (ec)
-        throw std::runtime_error(target.string() + ": cannot move into place: " + ec.message());
-    }
-    std::error_code ec;
-    std::filesystem::remove_all(dir, ec);
-    done = true;
-  }
-  ~Staging() {
-    if (done) return;
-    std::error_code ec;
-    std::filesystem::remove_all(dir, ec);
-    if (created_out) std::filesystem::remove(out, ec);  // only if empty
-  }
-};
-
 void run_play(const PlayArgs& a) {
   validate_play(a);
   clothrt_db_options options;
@@ -305,7 +269,7 @@ void run_play(const PlayArgs& a) {
   }
   if (a.view != "auto") view = parse_preview_view(a.view);
 
-  Staging stage(a.out);
+  Staging stage(a.out, "play");
   std::vector<std::string> written = {"garment.obj", "cloth.pc2", "path.csv"};
   {
     // The artist's topology (docs/guide/mesh_garments.md): their vertex order, faces, UVs.
@@ -719,11 +683,14 @@ void register_bench_runtime(CLI::App& bench) {
       "directory; a real file is used for all scenarios.");
   cmd->add_option("FILE", a->file, "Database, or 'synthetic'")->required();
   cmd->add_option("--frames", a->frames, "Timed frames per single-player scenario")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(number_in(1, 1e7));
   cmd->add_option("--players", a->players, "Players in the shared-database scenario")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(number_in(1, 1e4));
   cmd->add_option("--cache-mb", a->cache_mb, "Cache cap of the shared-database scenario, MB")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(number_in(1, 1e6));
   cmd->add_option("--codec", a->codec,
                   "With FILE synthetic: v1, v2 or v3 (every blob recoded to the subspace codec; "
                   "v3 within RMS 1 / max 3 / jitter 0.1 mm; "

@@ -60,7 +60,7 @@ void register_precompute(CLI::App& app) {
   cmd->add_option("--epsilon", *epsilon_mm,
                   "Error bound in mm: RMS over vertices of sqrt(|dx|^2 + (|dv|/rate)^2)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number(1e3));
   cmd->add_option("--position-bound", *position_bound_mm,
                   "Codec bound per coordinate in mm for a new --db (default 0.5; a file's codec is "
                   "fixed when it is made: an existing file with another bound is refused)")
@@ -114,14 +114,15 @@ void register_precompute(CLI::App& app) {
          "Memory for exact cloth states read back from the database (an LRU cache; default 256). "
          "Every other state is held as a reduced form of at most 16 x 6 doubles "
          "(docs/notebook/explorer.md#memory-per-state); changes the speed only, never the file")
-      ->check(CLI::Range(0.0, 1e6));
+      ->check(number_in(0.0, 1e6));
   cmd->add_option("--graph", args->graph,
                   "Use this motion graph (from `clothdb graph build --out`); default: the one the "
                   "database holds "
                   "(`clothdb graph build --db`), else one built from the scene's clips");
   cmd->add_option("--percentile", args->percentile,
                   "Motion graph: transition threshold percentile (default: the scene's graph "
-                  "block, else graph build's; refused beside a graph block)");
+                  "block, else graph build's; refused beside a graph block)")
+      ->check(number_in(0.0, 100.0, true));
   cmd->add_option("--curve", args->curve,
                   "Write the error-against-CPU-time curve to PREFIX.csv and PREFIX.svg (default: "
                   "beside the database)");
@@ -135,7 +136,7 @@ void register_precompute(CLI::App& app) {
   cmd->add_option("--floor-seconds", *floor_seconds,
                   "Error floor: seconds of the common continuation and of holding still (each)")
       ->capture_default_str()
-      ->check(CLI::Range(0.0, 600.0));
+      ->check(number_in(0.0, 600.0));
   cmd->add_option("--floor-histories", args->floor.histories,
                   "Error floor: different histories that meet at a common node")
       ->capture_default_str()
@@ -156,7 +157,7 @@ void register_precompute(CLI::App& app) {
   cmd->add_option("--auto-fraction", args->auto_fraction,
                   "--auto: accept an error up to this fraction of epsilon")
       ->capture_default_str()
-      ->check(CLI::Range(0.0, 1.0));
+      ->check(number_in(0.0, 1.0));
   cmd->add_option("--auto-frames", args->auto_frames, "--auto: frames of the calibration clip")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
@@ -172,7 +173,7 @@ void register_precompute(CLI::App& app) {
          "10x this before the first result). Run mpirun with --enable-recovery so a dead rank "
          "does not end the job")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   cmd->add_flag("--mpi-verbose", args->mpi_verbose,
                 "Under mpirun: one line per job handed out, lost or late");
   cmd->add_option(
@@ -182,7 +183,7 @@ void register_precompute(CLI::App& app) {
          "so that a job names the states a worker holds by id instead of sending them again. "
          "Changes the bytes sent, never the result")
       ->capture_default_str()
-      ->check(CLI::Range(0.0, 1e7));
+      ->check(number_in(0.0, 1e7));
 #endif
   cmd->callback([args, epsilon_mm, position_bound_mm, quiet, floor_seconds, codec_name, contract] {
     PrecomputeRequest request = *args;

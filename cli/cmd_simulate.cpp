@@ -45,9 +45,11 @@ void register_simulate(CLI::App& app) {
   cmd->add_option("--clip", args->clip, "Clip name (default: the scene's first clip)");
   cmd->add_option("--out", args->out, "Output directory")->required();
   cmd->add_option("--frames", args->frames, "Simulate only the first N frames (0: all)")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(number_in(0, 1e9));
   cmd->add_option("--preview-every", args->preview_every, "A PNG preview every N frames (0: none)")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(number_in(0, 1e9));
   cmd->add_option("--solver", args->solver,
                   "Override the scene's solver: mass-spring | pbd | xpbd | newton");
   cmd->add_option("--substeps", args->substeps, "Override the scene's sub-steps")
@@ -85,6 +87,8 @@ void register_simulate(CLI::App& app) {
     for (const std::string& line : placement_lines(scene.placement))
       std::fprintf(stderr, "  %s\n", line.c_str());
 
+    // Before any work: a bad --out is refused now, and nothing is left half-written in it.
+    Staging stage(args->out, "simulate");
     ClothState state = settle_garment(scene, *solver, clip_pose(clip, 0));
     const int frames =
         args->frames > 0 ? std::min(args->frames, clip.frame_count) : clip.frame_count;
@@ -141,7 +145,6 @@ void register_simulate(CLI::App& app) {
     }
     std::fprintf(stderr, "\n");
 
-    make_directories(args->out);
     PointCache pc;
     pc.vertex_count = scene.model.vertex_count();
     pc.frame_count = frames;
@@ -149,19 +152,22 @@ void register_simulate(CLI::App& app) {
     // The artist's topology (docs/guide/mesh_garments.md): their vertex order, faces, UVs.
     const db::ArtistMesh artist = artist_mesh_of(scene.garment);
     const PointCache artist_pc = artist_order(artist, pc);
-    write_artist_obj(args->out + "/garment.obj", scene.garment.name, artist_pc.positions.data(),
+    write_artist_obj(stage.path("garment.obj"), scene.garment.name, artist_pc.positions.data(),
                      artist);
-    write_pc2(args->out + "/cloth.pc2", artist_pc);
+    write_pc2(stage.path("cloth.pc2"), artist_pc);
     PointCache bc;
     bc.vertex_count = static_cast<int>(body.size() / 3 / frames);
     bc.frame_count = frames;
     bc.positions = std::move(body);
-    write_obj(args->out + "/body.obj", "body", bc.positions.data(), bc.vertex_count,
+    write_obj(stage.path("body.obj"), "body", bc.positions.data(), bc.vertex_count,
               capsule_mesh_triangles(static_cast<int>(scene.body.capsules.size())));
-    write_pc2(args->out + "/body.pc2", bc);
-    write_file_atomic(args->out + "/metrics.csv", csv.str());
+    write_pc2(stage.path("body.pc2"), bc);
+    write_file_atomic(stage.path("metrics.csv"), csv.str());
+    std::vector<std::string> written = {"garment.obj", "cloth.pc2",   "body.obj",
+                                        "body.pc2",    "metrics.csv", "summary.json"};
     if (!preview_frames.empty()) {
-      make_directories(args->out + "/previews");
+      make_directories(stage.path("previews"));
+      written.push_back("previews");
       Eigen::Matrix3Xd all(3, 0);
       for (const auto& [f, x] : preview_frames) {
         all.conservativeResize(3, all.cols() + x.cols());
@@ -185,8 +191,8 @@ void register_simulate(CLI::App& app) {
         ps.floor_height = 0.0;
         char name[64];
         std::snprintf(name, sizeof name, "/previews/frame_%04d.png", f);
-        write_png(args->out + name, render_preview(ps, cam, args->width, args->height), args->width,
-                  args->height);
+        write_png(stage.dir.string() + name, render_preview(ps, cam, args->width, args->height),
+                  args->width, args->height);
       }
     }
     nlohmann::json summary = {{"scene", file.path.string()},
@@ -205,7 +211,8 @@ void register_simulate(CLI::App& app) {
                               {"self_intersections_max", worst_crossings},
                               {"self_intersections_worst_frame", worst_crossing_frame},
                               {"frames_with_self_intersections", crossing_frames}};
-    write_file_atomic(args->out + "/summary.json", summary.dump(2) + "\n");
+    write_file_atomic(stage.path("summary.json"), summary.dump(2) + "\n");
+    stage.commit(written);
     std::printf(
         "%s\nwrote %s/{garment.obj,cloth.pc2,body.obj,body.pc2,metrics.csv,summary.json} and %zu "
         "previews\n",

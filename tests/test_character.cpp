@@ -603,6 +603,15 @@ TEST(Manifest, ErrorsNameTheFileAndField) {
   write_text(json, "{\"clips\": [");
   expect_motion_error([&] { load_manifest(json); }, {json.string() + ": not valid JSON"});
   expect_motion_error([&] { load_manifest(dir / "none.json"); }, {"none.json: file not found"});
+  // A scene where a manifest is asked for (`graph build SCENE`): the mix-up and the scene's
+  // manifest are named (it said "air_drag: unknown field (typo?)").
+  const fs::path scene = dir / "a_scene.json";
+  write_text(scene,
+             "{\"manifest\": \"cmu_walk.json\", \"air_drag\": 1, \"garment\": {\"type\": "
+             "\"skirt\"}}");
+  expect_motion_error([&] { load_manifest(scene); },
+                      {scene.string() + ": (top level): a scene file, not a motion manifest; its "
+                                        "manifest is \"cmu_walk.json\""});
 
   // Valid manifest, bad referenced file or range: the load names file, clip and manifest.
   const fs::path relative =

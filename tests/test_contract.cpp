@@ -308,6 +308,25 @@ TEST(RunSettings, InvalidValuesAreRefusedByName) {
   EXPECT_NE(
       refusal([] { db::parse_run_settings_json("{\"epsilom_m\": 1e-3}", "t"); }).find("epsilom_m"),
       std::string::npos);
+  // A misspelt solver field names the field it is likely meant to be; one far from every field
+  // lists them (it said only "expected one of the documented fields").
+  SolverKind kind = SolverKind::Xpbd;
+  SolverSettings s;
+  EXPECT_NE(refusal([&] {
+              parse_solver_settings_json(R"({"substep": 6})", "scene.json", &kind, &s, "solver.");
+            }).find("scene.json: solver.substep: unknown field; did you mean 'substeps'?"),
+            std::string::npos);
+  EXPECT_NE(refusal([&] {
+              parse_solver_settings_json(R"({"self_collision": {"thicknes_mm": 4}})", "scene.json",
+                                         &kind, &s, "solver.");
+            })
+                .find("solver.self_collision.thicknes_mm: unknown field; did you mean "
+                      "'thickness_mm'?"),
+            std::string::npos);
+  const std::string far = refusal(
+      [&] { parse_solver_settings_json(R"({"colour": 3})", "scene.json", &kind, &s, "solver."); });
+  EXPECT_NE(far.find("solver.colour: unknown field (known: "), std::string::npos) << far;
+  EXPECT_NE(far.find("substeps"), std::string::npos) << far;
 }
 
 TEST(RunSettings, ReadsTheRowsOlderBuildsWrote) {

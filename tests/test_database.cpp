@@ -293,6 +293,26 @@ TEST(Database, ForeignAndNewerFilesAreRecognised) {
   EXPECT_THROW(Writer::open(other), ClothdbError);
   EXPECT_FALSE(check_database(other).ok());
   EXPECT_FALSE(check_database(text).ok());
+  // An empty file and one cut inside SQLite's header read as empty databases to SQLite: named as
+  // what they are, not as "a SQLite database but not a clothdb one".
+  const std::string empty = dir.file("empty.clothdb");
+  std::ofstream{empty};
+  EXPECT_EQ(r.open(empty, &err), Status::NotClothdb);
+  EXPECT_NE(std::strstr(err.message,
+                        "empty.clothdb is not a clothdb database: an empty file (0 "
+                        "bytes"),
+            nullptr)
+      << err.message;
+  const std::string cut = dir.file("cut.clothdb");
+  {
+    std::ifstream in(other, std::ios::binary);
+    std::string head(50, '\0');
+    in.read(head.data(), 50);
+    std::ofstream(cut, std::ios::binary) << head;
+  }
+  EXPECT_EQ(r.open(cut, &err), Status::NotClothdb);
+  EXPECT_NE(std::strstr(err.message, "truncated, or not a database (50 bytes"), nullptr)
+      << err.message;
 
   const std::string newer = dir.file("newer.clothdb");
   { Writer::create(newer); }
@@ -685,7 +705,10 @@ void expect_refused(const std::string& sql, const std::string& words,
 }
 
 TEST(DatabaseCheck, DeletedGarmentRow) {
-  expect_refused("DELETE FROM garment;", "no garment row", "no garment");
+  expect_refused(
+      "DELETE FROM garment;",
+      "no garment row: the runtime cannot open this file (a file holding only a motion graph",
+      "no garment");
 }
 
 TEST(DatabaseCheck, TruncatedTriangleArray) {

@@ -90,9 +90,19 @@ TEST(ErrorFloor, SameResultTwiceAndForOneAndTwoThreads) {
   const CharacterScene scene = skirt(2.0, 1e-5);
   const ExploreGraph graph = small_graph(scene);
   const ErrorFloor a = measure_error_floor(scene, graph, quick(1));
-  const ErrorFloor b = measure_error_floor(scene, graph, quick(1));
+  ErrorFloorOptions talking = quick(1);
+  talking.progress = true;
+  testing::internal::CaptureStderr();
+  const ErrorFloor b = measure_error_floor(scene, graph, talking);
+  const std::string progress = testing::internal::GetCapturedStderr();
   const ErrorFloor c = measure_error_floor(scene, graph, quick(2));
   EXPECT_GT(a.floor, 0.0);
+  // A line per history, each but the last with the time left (the measurement can take minutes).
+  EXPECT_NE(progress.find("history 1 of 4 simulated ("), std::string::npos) << progress;
+  EXPECT_NE(progress.find("s left\nerror floor: history 2 of 4"), std::string::npos) << progress;
+  EXPECT_NE(progress.find("history 4 of 4 simulated ("), std::string::npos) << progress;
+  EXPECT_EQ(progress.substr(progress.find("history 4 of 4")).find("left"), std::string::npos)
+      << progress;
   EXPECT_EQ(a.walked, b.walked);
   EXPECT_EQ(a.held, b.held);
   EXPECT_EQ(a.walked, c.walked);

@@ -6,12 +6,14 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <random>
 #include <sstream>
 #include <string>
 
 #include "explore/explorer.hpp"
 #include "explore/forecast.hpp"
+#include "explore/progress.hpp"
 
 using namespace clothdb;
 
@@ -274,4 +276,32 @@ TEST(Forecast, ReplayFromTheCsvIsWhatTheRunMade) {
     EXPECT_NE(std::string(e.what()).find("bad.csv: line 3, column 'frames'"), std::string::npos)
         << e.what();
   }
+}
+
+// What a run prints and stores when every dead end is still alone at its node (the errors are
+// NaN: unknown) and its last batch ran past a --frames budget: "unknown" and "budget reached",
+// where `db info` showed "worst nan mm" and the progress line "budget ends in -3 s".
+TEST(Forecast, ProgressAndNotesSayUnknownAndBudgetReached) {
+  ExploreReport report;
+  CurvePoint p;
+  p.states = 9;
+  p.dead_ends = p.unexplored = 4;
+  p.worst_error = p.weighted_worst_error = p.mean_error = std::numeric_limits<double>::quiet_NaN();
+  report.curve.push_back(p);
+  report.frames = report.frames_this_run = 239;
+  const std::string notes = run_notes(report, 4);
+  EXPECT_EQ(notes.find("nan"), std::string::npos) << notes;
+  EXPECT_NE(notes.find("unresolved error worst unknown, reach-weighted worst unknown"),
+            std::string::npos)
+      << notes;
+  ExploreOptions options;
+  options.progress = true;
+  options.max_frames = 200;
+  const ProgressBar bar(options);
+  testing::internal::CaptureStderr();
+  bar.update(report, Forecast{}, 8, 4);
+  const std::string line = testing::internal::GetCapturedStderr();
+  EXPECT_NE(line.find("budget reached"), std::string::npos) << line;
+  EXPECT_EQ(line.find("in -"), std::string::npos) << line;
+  EXPECT_EQ(line.find("nan"), std::string::npos) << line;
 }

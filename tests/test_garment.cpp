@@ -278,6 +278,27 @@ TEST(Garment, BadScenesNameFileAndField) {
       "colliders.motion");
   expect_error(write_temp("not_json.json", "{ garment: "), "not valid JSON");
   expect_error(write_temp("no_manifest.json", "{\"garment\": {\"type\": \"skirt\"}}"), "manifest");
+  // A motion manifest where a scene is asked for: the mix-up is named (it said "output_rate:
+  // unknown field").
+  expect_error(
+      write_temp("a_manifest.json",
+                 "{\"output_rate\": 30, \"clips\": [{\"name\": \"a\", \"file\": \"a.bvh\"}]}"),
+      "a_manifest.json: (top level): a motion manifest, not a scene file");
+  // A manifest that is not there: the scene and its field, then the path.
+  expect_error(write_temp("lost_manifest.json",
+                          "{\"manifest\": \"no_such_manifest.json\", \"garment\": {\"type\": "
+                          "\"skirt\"}}"),
+               "lost_manifest.json: manifest: ");
+  // A coarse copy as fine as the garment (or finer) drives nothing (docs/guide/resolution.md).
+  expect_error(temp_scene("coarse_finer.json",
+                          "\"garment\": {\"type\": \"skirt\", \"vertices\": 200}, \"solver\": "
+                          "{\"name\": \"xpbd\", \"coarse_vertices\": 3000}"),
+               "solver.coarse_vertices: must be fewer than garment.vertices (got 3000, "
+               "garment.vertices 200)");
+  expect_error(temp_scene("coarse_same.json",
+                          "\"garment\": {\"type\": \"cape\", \"vertices\": 300}, \"solver\": "
+                          "{\"name\": \"xpbd\", \"coarse_vertices\": 300}"),
+               "solver.coarse_vertices: must be fewer");
   // A bone the scene asks for that the skeleton does not have: named at build time.
   const SceneFile bad_bone = load_scene_file(
       temp_scene("bad_bone.json",
@@ -287,6 +308,35 @@ TEST(Garment, BadScenesNameFileAndField) {
     FAIL();
   } catch (const std::exception& e) {
     EXPECT_NE(std::string(e.what()).find("Tail"), std::string::npos) << e.what();
+  }
+  // An empty mesh garment: the scene, its field and the mesh file, at build time.
+  const std::string empty_obj = write_temp("empty_garment.obj", "");
+  try {
+    build_character_scene(load_scene_file(temp_scene(
+        "empty_garment.json",
+        "\"clips\": [\"01_01\"], \"garment\": {\"type\": \"mesh\", "
+        "\"file\": \"" +
+            empty_obj + "\", \"bone\": \"Hips\", \"pins\": {\"height_band\": [0.9, 1]}}")));
+    FAIL() << "an empty OBJ garment was accepted";
+  } catch (const GarmentError& e) {
+    EXPECT_NE(std::string(e.what()).find("empty_garment.json: garment.file: "), std::string::npos)
+        << e.what();
+    EXPECT_NE(std::string(e.what()).find("empty_garment.obj: no vertices"), std::string::npos)
+        << e.what();
+  }
+  // A coarse count given beside the scene (`bench character --coarse-vertices`) that is not
+  // coarser: refused when the solver is made.
+  const CharacterScene small = build_character_scene(load_scene_file(
+      temp_scene("coarse_override.json",
+                 "\"clips\": [\"01_01\"], \"garment\": {\"type\": \"skirt\", \"vertices\": 200}")));
+  SolverSettings finer = small.file.settings;
+  finer.coarse_vertices = 5000;
+  try {
+    make_scene_solver(small, SolverKind::Xpbd, finer);
+    FAIL() << "a coarse copy finer than the garment was accepted";
+  } catch (const SceneError& e) {
+    EXPECT_NE(std::string(e.what()).find("not fewer than the garment's"), std::string::npos)
+        << e.what();
   }
 }
 
@@ -382,6 +432,11 @@ TEST(Garment, ImportRefusesDamagedAndImplausibleGeometry) {
   auto [weld, weld_log] = import_obj("weld.obj", two_quads(0.0), 0.3);
   EXPECT_NE(weld.find("garment.weld_tolerance 0.3 m merges over"), std::string::npos) << weld;
   EXPECT_NE(weld.find("lower it"), std::string::npos) << weld;
+  // A face naming a vertex the file does not have: its line and the count, in plain English.
+  auto [index, index_log] = import_obj("index.obj", "v 0 1 0\nv 0.2 1 0\nv 0 0.8 0\nf 1 2 9\n");
+  EXPECT_NE(index.find("index.obj:4: face vertex index 9 outside the 3 vertices so far"),
+            std::string::npos)
+      << index;
 }
 
 TEST(Garment, ImportWarnsOfAnOpenSeamJustAboveTheWeldTolerance) {

@@ -141,7 +141,18 @@ TEST(Recode, V2KeepsTheBoundChecksAndPlays) {
   const std::string path = dir.file("sheet.db");
   synthetic::build(path, spec());
   const Contents before = read_all(path);
-  const RecodeReport r = recode_database(path, options(0.0005));
+  // Progress says how far it is and, until the last line, the time left.
+  std::vector<std::string> lines;
+  RecodeOptions o = options(0.0005);
+  o.batch = 1;  // a progress line every 8 batches
+  o.progress = [&](const std::string& line) { lines.push_back(line); };
+  const RecodeReport r = recode_database(path, o);
+  std::vector<std::string> rows_lines;
+  for (const std::string& l : lines)
+    if (l.rfind("recoded ", 0) == 0) rows_lines.push_back(l);
+  ASSERT_GE(rows_lines.size(), 2u) << "too few batches for a progress line before the last";
+  EXPECT_NE(rows_lines.front().find(" s left"), std::string::npos) << rows_lines.front();
+  EXPECT_EQ(rows_lines.back().find("left"), std::string::npos) << rows_lines.back();
   EXPECT_GT(r.basis_id, 0);
   EXPECT_GT(r.clips_replaced, 0u);
   EXPECT_LE(r.blob_bytes_after, r.blob_bytes_before);

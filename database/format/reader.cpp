@@ -33,11 +33,21 @@ Status recognise(sqlite3* db, const std::string& path, int* version, CodecSettin
       return fail(err, Status::IoError, "%s: cannot read: %s", path.c_str(), sqlite3_errmsg(db));
     app_id = int32_t(s.i64(0));
   }
-  if (app_id != kApplicationId)
+  if (app_id != kApplicationId) {
+    // SQLite reads an empty file, or one cut inside its 100-byte header, as an empty database:
+    // "a SQLite database but not a clothdb one" would send the user looking for the wrong file.
+    std::error_code ec;
+    const auto bytes = std::filesystem::file_size(path, ec);
+    if (!ec && bytes < 512)  // SQLite's smallest page
+      return fail(err, Status::NotClothdb,
+                  "%s is not a clothdb database: %s (%llu bytes, less than one SQLite page)",
+                  path.c_str(), bytes == 0 ? "an empty file" : "truncated, or not a database",
+                  (unsigned long long)bytes);
     return fail(err, Status::NotClothdb,
                 "%s is a SQLite database but not a clothdb one (application_id 0x%08x, expected "
                 "0x%08x)",
                 path.c_str(), uint32_t(app_id), uint32_t(kApplicationId));
+  }
   Stmt v(db, "PRAGMA user_version");
   if (!v.ok() || v.step() != SQLITE_ROW)
     return fail(err, Status::IoError, "%s: cannot read: %s", path.c_str(), sqlite3_errmsg(db));

@@ -130,7 +130,9 @@ void check_garment(sqlite3* db, CheckReport& report) {
   Findings f(&report.problems, "garment");
   const uint64_t rows = count(db, "SELECT count(*) FROM garment");
   if (rows != 1) {
-    f.add(rows == 0 ? "no garment row: the runtime cannot open this file"
+    // `graph build --db` makes such a file on purpose, before the precompute fills it.
+    f.add(rows == 0 ? "no garment row: the runtime cannot open this file (a file holding only a "
+                      "motion graph: `clothdb precompute SCENE --db FILE` explores into it)"
                     : format_message("%llu garment rows, expected one", (unsigned long long)rows));
     if (rows == 0) return;
   }
@@ -553,6 +555,14 @@ DatabaseInfo read_database_info(const std::string& path) {
   {
     Stmt s(db, "SELECT notes FROM run WHERE notes != '' ORDER BY id DESC LIMIT 1");
     if (s.ok() && s.step() == SQLITE_ROW) info.last_run_notes = s.text(0);
+  }
+  {
+    Stmt s(db, "SELECT id, started, finished IS NULL FROM run ORDER BY id DESC LIMIT 1");
+    if (s.ok() && s.step() == SQLITE_ROW) {
+      info.last_run_id = s.i64(0);
+      info.last_run_started = s.text(1);
+      info.last_run_unfinished = s.i64(2) != 0;
+    }
   }
   sqlite3_exec(db, "COMMIT", nullptr, nullptr, nullptr);
   return info;

@@ -69,7 +69,13 @@ struct DatabaseInfo {
   // How exploration spread over the graph: clips_per_edge[k] primary clips have k cloth clips
   // along them (k up to the largest count), so a run that spent its budget on one loop shows.
   std::vector<uint64_t> clips_per_edge;
-  std::string last_run_notes;  // the newest run's summary (e.g. the explorer's unresolved errors)
+  std::string
+      last_run_notes;  // the newest summary a run left (e.g. the explorer's unresolved errors)
+  // The newest run has no finish time: it was killed (or is still running). Its committed batches
+  // are in the file and the same command resumes it; last_run_notes is then an earlier run's.
+  bool last_run_unfinished = false;
+  int64_t last_run_id = 0;
+  std::string last_run_started;
 };
 
 // Throws ClothdbError when the file cannot be opened or is not a clothdb database.

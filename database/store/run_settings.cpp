@@ -6,6 +6,8 @@
 #include <limits>
 #include <nlohmann/json.hpp>
 #include <set>
+#include <string>
+#include <vector>
 
 namespace clothdb {
 
@@ -256,11 +258,37 @@ struct FromJson {
     refuse(where, prefix + name, "expected one of " + names + ", got " + v->dump());
   }
   // Fields the table does not know are refused: a misspelt option must not be silently ignored.
+  // The message names the nearest known field when it is a likely misspelling, else every one.
   void only(std::initializer_list<const char*> also = {}) {
     for (const char* a : also) seen.insert(a);
-    for (auto it = in.begin(); it != in.end(); ++it)
-      if (!seen.count(it.key()))
-        refuse(where, prefix + it.key(), "unknown field (expected one of the documented fields)");
+    for (auto it = in.begin(); it != in.end(); ++it) {
+      if (seen.count(it.key())) continue;
+      std::string nearest, known;
+      size_t best = std::numeric_limits<size_t>::max();
+      for (const std::string& k : seen) {
+        known += (known.empty() ? "" : ", ") + k;
+        const size_t d = edit_distance(it.key(), k);
+        if (d < best) best = d, nearest = k;
+      }
+      refuse(where, prefix + it.key(),
+             best <= 2 ? "unknown field; did you mean '" + nearest + "'?"
+                       : "unknown field (known: " + known + ")");
+    }
+  }
+  // Levenshtein distance: insertions, deletions and substitutions.
+  static size_t edit_distance(const std::string& a, const std::string& b) {
+    std::vector<size_t> row(b.size() + 1);
+    for (size_t j = 0; j <= b.size(); ++j) row[j] = j;
+    for (size_t i = 1; i <= a.size(); ++i) {
+      size_t diagonal = row[0];
+      row[0] = i;
+      for (size_t j = 1; j <= b.size(); ++j) {
+        const size_t above = row[j];
+        row[j] = std::min({row[j] + 1, row[j - 1] + 1, diagonal + (a[i - 1] != b[j - 1])});
+        diagonal = above;
+      }
+    }
+    return row[b.size()];
   }
 };
 

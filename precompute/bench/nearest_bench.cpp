@@ -101,7 +101,10 @@ NearestBenchResult bench_nearest_file(const std::string& path, size_t motion_mod
   if (reader.open(path, &err) != db::Status::Ok ||
       reader.cloth_states(&states, &err) != db::Status::Ok ||
       reader.primary_clips(&clips, &err) != db::Status::Ok)
-    throw std::runtime_error(path + ": " + std::string(err.message));
+    // The reader's messages name the file; said once.
+    throw std::runtime_error(std::string(err.message).find(path) == std::string::npos
+                                 ? path + ": " + err.message
+                                 : std::string(err.message));
   if (clips.empty() || states.empty())
     throw std::runtime_error(path + ": no primary clips or no cloth states to search");
   std::sort(states.begin(), states.end(),

@@ -94,6 +94,12 @@ MotionManifest load_manifest(const std::filesystem::path& file) {
   }
   const FieldReader reader(where);
   if (!root.is_object()) reader.fail("(top level)", "expected an object with a \"clips\" array");
+  // A scene given where a manifest is asked for (`graph build motions/skirt_walk.json`): name the
+  // mix-up and the scene's manifest, not the scene's first field as a typo.
+  if (root.contains("garment") && root.contains("manifest") && root["manifest"].is_string())
+    reader.fail("(top level)", "a scene file, not a motion manifest; its manifest is \"" +
+                                   root["manifest"].get<std::string>() +
+                                   "\" (relative to the scene's folder)");
   reader.only_known_keys(root, {"output_rate", "clips", "transitions"}, "");
 
   MotionManifest manifest;

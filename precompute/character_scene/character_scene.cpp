@@ -96,6 +96,13 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   }
   const Fields f{file.string()};
   if (!j.is_object()) f.fail("(top level)", "expected an object");
+  // A manifest given where a scene is asked for (`simulate motions/cmu_walk.json`): name the
+  // mix-up, not the manifest's first field as unknown.
+  if (!j.contains("garment") && !j.contains("manifest") && j.contains("clips") &&
+      j["clips"].is_array() && !j["clips"].empty() && j["clips"][0].is_object())
+    f.fail("(top level)",
+           "a motion manifest, not a scene file; a scene names a manifest, the garment, the "
+           "material and the solver (motions/README.md; e.g. motions/skirt_walk.json)");
   f.only(j,
          {"name", "manifest", "clips", "garment", "material", "solver", "colliders", "air_drag",
           "settle_frames", "steering", "graph"},
@@ -105,7 +112,12 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   if (manifest.empty()) f.fail("manifest", "required: the motion manifest (JSON) this scene uses");
   std::filesystem::path manifest_path = manifest;
   if (manifest_path.is_relative()) manifest_path = file.parent_path() / manifest_path;
-  s.manifest = load_manifest(manifest_path);
+  // The manifest's own errors name the manifest; the scene and its field say where it was named.
+  try {
+    s.manifest = load_manifest(manifest_path);
+  } catch (const MotionError& e) {
+    f.fail("manifest", e.what());
+  }
   if (j.contains("clips")) {
     if (!j["clips"].is_array() || j["clips"].empty())
       f.fail("clips", "expected a non-empty array of clip names");
@@ -218,6 +230,16 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
   if (s.settings.coarse_vertices > 0 && s.garment_kind == GarmentKind::Mesh)
     f.fail("solver.coarse_vertices",
            "needs a procedural garment (skirt or cape): a mesh garment has no coarser copy");
+  // The coarse copy drives the garment (docs/guide/resolution.md): one as fine or finer only costs
+  // more and gives the garment nothing it would not get solved itself.
+  if (s.settings.coarse_vertices > 0) {
+    const int fine = s.garment_kind == GarmentKind::Cape ? s.cape.vertices : s.skirt.vertices;
+    if (s.settings.coarse_vertices >= fine)
+      f.fail("solver.coarse_vertices", "must be fewer than garment.vertices (got " +
+                                           std::to_string(s.settings.coarse_vertices) +
+                                           ", garment.vertices " + std::to_string(fine) +
+                                           "); 0 or absent solves the garment itself");
+  }
 
   const json& c = f.object(j, "colliders", "");
   f.only(c,
@@ -292,7 +314,12 @@ CharacterScene build_character_scene(const SceneFile& file) {
       scene.garment = make_cape(scene.skeleton, file.cape);
       break;
     case GarmentKind::Mesh:
-      scene.garment = import_garment(scene.skeleton, file.mesh);
+      // The mesh's errors name the mesh file; the scene and its field say where it was named.
+      try {
+        scene.garment = import_garment(scene.skeleton, file.mesh);
+      } catch (const GarmentError& e) {
+        throw GarmentError(file.path.string() + ": garment.file: " + e.what());
+      }
       break;
   }
   scene.model = make_model(scene.garment.mesh, file.material, scene.garment.pins);
@@ -394,6 +421,14 @@ std::unique_ptr<Solver> make_scene_solver(const CharacterScene& scene, SolverKin
       throw SceneError(scene.file.path.string() +
                        ": solver.coarse_vertices: needs a procedural garment (skirt or cape)");
   }
+  // The same rule as the scene file's (load_scene_file), for a count given elsewhere (`bench
+  // character --coarse-vertices`), on the meshes as made.
+  if (coarse.mesh.vertex_count() >= scene.model.vertex_count())
+    throw SceneError(scene.file.path.string() + ": solver.coarse_vertices " +
+                     std::to_string(settings.coarse_vertices) + " makes " +
+                     std::to_string(coarse.mesh.vertex_count()) +
+                     " vertices, not fewer than the garment's " +
+                     std::to_string(scene.model.vertex_count()) + ": nothing to drive");
   return make_upsampled_solver(scene.model,
                                make_model(coarse.mesh, scene.file.material, coarse.pins), settings);
 }

@@ -164,6 +164,7 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
   // Clips, then states, in batches of rows; each batch one transaction.
   uint64_t batches = 0;
   const size_t rows = clips.size() + states.size();
+  const auto rows_start = Clock::now();
   for (size_t b0 = 0; b0 < rows; b0 += o.batch) {
     db::Writer::Transaction t(writer);
     for (size_t r = b0; r < std::min(rows, b0 + o.batch); ++r) {
@@ -263,9 +264,17 @@ RecodeReport recode_database(const std::string& path, const RecodeOptions& o) {
     }
     t.commit();
     ++batches;
-    if (batches % 8 == 0 || b0 + o.batch >= rows)
-      say("recoded " + std::to_string(std::min(rows, b0 + o.batch)) + " of " +
-          std::to_string(rows) + " rows");
+    if (batches % 8 == 0 || b0 + o.batch >= rows) {
+      // The time left at the pace so far; clips come first and cost more than states, so it errs
+      // long.
+      const size_t done = std::min(rows, b0 + o.batch);
+      const double seconds = std::chrono::duration<double>(Clock::now() - rows_start).count();
+      char left[48] = "";
+      if (done < rows)
+        std::snprintf(left, sizeof left, ", about %.0f s left",
+                      seconds / double(done) * double(rows - done));
+      say("recoded " + std::to_string(done) + " of " + std::to_string(rows) + " rows" + left);
+    }
     if (o.after_batch) o.after_batch(batches);
   }
   reader.close();

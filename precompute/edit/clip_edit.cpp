@@ -245,7 +245,7 @@ ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& di
     for (const auto& p : primaries)
       if (p.id == row.primary_clip) rate = p.frame_rate;
   }
-  std::filesystem::create_directories(dir);
+  make_directories(dir);
   out.cloth_obj = dir + "/cloth.obj";
   out.cloth_pc2 = dir + "/cloth.pc2";
   out.info_json = dir + "/clip.json";
@@ -265,6 +265,10 @@ ExportedClip export_clip(db::Reader& reader, int64_t clip, const std::string& di
     write_obj(out.body_obj, "body", body.positions.data(), body.vertex_count,
               capsule_mesh_triangles(caps));
     write_pc2(out.body_pc2, body);
+  } else {
+    // An earlier export's body into the same folder would be read as this clip's (the Blender
+    // add-on loads body.obj + body.pc2 when they are there): without a body, none is left.
+    for (const char* stale : {"/body.obj", "/body.pc2"}) std::filesystem::remove(dir + stale);
   }
   out.frame_rate = rate;
   out.frames = row.frame_count;

@@ -205,9 +205,12 @@ ObjMesh read_obj(const std::string& path) {
       fail("face index '" + item + "' is not a number");
     }
     idx = idx < 0 ? long(count) + idx : idx - 1;
-    if (idx < 0 || idx >= long(count))
+    if (idx < 0 || idx >= long(count)) {
+      const std::string plural =
+          std::string(what) == "vertex" ? "vertices" : what + std::string("s");
       fail("face " + std::string(what) + " index " + item + " outside the " +
-           std::to_string(count) + " " + what + "s so far");
+           std::to_string(count) + " " + plural + " so far");
+    }
     return uint32_t(idx);
   };
   while (std::getline(in, line)) {

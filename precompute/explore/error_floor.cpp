@@ -4,6 +4,7 @@
 #include <time.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <exception>
@@ -367,6 +368,14 @@ ErrorFloor measure_error_floor(const CharacterScene& scene, const ExploreGraph& 
   floor.cpu_seconds = thread_cpu_seconds() - cpu0;
 
   std::vector<HistoryResult> results(static_cast<size_t>(k_count));
+  // The progress lines' time left: the frames every history will simulate are known from the
+  // plans, so the pace so far gives it.
+  long planned_frames = 0, done_frames = 0;
+  int done_histories = 0;
+  for (const HistoryPlan& p : plans)
+    planned_frames += static_cast<long>(p.held - p.first) +
+                      (floor.fallback ? static_cast<long>(scene.file.settle_frames) : 0);
+  const auto histories_start = std::chrono::steady_clock::now();
   const int threads = options.threads > 0 ? options.threads : omp_get_num_procs();
 #pragma omp parallel for schedule(dynamic, 1) num_threads(std::max(1, threads))
   for (int k = 0; k < k_count; ++k) {
@@ -396,8 +405,20 @@ ErrorFloor measure_error_floor(const CharacterScene& scene, const ExploreGraph& 
     r.cpu = thread_cpu_seconds() - t0;
     if (options.progress) {
 #pragma omp critical(clothdb_error_floor_progress)
-      std::fprintf(stderr, "error floor: history %d of %d simulated (%ld frames, %.1f CPU s)\n",
-                   k + 1, k_count, r.frames, r.cpu);
+      {
+        done_frames += r.frames;
+        ++done_histories;
+        char left[48] = "";
+        if (done_histories < k_count && done_frames > 0 && done_frames < planned_frames) {
+          const double wall =
+              std::chrono::duration<double>(std::chrono::steady_clock::now() - histories_start)
+                  .count();
+          std::snprintf(left, sizeof left, "; about %.0f s left",
+                        wall / double(done_frames) * double(planned_frames - done_frames));
+        }
+        std::fprintf(stderr, "error floor: history %d of %d simulated (%ld frames, %.1f CPU s)%s\n",
+                     k + 1, k_count, r.frames, r.cpu, left);
+      }
     }
   }
   for (const HistoryResult& r : results) {

@@ -71,7 +71,7 @@ std::optional<ErrorFloor> check_error_floor(const PrecomputeRequest& request,
     db::Reader reader;
     db::Error err;
     if (reader.open(request.db, &err) != db::Status::Ok)
-      throw std::runtime_error(request.db + ": " + std::string(err.message));
+      throw std::runtime_error(err.message);  // names the file
     // A database holding another motion graph is refused for that (by prepare_database's own
     // check, read-only here) before a floor is measured on the wrong graph.
     ExploreGraph copy = eg;
@@ -278,7 +278,7 @@ PrecomputeOutcome run_precompute(const PrecomputeRequest& request, std::FILE* lo
     db::Reader reader;
     db::Error err;
     if (reader.open(request.db, &err) != db::Status::Ok)
-      throw std::runtime_error(request.db + ": " + std::string(err.message));
+      throw std::runtime_error(err.message);  // names the file
     stored = stored_motion_graph(reader);
   }
   ChosenGraph chosen;

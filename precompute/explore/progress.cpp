@@ -100,7 +100,11 @@ void ProgressBar::update(const ExploreReport& report, const Forecast& f, size_t 
   // forecast comes from; the time left is the budget's when there is one.
   std::string left;
   char text[64];
-  if (fraction > 0) {
+  if (fraction >= 1) {
+    // The last batch ran past the budget (it is checked before each batch): no time is left,
+    // and a negative one would read as a bug.
+    left = "budget reached";
+  } else if (fraction > 0) {
     std::snprintf(text, sizeof text, "budget ends in %.0f s", wall / fraction * (1 - fraction));
     left = text;
   } else {
@@ -120,16 +124,23 @@ void ProgressBar::end() const {
 
 std::string run_notes(const ExploreReport& report, size_t dead_ends_left) {
   const CurvePoint& last = report.curve.back();
+  // The errors are NaN when every dead end is unexplored (CurvePoint): "unknown", never "nan mm".
+  auto mm = [](double metres) -> std::string {
+    if (std::isnan(metres)) return "unknown";
+    char text[32];
+    std::snprintf(text, sizeof text, "%.2f mm", 1e3 * metres);
+    return text;
+  };
   char notes[384];
   std::snprintf(
       notes, sizeof notes,
-      "%s; unresolved error worst %.2f mm, reach-weighted worst %.2f mm (%d unexplored ways out "
+      "%s; unresolved error worst %s, reach-weighted worst %s (%d unexplored ways out "
       "not counted); %.1f %% of "
       "clip ends linked within epsilon; %d dead ends linked to the nearest state (blend error "
       "mean %.2f mm, worst %.2f mm)",
       dead_ends_left == 0 ? "converged"
                           : (std::to_string(dead_ends_left) + " dead ends left").c_str(),
-      1e3 * last.worst_error, 1e3 * last.weighted_worst_error, last.unexplored,
+      mm(last.worst_error).c_str(), mm(last.weighted_worst_error).c_str(), last.unexplored,
       100 * last.linked_fraction, report.links, 1e3 * report.mean_link_error,
       1e3 * report.worst_link_error);
   return notes;

@@ -202,6 +202,24 @@ TEST(Edit, ExportThenImportUnchangedIsNoChangeWithItsOwnExitStatusAndNotLogged) 
   EXPECT_EQ(rows(path), before);
   ASSERT_EQ(run_cli("clip log " + path, &out), 0);
   EXPECT_NE(out.find("0 edits"), std::string::npos) << out;
+  // Exported again into the same folder without the body: the first export's body is not left
+  // beside this export's cloth to be loaded as its own.
+  ASSERT_EQ(run_cli("clip export " + path + " " + std::to_string(clip) + " --out " +
+                        work("roundtrip_export") + " --no-body",
+                    &out),
+            0)
+      << out;
+  EXPECT_TRUE(std::filesystem::exists(work("roundtrip_export") + "/cloth.pc2")) << out;
+  EXPECT_FALSE(std::filesystem::exists(work("roundtrip_export") + "/body.pc2")) << out;
+  EXPECT_FALSE(std::filesystem::exists(work("roundtrip_export") + "/body.obj")) << out;
+  // An --out that is a file: named, with what is wrong.
+  std::ofstream(work("export_is_a_file")) << "x";
+  EXPECT_EQ(run_cli("clip export " + path + " " + std::to_string(clip) + " --out " +
+                        work("export_is_a_file"),
+                    &out),
+            1);
+  EXPECT_NE(out.find(work("export_is_a_file") + ": cannot create directory"), std::string::npos)
+      << out;
 }
 
 TEST(Edit, AnEditThatMovesTheEndBeyondEpsilonIsReportedWithItsEdgeAndChangesNothing) {

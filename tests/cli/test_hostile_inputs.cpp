@@ -122,6 +122,34 @@ TEST(HostileInputs, PlayWritesEverythingOrNothing) {
   fs::remove_all(out);
 }
 
+// `simulate` writes into a hidden directory inside --out made before it simulates, and moves the
+// files into place at the end: a bad --out is refused before any frame is simulated (it was found
+// only after the whole clip), and no staging directory is left behind.
+TEST(HostileInputs, SimulateChecksItsOutputFirstAndWritesEverythingOrNothing) {
+  const std::string scene = scene_with("sim_stage", "");
+  const fs::path file = work_dir() / "not_a_directory";
+  std::ofstream(file) << "a file\n";
+  expect_refused({"simulate", scene, "--frames", "3", "--out", file.string()},
+                 {file.string() + ": exists and is not a directory"});
+  const Result refused = clothdb({"simulate", scene, "--frames", "3", "--out", file.string()});
+  EXPECT_EQ(refused.output.find("ms/frame"), std::string::npos)
+      << "simulated before the output was checked:\n"
+      << refused.output;
+  const fs::path out = work_dir() / "sim_stage_out";
+  const Result r =
+      clothdb({"simulate", scene, "--frames", "3", "--preview-every", "2", "--out", out.string()});
+  ASSERT_EQ(r.code, 0) << r.output;
+  for (const char* f : {"garment.obj", "cloth.pc2", "body.obj", "body.pc2", "metrics.csv",
+                        "summary.json", "previews/frame_0002.png"})
+    EXPECT_TRUE(fs::exists(out / f)) << f;
+  for (const auto& e : fs::directory_iterator(out))
+    EXPECT_EQ(e.path().filename().string().find("-partial"), std::string::npos)
+        << "staging directory left behind";
+  fs::remove_all(out);
+  fs::remove(file);
+  fs::remove(scene);
+}
+
 TEST(HostileInputs, ThreadCountsAreCapped) {
   const std::string scene = scene_with("threads_ok", "");
   const std::string out = (work_dir() / "sim_out").string();
@@ -160,6 +188,92 @@ TEST(HostileInputs, RangeErrorsAreShortAndRefuseNan) {
   expect_refused(
       {"graph", "build", kSource + "/motions/cmu_walk.json", "--out", out, "--max-distance", "nan"},
       {"nan is not a number in [0, 1e+12]"});
+}
+
+// NaN passes CLI11's Range and PositiveNumber (every comparison with it is false), and a negative
+// count wraps in an unsigned option: each of these ran before (some with NaN as a setting, `bench
+// nearest --synthetic -5` for ever); now each is refused at parsing, naming the option and its
+// range.
+TEST(HostileInputs, NonsenseNumbersAreRefusedBeforeAnyWork) {
+  const std::string db = demo_db();
+  const std::string scene = scene_with("nonsense", "");
+  const std::string out = (work_dir() / "nonsense_out").string();
+  const std::string new_db = (work_dir() / "nonsense.clothdb").string();
+  const std::string curve = (work_dir() / "curve.csv").string();
+  std::ofstream(curve) << "cpu_seconds,frames,states,dead_ends,unexplored\n0,0,1,1,1\n1,10,2,1,1\n";
+  const std::vector<std::pair<std::vector<std::string>, std::string>> cases = {
+      {{"precompute", scene, "--db", new_db, "--epsilon", "nan"},
+       "--epsilon: nan is not a number in (0, 1000]"},
+      {{"precompute", scene, "--db", new_db, "--epsilon", "inf"}, "--epsilon: inf is not a number"},
+      {{"precompute", scene, "--db", new_db, "--percentile", "-3"},
+       "--percentile: -3 is not a number in (0, 100]"},
+      {{"precompute", scene, "--db", new_db, "--state-cache-mb", "nan"}, "--state-cache-mb: nan"},
+      {{"precompute", scene, "--db", new_db, "--floor-seconds", "nan"}, "--floor-seconds: nan"},
+      {{"precompute", scene, "--db", new_db, "--auto-fraction", "nan"}, "--auto-fraction: nan"},
+      {{"floor", scene, "--seconds", "nan"}, "--seconds: nan is not a number in [0, 600]"},
+      {{"floor", scene, "--percentile", "nan"}, "--percentile: nan"},
+      {{"db", "recode", db, "--bound-mm", "nan"},
+       "--bound-mm: nan is not a number in [1e-06, 1000]"},
+      {{"db", "recode", db, "--bound-mm", "-1"}, "--bound-mm: -1 is not a number"},
+      {{"db", "recode", db, "--coefficient-step", "nan"}, "--coefficient-step: nan"},
+      {{"forecast", curve, "--at", "0.5,nan"}, "--at: nan is not a number in [0, 1]"},
+      {{"bench", "nearest", "--synthetic", "-5"}, "--synthetic: -5 is not a number"},
+      {{"bench", "runtime", db, "--players", "-1"}, "--players: -1 is not a number"},
+      {{"bench", "codec", "--db", db, "--rms-mm", "nan"}, "--rms-mm: nan"},
+      {{"bench", "codec", "--db", db, "--codecs", "v1,v9"}, "--codecs: unknown codec 'v9'"},
+      {{"bench", "character", scene, "--chebyshev-rho", "nan"}, "--chebyshev-rho: nan"},
+      {{"simulate", scene, "--out", out, "--frames", "-1"}, "--frames: -1 is not a number"},
+      {{"simulate", scene, "--out", out, "--preview-every", "-1"}, "--preview-every: -1"},
+      {{"clip", "resim", db, "1", "--max-frames", "-1"}, "--max-frames: -1 is not a number"},
+  };
+  for (const auto& [args, words] : cases) expect_refused(args, {words});
+  EXPECT_FALSE(fs::exists(new_db));
+  EXPECT_FALSE(fs::exists(out));
+  fs::remove(curve);
+  fs::remove(work_dir() / "nonsense.json");
+}
+
+// `graph show` reads a graph JSON or a database: a file that is neither is named as such (it was
+// reported as bad JSON at its first byte), and a database's own error is not prefixed twice.
+TEST(HostileInputs, GraphShowNamesAFileThatIsNeitherKind) {
+  const fs::path text = work_dir() / "notes.db";
+  std::ofstream(text) << "hello, not a database\n";
+  expect_refused({"graph", "show", text.string()},
+                 {text.string() + ": neither a clothdb database nor a motion graph"});
+  const fs::path empty = work_dir() / "empty.db";
+  std::ofstream{empty};
+  expect_refused({"graph", "show", empty.string()},
+                 {empty.string() + ": neither a clothdb database nor a motion graph"});
+  const fs::path cut = work_dir() / "cut.db";
+  {
+    const std::string whole = read_file(demo_db());
+    std::ofstream(cut, std::ios::binary) << whole.substr(0, whole.size() / 3);
+  }
+  const Result r = clothdb({"graph", "show", cut.string()});
+  EXPECT_GT(r.code, 0) << r.output;
+  EXPECT_EQ(r.output.find(cut.string() + ": " + cut.string()), std::string::npos) << r.output;
+  for (const fs::path& f : {text, empty, cut}) fs::remove(f);
+}
+
+// A file that is not a database, given to the commands that open one through the reader: refused,
+// unchanged, its name said once (precompute and bench nearest said "x.db: x.db is not ...").
+TEST(HostileInputs, NotADatabaseIsNamedOnceAndLeftAlone) {
+  const fs::path text = work_dir() / "notes.clothdb";
+  std::ofstream(text) << "hello, not a database\n";
+  const std::string scene = scene_with("not_a_db", "");
+  const std::vector<std::vector<std::string>> commands = {
+      {"precompute", scene, "--db", text.string(), "--no-floor", "--quiet"},
+      {"bench", "nearest", "--db", text.string()},
+      {"db", "info", text.string()},
+      {"clips", "list", text.string()},
+      {"play", text.string(), "--out", (work_dir() / "p").string()}};
+  for (const auto& args : commands) {
+    expect_refused(args, {text.string() + " is not a clothdb database (not even SQLite)"});
+    const Result r = clothdb(args);
+    EXPECT_EQ(r.output.find(text.string() + ": " + text.string()), std::string::npos) << r.output;
+  }
+  fs::remove(text);
+  fs::remove(scene);
 }
 
 TEST(HostileInputs, DirectoriesAreReportedAsDirectories) {

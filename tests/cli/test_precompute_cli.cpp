@@ -128,6 +128,15 @@ TEST(PrecomputeCli, SigkillThenRerunGivesTheUninterruptedDatabase) {
   const long at_kill = clip_count(killed);
   EXPECT_GE(at_kill, 10);
   EXPECT_LT(at_kill, total);
+  // `db info` on the killed file says its run did not finish, and shows no other run's summary
+  // as the last (it printed no "last run" line at all before).
+  const std::string info_log = (dir / "info_log.txt").string();
+  const clothdb::test::CliResult interrupted =
+      clothdb::test::run_clothdb({"db", "info", killed}, info_log);
+  EXPECT_NE(interrupted.output.find("last run        run 1 (started "), std::string::npos)
+      << interrupted.output;
+  EXPECT_NE(interrupted.output.find("did not finish: killed, or still running"), std::string::npos)
+      << interrupted.output;
 
   run(precompute(killed), log);
   EXPECT_NE(read_file(log).find("(resuming)"), std::string::npos);
@@ -139,6 +148,11 @@ TEST(PrecomputeCli, SigkillThenRerunGivesTheUninterruptedDatabase) {
   EXPECT_NE(read_file(log).find("\nforecast  "), std::string::npos) << read_file(log);
   EXPECT_NE(read_file(log).find("CPU-h to converge (model converged"), std::string::npos)
       << read_file(log);
+  // The newest run finished: its summary is the last run's.
+  const clothdb::test::CliResult resumed =
+      clothdb::test::run_clothdb({"db", "info", killed}, info_log);
+  EXPECT_NE(resumed.output.find("last run        converged;"), std::string::npos) << resumed.output;
+  EXPECT_EQ(resumed.output.find("did not finish"), std::string::npos) << resumed.output;
   // Every table (cloth_link, cloth_clip_steering and meta included), the run bookkeeping named in
   // run_bookkeeping() left out; and both files pass db check.
   clothdb::test::expect_same_rows(whole, killed);
