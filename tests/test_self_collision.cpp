@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <string>
 #include <vector>
 
@@ -463,6 +464,73 @@ TEST(SelfCollisionSearch, ContourAcrossNamesTheTriangleBeyondEachContourEdge) {
     }
   EXPECT_GT(border, 100);  // the tube's waist and hem
   EXPECT_GT(inside, 1000);
+}
+
+// The lists kept between builds (refresh_self_collision, docs/notebook/self_collision.md, "Ninth
+// round" and "Thirteenth round"): a 16 x 16 sheet (1 m) rolled up step by step about the y axis, in
+// 70 steps to 1.05 turns of a spiral whose end lies 6 mm inside its start, so the end comes onto
+// the start within the thickness (1 cm). After every refresh the lists hold every pair a search of
+// all pairs finds nearer than the thickness (no patch holding both ends is flat, so the flat
+// patches leave none of them out). And the lists are rebuilt less often than the test before the
+// watches asked (every vertex within skin / 2 of the common motion since the build, emulated here):
+// the roll moves the sheet's ends a lot against each other but bends it smoothly, so patches near
+// each other move together. Rebuilding at the old test's steps fails the second expectation; a
+// watch that lets a region move more than its slack would fail the first.
+TEST(SelfCollisionSearch, ListsKeptBetweenBuildsHoldEveryPairNearerThanTheThickness) {
+  const ClothModel model = make_model(make_quad_grid(16, 16, 1.0, 1.0), Material{}, {});
+  const double thickness = 0.01;
+  SelfCollision sc = make_self_collision(model, thickness);
+  const double pi = 3.14159265358979323846;
+  auto rolled = [&](double turns) {
+    Eigen::Matrix3Xd x = model.mesh.rest;
+    const double total = 2.0 * pi * turns, radius = 1.0 / total;
+    for (int i = 0; i < model.vertex_count(); ++i) {
+      const double phi = model.mesh.rest(0, i) * total;
+      const double r = radius - 0.006 * phi / (2.0 * pi);
+      x(0, i) = r * std::sin(phi);
+      x(2, i) = radius - r * std::cos(phi);
+    }
+    return x;
+  };
+  auto listed_pair = [](const std::vector<std::array<int, 2>>& list,
+                        const std::array<int, 2>& pair) {
+    return std::binary_search(list.begin(), list.end(), pair);  // the lists are sorted
+  };
+  Eigen::Matrix3Xd start = model.mesh.rest, old_reference;
+  long old_builds = 0;
+  std::size_t near_pairs = 0;
+  for (int step = 1; step <= 70; ++step) {
+    const Eigen::Matrix3Xd x = rolled(1.05 * step / 70.0);
+    refresh_self_collision(sc, model, x, start);
+    const Pairs near = brute_force_pairs(model.mesh, x, thickness);
+    near_pairs += near.vt.size() + near.ee.size();
+    for (const auto& pair : near.vt)
+      EXPECT_TRUE(listed_pair(sc.vertex_triangle, pair))
+          << "step " << step << ": vertex " << pair[1] << " near triangle " << pair[0];
+    for (const auto& pair : near.ee)
+      EXPECT_TRUE(listed_pair(sc.edge_edge, pair))
+          << "step " << step << ": edges " << pair[0] << " and " << pair[1];
+    // The old test: rebuild when some vertex is more than skin / 2 from the centre of the box of
+    // the displacements since the last rebuild.
+    if (step == 1) old_reference = x;
+    Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
+    for (int i = 0; i < model.vertex_count(); ++i) {
+      lo = lo.cwiseMin(Vec3(x.col(i) - old_reference.col(i)));
+      hi = hi.cwiseMax(Vec3(x.col(i) - old_reference.col(i)));
+    }
+    double worst = 0.0;
+    for (int i = 0; i < model.vertex_count(); ++i)
+      worst = std::max(worst, (x.col(i) - old_reference.col(i) - 0.5 * (lo + hi)).norm());
+    if (step == 1 || worst > 0.5 * sc.skin) {
+      ++old_builds;
+      old_reference = x;
+    }
+    start = x;
+  }
+  EXPECT_GT(near_pairs, 100u) << "the ends never came within the thickness: nothing was tested";
+  EXPECT_LT(sc.builds, old_builds);
+  std::printf("rolled sheet: %zu near pairs checked, %ld builds (old test: %ld)\n", near_pairs,
+              sc.builds, old_builds);
 }
 
 SolverSettings xpbd(double thickness_mm, int threads = 1) {

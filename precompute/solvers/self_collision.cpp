@@ -472,6 +472,22 @@ void make_patches(SelfCollision& sc, const ClothMesh& mesh) {
     box.v1 = mesh.edges[static_cast<std::size_t>(box.edge)][1];
   }
   sc.triangle_boxes.resize(sc.tri_order.size());
+  // Each leaf's vertices (of its triangles, each once), for the test of the watches.
+  sc.leaf_vertex_begin.assign(sc.patches.size() + 1, 0);
+  sc.leaf_vertices.clear();
+  std::vector<int> seen(static_cast<std::size_t>(nv), -1);
+  for (std::size_t id = 0; id < sc.patches.size(); ++id) {
+    const Patch& p = sc.patches[id];
+    if (p.left < 0)
+      for (int k = p.tri_begin; k < p.tri_end; ++k)
+        for (int v :
+             mesh.triangles[static_cast<std::size_t>(sc.tri_order[static_cast<std::size_t>(k)])])
+          if (seen[static_cast<std::size_t>(v)] != static_cast<int>(id)) {
+            seen[static_cast<std::size_t>(v)] = static_cast<int>(id);
+            sc.leaf_vertices.push_back(v);
+          }
+    sc.leaf_vertex_begin[id + 1] = static_cast<int>(sc.leaf_vertices.size());
+  }
 }
 
 // Boxes and normal cones at positions x, bottom-up (children after parents in sc.patches). A
@@ -666,6 +682,12 @@ struct PairSearch {
   // contour.
   std::vector<int> vertex_stamp, edge_stamp, union_contour;
   int stamp = 0;
+  // At a build: what keeps the lists complete, one watch per region the search settles
+  // (PatchWatch); null for the searches that only list pairs.
+  std::vector<PatchWatch>* watches = nullptr;
+  void watch(int a, int b, double slack) {
+    if (watches) watches->push_back({a, b, float_below(slack)});
+  }
 
   // Whether two disks that border each other form a flat disk (the same test as patch_is_flat, on
   // their union): a pair of patches split apart high in the tree along a flat stretch of cloth is
@@ -742,6 +764,16 @@ struct PairSearch {
       if ((across >= q->tri_begin) & (across < q->tri_end)) return true;
     }
     return false;
+  }
+
+  // The largest separation of the two patches' boxes along an axis: a lower bound on the distance
+  // between any parts of the two.
+  double separation(int a, int b) const {
+    const PatchBounds& p = sc.patch_bounds[static_cast<std::size_t>(a)];
+    const PatchBounds& q = sc.patch_bounds[static_cast<std::size_t>(b)];
+    double sep = -INFINITY;
+    for (int k = 0; k < 3; ++k) sep = std::max({sep, p.lo[k] - q.hi[k], q.lo[k] - p.hi[k]});
+    return sep;
   }
 
   bool apart(int a, int b) const {
@@ -881,12 +913,21 @@ struct PairSearch {
     }
   }
 
+  // Each way the search settles a region leaves a watch (PatchWatch): a flat patch or a flat
+  // union, a leaf or a pair of leaves searched (the pairs left out were farther than the reach:
+  // slack reach - thickness, the skin), and a pair of patches found apart (slack: their boxes'
+  // separation less the thickness). Together they cover every vertex-triangle and edge-edge pair
+  // once.
   void own(int id) {
-    if (skip_flat && patch_is_flat(sc, mesh, x, id, scratch)) return;
+    if (skip_flat && patch_is_flat(sc, mesh, x, id, scratch)) {
+      watch(id, id, reach - thickness);
+      return;
+    }
     const Patch& p = patch(id);
     if (p.left < 0) {
       triangles_vertices(id, id);
       edges_edges(id, id);
+      watch(id, id, reach - thickness);
       return;
     }
     own(p.left);
@@ -895,14 +936,21 @@ struct PairSearch {
   }
 
   void between(int a, int b) {
-    if (apart(a, b)) return;
-    if (skip_flat && union_is_flat(a, b)) return;
+    if (apart(a, b)) {
+      if (watches) watch(a, b, separation(a, b) - thickness);
+      return;
+    }
+    if (skip_flat && union_is_flat(a, b)) {
+      watch(a, b, reach - thickness);
+      return;
+    }
     const Patch& pa = patch(a);
     const Patch& pb = patch(b);
     if (pa.left < 0 && pb.left < 0) {
       triangles_vertices(a, b);
       triangles_vertices(b, a);
       edges_edges(a, b);
+      watch(a, b, reach - thickness);
       return;
     }
     // Descend the larger (by triangles) of the two that can be split.
@@ -921,11 +969,12 @@ struct PairSearch {
 void find_pairs(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x, double reach,
                 bool skip_rest_neighbours, bool skip_flat, std::vector<std::array<int, 2>>& vt,
                 std::vector<std::array<int, 2>>& ee, std::vector<float>* vt_gap = nullptr,
-                std::vector<float>* ee_gap = nullptr) {
+                std::vector<float>* ee_gap = nullptr, std::vector<PatchWatch>* watches = nullptr) {
   vt.clear();
   ee.clear();
   if (vt_gap) vt_gap->clear();
   if (ee_gap) ee_gap->clear();
+  if (watches) watches->clear();
   if (!x.allFinite() || model.mesh.edges.empty() || sc.patches.empty())
     return;  // the solver's sanity check reports it
   refit_patches(sc, model.mesh, x);
@@ -952,6 +1001,7 @@ void find_pairs(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3
                     {},
                     {},
                     0};
+  search.watches = watches;
   search.own(0);
 }
 
@@ -1003,7 +1053,7 @@ void sort_pairs(std::vector<std::array<int, 2>>& pairs, std::vector<float>& gaps
 
 void build_candidates(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x) {
   find_pairs(sc, model, x, sc.thickness + sc.skin, true, true, sc.vertex_triangle, sc.edge_edge,
-             &sc.vertex_triangle_gap, &sc.edge_edge_gap);
+             &sc.vertex_triangle_gap, &sc.edge_edge_gap, &sc.watches);
   std::vector<int> begin;
   std::vector<std::array<int, 2>> pairs_out;
   std::vector<float> gaps_out;
@@ -1065,19 +1115,60 @@ void raise_moved(std::vector<double>& moved, const Eigen::Matrix3Xd& x,
         std::max(moved[static_cast<std::size_t>(i)], (x.col(i) - built.col(i) - m).norm());
 }
 
+// Whether the last build's lists are still complete at x (docs/notebook/self_collision.md, "Ninth
+// round" and "Thirteenth round"): for every watch (PatchWatch), the box of the displacements since
+// the build over the vertices of its patches has a diagonal of at most the watch's slack. Any two
+// of those vertices have then moved by at most the slack relative to each other, and a
+// vertex-triangle or edge-edge distance changes by at most the largest relative motion of its
+// corners, so a pair left out at the build (farther than thickness + slack) is still farther than
+// the thickness (the Verlet argument per region). A patch found flat keeps the bound on its bending
+// (the skin) it had under the old test, every vertex within skin / 2 of the garment's common
+// motion, which asked this of every two vertices at once: the swinging hem rebuilt the lists of
+// the whole skirt, although only patches near each other need to keep together.
+bool lists_still_complete(SelfCollision& sc, const Eigen::Matrix3Xd& x) {
+  const Eigen::Matrix3Xd& built = sc.built_at;
+  // Per patch, the box of its vertices' displacements, bottom-up (children come after parents).
+  const std::size_t count = sc.patches.size();
+  sc.displacement_box.resize(count);
+  for (std::size_t id = count; id-- > 0;) {
+    const Patch& p = sc.patches[id];
+    std::array<Vec3, 2>& box = sc.displacement_box[id];
+    if (p.left < 0) {
+      Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
+      for (int k = sc.leaf_vertex_begin[id]; k < sc.leaf_vertex_begin[id + 1]; ++k) {
+        const int v = sc.leaf_vertices[static_cast<std::size_t>(k)];
+        const Vec3 d = x.col(v) - built.col(v);
+        lo = lo.cwiseMin(d);
+        hi = hi.cwiseMax(d);
+      }
+      box = {lo, hi};
+    } else {
+      const std::array<Vec3, 2>& l = sc.displacement_box[static_cast<std::size_t>(p.left)];
+      const std::array<Vec3, 2>& r = sc.displacement_box[static_cast<std::size_t>(p.right)];
+      box = {l[0].cwiseMin(r[0]), l[1].cwiseMax(r[1])};
+    }
+  }
+  for (const PatchWatch& wt : sc.watches) {
+    const std::array<Vec3, 2>& a = sc.displacement_box[static_cast<std::size_t>(wt.a)];
+    const std::array<Vec3, 2>& b = sc.displacement_box[static_cast<std::size_t>(wt.b)];
+    const Vec3 span = a[1].cwiseMax(b[1]) - a[0].cwiseMin(b[0]);
+    const double slack = wt.slack;
+    if (!(span.squaredNorm() <= slack * slack)) return false;  // NaN positions rebuild too
+  }
+  return true;
+}
+
 }  // namespace
 
 bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
                             const Eigen::Matrix3Xd& x_start) {
   const bool built = sc.built_at.cols() == x.cols() && sc.moved.size() == std::size_t(x.cols());
   if (built) {
-    // A pair's distance changes by at most |d_i - d_j| <= |d_i - m| + |d_j - m| for the vertex
-    // displacements d since the build and any common m: measured from the centre of the
-    // displacements' box, a garment carried along by the body (a walk, a jump) keeps its lists
-    // for as long as its shape changes by less than skin / 2. No scratch matrix: this runs every
+    // The contacts' motion bounds (SelfCollision::moved): a pair's distance changes by at most
+    // |d_i - d_j| <= |d_i - m| + |d_j - m| for the vertex displacements d since the build and any
+    // common m, here the centre of the displacements' box. No scratch matrix: this runs every
     // sub-step, in two passes over the vertices (the common motions of x and of the sub-step's
-    // start, then the check and both motion bounds), where common_motion and raise_moved took
-    // five: the same operations on each vertex, so the same bounds to the bit.
+    // start, then both motion bounds).
     const Eigen::Matrix3Xd& built_at = sc.built_at;
     Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
     Vec3 lo_start = lo, hi_start = hi;
@@ -1090,19 +1181,17 @@ bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Ei
       hi_start = hi_start.cwiseMax(d_start);
     }
     const Vec3 m = 0.5 * (lo + hi), m_start = 0.5 * (lo_start + hi_start);
-    const double limit = 0.25 * sc.skin * sc.skin;
-    double worst = 0.0;
     // The bounds cover the sub-step's start too (its side decides a contact), and the positions
-    // left by the constraints after the last pass. Raised before the check is decided: after a
-    // build they are reset below anyway.
+    // left by the constraints after the last pass. Raised before the lists' test: after a build
+    // they are reset below anyway.
     double* moved = sc.moved.data();
     for (Eigen::Index i = 0; i < x.cols(); ++i) {
-      const double d_sq = (x.col(i) - built_at.col(i) - m).squaredNorm();
-      worst = std::max(worst, d_sq);
-      moved[i] = std::max(moved[i], std::sqrt(d_sq));  // Eigen's norm() is this square root
+      moved[i] = std::max(moved[i], (x.col(i) - built_at.col(i) - m).norm());
       moved[i] = std::max(moved[i], (x_start.col(i) - built_at.col(i) - m_start).norm());
     }
-    if (worst <= limit)
+    // The lists stay complete while the regions the last build settled keep together, each
+    // within its slack (lists_still_complete).
+    if (lists_still_complete(sc, x))
       return false;  // NaN positions rebuild (and the solver's check reports them)
   }
   build_candidates(sc, model, x);

@@ -6,12 +6,16 @@
 // weights).
 //
 // Cost: candidates are found only when needed. A build lists every pair closer than thickness +
-// skin (a Verlet list); it stays complete until some vertex has moved more than skin / 2 since the
-// build, relative to the garment's common motion (a pair's distance changes by at most the sum of
-// two vertex displacements relative to any common vector), which is checked every sub-step in
-// O(vertices). Every sub-step tests only the listed pairs, and of those only the ones whose
-// distance at the build (less the thickness) is not more than their parts have moved since
-// (`moved`).
+// skin (a Verlet list). It stays complete while the regions the build's search settled keep
+// together, each within its own slack (PatchWatch; a pair's distance changes by at most the largest
+// motion of its corners relative to each other): two patches near each other by no more than the
+// skin, two found apart by no more than their separation less the thickness. This is checked every
+// sub-step in O(vertices + watches). Until the thirteenth round the test was every vertex within
+// skin / 2 of the garment's common motion, which the swinging hem failed although the patches near
+// each other moved together (20 % more builds on the 12k skirt; docs/notebook/self_collision.md,
+// "Ninth round" and "Thirteenth round"). Every sub-step tests only the listed pairs, and of those
+// only the ones whose distance at the build (less the thickness) is not more than their parts have
+// moved since (`moved`).
 //
 // The build searches a hierarchy of patches of the garment (Volino & Magnenat-Thalmann 1994,
 // "Efficient self-collision detection on smoothly discretized surface animations using geometrical
@@ -86,6 +90,19 @@ struct TriangleBox {
   double lo[3], hi[3];
 };
 
+// What keeps a build's lists complete over one region the search settled: every vertex-triangle
+// and edge-edge pair between patches a and b (a == b: within a) is either listed, or was at least
+// `slack` (m) farther than the thickness at the build, or lies in a patch or union of two found
+// flat. The slack: for a leaf or a pair of leaves searched, and for a flat patch or union, the skin
+// (the reach less the thickness); for two patches found apart, their boxes' separation less the
+// thickness. The search leaves one watch per region, and they cover every pair once. The lists
+// stay complete while no two vertices of a and b have moved by more than the slack relative to
+// each other since the build (refresh_self_collision).
+struct PatchWatch {
+  int a, b;
+  float slack;
+};
+
 // Holds `vertex` to `side` of `triangle`'s plane (plan_untangle, below).
 struct UntangleConstraint {
   int vertex, triangle;
@@ -127,6 +144,13 @@ struct SelfCollision {
   std::vector<EdgeBox> edge_boxes;
   std::vector<TriangleBox> triangle_boxes;
   Eigen::Matrix3Xd built_at;  // positions at the last build (empty: never built)
+  // The last build's watches, and per patch the box (low, high corner) of its vertices'
+  // displacements since the build (scratch of their test).
+  std::vector<PatchWatch> watches;
+  std::vector<std::array<Vec3, 2>> displacement_box;
+  // Per leaf patch id, its vertices (those of its triangles, each once):
+  // leaf_vertices[leaf_vertex_begin[id] .. leaf_vertex_begin[id + 1]) (empty for other patches).
+  std::vector<int> leaf_vertex_begin, leaf_vertices;
   // Per vertex, a bound (m) on how far it has moved since the build relative to the garment's
   // common motion, over every position a pass may see (the sub-step's start and now, and each move
   // of the passes): a pair whose gap exceeds the sum of its parts' bounds cannot be in contact and
@@ -169,9 +193,9 @@ constexpr int kContactPassesAtBody = 10;
 // lists hold a few pairs per vertex.
 SelfCollision make_self_collision(const ClothModel& model, double thickness);
 
-// Rebuilds the candidate lists if they may be incomplete for positions x (or were never built), and
-// brings the per-vertex motion bounds up to x and x_start (the sub-step's start). Returns whether
-// it rebuilt.
+// Rebuilds the candidate lists if they may be incomplete for positions x (some watch of the last
+// build fails, or they were never built), and brings the per-vertex motion bounds up to x and
+// x_start (the sub-step's start). Returns whether it rebuilt.
 bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
                             const Eigen::Matrix3Xd& x_start);
 
