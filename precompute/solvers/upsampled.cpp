@@ -9,6 +9,7 @@
 
 #include "cloth/closest_point.hpp"
 #include "cloth/self_intersection.hpp"
+#include "solvers/strain_limit.hpp"
 
 namespace clothdb {
 
@@ -152,6 +153,7 @@ FinePass::FinePass(const ClothModel& fine, const ClothModel& coarse, const Solve
   moved_.assign(static_cast<std::size_t>(coarse_.vertex_count()), 0);
   moved_next_ = moved_;
   point_.resize(3, 1);
+  point_mass_ = Eigen::VectorXd::Ones(1);
 }
 
 FinePass::~FinePass() = default;
@@ -172,7 +174,6 @@ void FinePass::project_on_coarse(Eigen::Matrix3Xd& y, const Environment& env) {
   const double* w = coarse_.inv_mass.data();
   const double max_stretch = 1.0 + settings_.strain_limit;
   const double relax = settings_.strain_limit_relaxation;
-  const Eigen::VectorXd one = Eigen::VectorXd::Ones(1);
   std::fill(moved_.begin(), moved_.end(), 1);
   for (int round = 0; round < kCoarseRounds; ++round) {
     std::fill(moved_next_.begin(), moved_next_.end(), 0);
@@ -186,7 +187,7 @@ void FinePass::project_on_coarse(Eigen::Matrix3Xd& y, const Environment& env) {
         continue;
       point_.col(0) = wt[0] * y.col(v[0]) + wt[1] * y.col(v[1]) + wt[2] * y.col(v[2]);
       const Vec3 before = point_.col(0);
-      if (!resolve_vertex_collisions(point_, point_, one, 0, env, 1.0)) continue;
+      if (!resolve_vertex_collisions(point_, point_, point_mass_, 0, env, 1.0)) continue;
       double mass = 0.0;
       for (std::size_t k = 0; k < 3; ++k) mass += wt[k] * wt[k] * w[v[k]];
       if (!(mass > 0.0)) continue;
@@ -219,7 +220,7 @@ void FinePass::project_on_coarse(Eigen::Matrix3Xd& y, const Environment& env) {
       }
       if (!(mass > 0.0)) continue;
       const double len = std::sqrt(len_sq);
-      const double target = std::max(limit - (relax - 1.0) * (len - limit), rest);
+      const double target = strain_limit_target(len, limit, rest, relax);
       const Vec3 correction = d * ((len - target) / (len * mass));
       for (int q = 0; q < on.count; ++q) {
         const int c = on.vertex[static_cast<std::size_t>(q)];
@@ -240,7 +241,9 @@ StepReport FinePass::run(const Eigen::Matrix3Xd& coarse_x, const Environment& en
                          Eigen::Matrix3Xd& fine_x) {
   // The fine pass is a projection at the end pose: no velocity, gravity or drag, the colliders
   // still and frictionless (the coarse step had the friction), and no margin (above).
-  Environment still = env;
+  // Members reused every step, so the pass allocates nothing after the first.
+  Environment& still = still_;
+  still = env;
   still.gravity = Vec3::Zero();
   still.air_drag = 0.0;
   still.friction_static = still.friction_kinetic = 0.0;
@@ -255,10 +258,9 @@ StepReport FinePass::run(const Eigen::Matrix3Xd& coarse_x, const Environment& en
   project_on_coarse(y_, still);
   interpolate(prolong_, y_, state_.x);
   state_.v.setZero(3, state_.x.cols());
-  StepInputs inputs;
-  inputs.env = &still;
-  inputs.kinematic_targets = fine_targets;
-  const StepReport report = projection_->step(state_, dt, inputs);
+  inputs_.env = &still;
+  inputs_.kinematic_targets = fine_targets;
+  const StepReport report = projection_->step(state_, dt, inputs_);
   fine_x = state_.x;
   return report;
 }
@@ -309,11 +311,12 @@ class UpsampledSolver final : public Solver {
     if (coarse_state_.v.cols() != coarse_state_.x.cols() || state.v.cols() != last_v_.cols() ||
         state.v != last_v_)
       interpolate(restrict_, state.v, coarse_state_.v);
-    StepInputs coarse_inputs;
-    coarse_inputs.env = inputs.env;
+    coarse_inputs_.env = inputs.env;
     if (inputs.kinematic_targets.cols() > 0)
-      interpolate(pin_map_, inputs.kinematic_targets, coarse_inputs.kinematic_targets);
-    StepReport report = coarse_solver_->step(coarse_state_, dt, coarse_inputs);
+      interpolate(pin_map_, inputs.kinematic_targets, coarse_inputs_.kinematic_targets);
+    else
+      coarse_inputs_.kinematic_targets.resize(3, 0);
+    StepReport report = coarse_solver_->step(coarse_state_, dt, coarse_inputs_);
     if (!report.stable) return report;
     // The fine pass (FinePass): it starts from the coarse solution every step and keeps no
     // state, so the fine garment cannot drift from the coarse one.
@@ -345,7 +348,8 @@ class UpsampledSolver final : public Solver {
   std::unique_ptr<FinePass> fine_pass_;
   BarycentricEmbedding restrict_, pin_map_;
   ClothState coarse_state_;
-  Eigen::Matrix3Xd fine_x_;  // kept between steps: no allocation per step
+  StepInputs coarse_inputs_;  // reused every step: no allocation after the first
+  Eigen::Matrix3Xd fine_x_;   // kept between steps: no allocation per step
   bool have_coarse_ = false;
   Eigen::Matrix3Xd last_x_, last_v_;
 };

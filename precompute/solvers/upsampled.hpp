@@ -73,6 +73,9 @@ class FinePass {
   std::vector<EdgeOnCoarse> edges_;
   std::unique_ptr<Solver> projection_;
   Eigen::Matrix3Xd y_, point_;
+  Eigen::VectorXd point_mass_;  // the one embedded point's inverse mass (1) for the body's test
+  Environment still_;           // the colliders at their end pose (run)
+  StepInputs inputs_;
   ClothState state_;
   std::vector<unsigned char> moved_, moved_next_;
 };

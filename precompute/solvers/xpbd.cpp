@@ -38,6 +38,7 @@
 #include "solvers/self_collision.hpp"
 #include "solvers/shell_energy.hpp"
 #include "solvers/solver.hpp"
+#include "solvers/strain_limit.hpp"
 
 namespace clothdb {
 
@@ -421,11 +422,8 @@ void XpbdSolver::chebyshev_extrapolate(int sweep, double omega, Eigen::Matrix3Xd
 // Shortens edge (i, j) to `limit` if it is longer, split by inverse mass; returns whether it did.
 // A relative slack of 1e-9 so an edge a previous pass set to the limit does not count again by
 // rounding.
-// With relax > 1 the edge is shortened past the limit by (relax - 1) times its excess, never below
-// its rest length `floor`: projected successive over-relaxation (Cryer 1971, "The solution of a
-// quadratic programming problem using systematic overrelaxation") of the unilateral constraints,
-// so a correction that must travel along many edges (a ring pushed out by a limb) takes fewer
-// passes (docs/notebook/resolution.md).
+// With relax > 1 it is shortened past the limit, never below its rest length `floor`
+// (strain_limit_target).
 bool shorten_edge(Eigen::Matrix3Xd& x, const double* w, int i, int j, double limit, double floor,
                   double relax) {
   const double wi = w[i], wj = w[j];
@@ -436,7 +434,7 @@ bool shorten_edge(Eigen::Matrix3Xd& x, const double* w, int i, int j, double lim
   const double len_sq = diff.squaredNorm();
   if (len_sq <= limit * limit * (1.0 + 1e-9)) return false;
   const double len = std::sqrt(len_sq);
-  const double target = std::max(limit - (relax - 1.0) * (len - limit), floor);
+  const double target = strain_limit_target(len, limit, floor, relax);
   const Vec3 correction = diff * ((len - target) / (len * w_sum));
   xi -= wi * correction;
   xj += wj * correction;
@@ -704,21 +702,19 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
       // over the sub-step. Each vertex is resolved on its own, so the vertices are shared out.
       // With self-collision, the pass also notes each vertex's nearest body surface: the contacts
       // below may not push a vertex deep into it (self_collision.hpp, kBodyGive).
-      if (self_.thickness > 0.0) {
+      {
+        const bool note_body = self_.thickness > 0.0;
         const double reach = kBodyReach * self_.thickness, give = kBodyGive * self_.thickness;
 #pragma omp for schedule(static)
         for (Eigen::Index i = 0; i < n; ++i) {
           NearSurface near;
           near.reach = reach;
           resolve_vertex_collisions(state.x, x_prev, model_.inv_mass, i, env, s_end, s_start,
-                                    &near);
+                                    note_body ? &near : nullptr);
+          if (!note_body) continue;
           self_.body_room[static_cast<std::size_t>(i)] = near.distance + give;
           if (near.distance < INFINITY) self_.body_normal.col(i) = near.normal;
         }
-      } else {
-#pragma omp for schedule(static)
-        for (Eigen::Index i = 0; i < n; ++i)
-          resolve_vertex_collisions(state.x, x_prev, model_.inv_mass, i, env, s_end, s_start);
       }
       // Self-collision after the body's collision pass: cloth pressed between the body and another
       // layer is pushed apart last, so a layer the body moved cannot end the sub-step through the
