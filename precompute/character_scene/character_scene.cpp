@@ -7,6 +7,7 @@
 #include <limits>
 #include <nlohmann/json.hpp>
 #include <sstream>
+#include <stdexcept>
 
 #include "solvers/upsampled.hpp"
 
@@ -74,6 +75,17 @@ struct Fields {
       }
   }
 };
+
+// Why solver.coarse_vertices cannot drive this solver and garment ("" if it can). One owner for the
+// scene file's check (load_scene_file) and for a count given elsewhere (make_scene_solver, from
+// `bench character --coarse-vertices`).
+std::string coarse_drive_refusal(SolverKind solver, GarmentKind garment) {
+  if (solver != SolverKind::Xpbd)
+    return std::string("a coarse garment drives xpbd only, not ") + solver_name(solver);
+  if (garment == GarmentKind::Mesh)
+    return "needs a procedural garment (skirt or cape): a mesh garment has no coarser copy";
+  return "";
+}
 
 }  // namespace
 
@@ -224,15 +236,11 @@ SceneFile load_scene_file(const std::filesystem::path& file) {
     f.fail("solver.self_collision.thickness_mm",
            std::string("self-collision is implemented for xpbd only, not for ") +
                solver_name(s.solver));
-  if (s.settings.coarse_vertices > 0 && s.solver != SolverKind::Xpbd)
-    f.fail("solver.coarse_vertices",
-           std::string("a coarse garment drives xpbd only, not ") + solver_name(s.solver));
-  if (s.settings.coarse_vertices > 0 && s.garment_kind == GarmentKind::Mesh)
-    f.fail("solver.coarse_vertices",
-           "needs a procedural garment (skirt or cape): a mesh garment has no coarser copy");
   // The coarse copy drives the garment (docs/guide/resolution.md): one as fine or finer only costs
   // more and gives the garment nothing it would not get solved itself.
   if (s.settings.coarse_vertices > 0) {
+    const std::string refusal = coarse_drive_refusal(s.solver, s.garment_kind);
+    if (!refusal.empty()) f.fail("solver.coarse_vertices", refusal);
     const int fine = s.garment_kind == GarmentKind::Cape ? s.cape.vertices : s.skirt.vertices;
     if (s.settings.coarse_vertices >= fine)
       f.fail("solver.coarse_vertices", "must be fewer than garment.vertices (got " +
@@ -397,11 +405,9 @@ std::vector<JointPose> blend_pose(const std::vector<JointPose>& pose,
 std::unique_ptr<Solver> make_scene_solver(const CharacterScene& scene, SolverKind kind,
                                           const SolverSettings& settings) {
   if (settings.coarse_vertices <= 0) return make_solver(kind, scene.model, settings);
-  if (kind != SolverKind::Xpbd)
-    throw SceneError(scene.file.path.string() +
-                     ": solver.coarse_vertices: a coarse garment drives "
-                     "xpbd only, not " +
-                     solver_name(kind));
+  const std::string refusal = coarse_drive_refusal(kind, scene.file.garment_kind);
+  if (!refusal.empty())
+    throw SceneError(scene.file.path.string() + ": solver.coarse_vertices: " + refusal);
   // The same garment from the same parameters at the coarse count: the same rest surface.
   Garment coarse;
   switch (scene.file.garment_kind) {
@@ -417,9 +423,8 @@ std::unique_ptr<Solver> make_scene_solver(const CharacterScene& scene, SolverKin
       coarse = make_cape(scene.skeleton, spec);
       break;
     }
-    case GarmentKind::Mesh:
-      throw SceneError(scene.file.path.string() +
-                       ": solver.coarse_vertices: needs a procedural garment (skirt or cape)");
+    case GarmentKind::Mesh:  // refused above
+      throw std::logic_error("make_scene_solver: a mesh garment passed coarse_drive_refusal");
   }
   // The same rule as the scene file's (load_scene_file), for a count given elsewhere (`bench
   // character --coarse-vertices`), on the meshes as made.
