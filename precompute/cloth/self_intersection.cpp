@@ -188,10 +188,8 @@ std::vector<std::array<int, 2>> edge_triangle_crossings(const ClothMesh& mesh,
     const std::array<int, 3>& tri = mesh.triangles[t];
     const Vec3 a = x.col(tri[0]), b = x.col(tri[1]), c = x.col(tri[2]);
     const Vec3 n = (b - a).cross(c - a);
-    // The slack, far above rounding, keeps the box tests from ever deciding a case the
-    // orientation signs would count.
-    const Vec3 lo = a.cwiseMin(b).cwiseMin(c) - Vec3::Constant(1e-9),
-               hi = a.cwiseMax(b).cwiseMax(c) + Vec3::Constant(1e-9);
+    const Vec3 lo = a.cwiseMin(b).cwiseMin(c) - Vec3::Constant(kCrossingBoxSlack),
+               hi = a.cwiseMax(b).cwiseMax(c) + Vec3::Constant(kCrossingBoxSlack);
     found.clear();
     // Exact (double) box test, then the vertices, then the orientation signs.
     auto visit = [&](int e) {

@@ -58,6 +58,11 @@ struct PointGrid {
 bool segment_crosses_triangle(const Vec3& p, const Vec3& q, const Vec3& a, const Vec3& b,
                               const Vec3& c);
 
+// How much a triangle's box is grown before it is tested against an edge's (m): far above
+// rounding, so the box test never decides a case the orientation signs would count. Searches that
+// must find exactly edge_triangle_crossings' pairs (the solver's, self_collision.hpp) use it too.
+constexpr double kCrossingBoxSlack = 1e-9;
+
 // The search's working arrays (edge boxes, the hashed cells' entries, stamps), kept by a caller
 // that searches the same mesh often (the solver, once a step) so that a search allocates nothing:
 // fresh arrays of a few MB a call were page faults (1.9 % of all samples of `bench character` on

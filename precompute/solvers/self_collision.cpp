@@ -1299,13 +1299,290 @@ int find_root(std::vector<int>& parent, int i) {
 
 }  // namespace
 
+namespace {
+
+// ---- The crossing search over the patch hierarchy (hierarchy_crossings) ----
+
+// Half-angle of the normal cone under which the crossing search takes a disk whose projected
+// contour is simple as flat. Any half-angle below pi/2 makes such a patch a height field over the
+// plane normal to the cone's axis (every triangle projects with the same orientation, and a
+// boundary projected without crossing bounds a region covered once), so no edge of it crosses a
+// triangle of it (Volino & Magnenat-Thalmann 1994). Unlike the build's kFlatAngle it needs no room
+// for bending later: the search decides for the positions it tests. 2 pi / 5 (a triangle's
+// projection at least 0.31 of its area) against pi/5, pi/4 and pi/3: 22.2 M instructions a call
+// on the 12k skirt's frames against 37.4, 32.1 and 25.8 M (docs/notebook/self_collision.md,
+// "Fourteenth round (b)").
+constexpr double kCrossingFlatAngle = 2.0 * 3.14159265358979323846 / 5.0;
+// cos(2 pi / 5) = (sqrt 5 - 1) / 4, as a literal (std::cos is not constexpr here).
+constexpr double kCrossingFlatCos = 0.30901699437494742410;
+
+// Boxes and normal cones of every patch at x, bottom-up, by refit_patches' rule (a parent's cone
+// holds its children's) but against kCrossingFlatAngle and into the search's own array (the
+// build's bounds belong to the build's positions).
+void refit_crossing_bounds(const SelfCollision& sc, const ClothMesh& mesh,
+                           const Eigen::Matrix3Xd& x, std::vector<PatchBounds>& bounds) {
+  constexpr double pi = 3.14159265358979323846;
+  bounds.resize(sc.patches.size());
+  auto angle_between = [](const Vec3& a, const Vec3& b) {
+    return std::acos(std::clamp(a.dot(b), -1.0, 1.0));
+  };
+  for (std::size_t id = sc.patches.size(); id-- > 0;) {
+    const Patch& p = sc.patches[id];
+    PatchBounds& b = bounds[id];
+    if (p.left < 0) {
+      b.lo = Vec3::Constant(INFINITY);
+      b.hi = Vec3::Constant(-INFINITY);
+      b.normal_sum.setZero();
+      Vec3 normals[kLeafTriangles];
+      bool degenerate = false;
+      for (int k = p.tri_begin; k < p.tri_end; ++k) {
+        const auto& t =
+            mesh.triangles[static_cast<std::size_t>(sc.tri_order[static_cast<std::size_t>(k)])];
+        const Vec3 a = x.col(t[0]), c1 = x.col(t[1]), c2 = x.col(t[2]);
+        b.lo = b.lo.cwiseMin(a.cwiseMin(c1).cwiseMin(c2));
+        b.hi = b.hi.cwiseMax(a.cwiseMax(c1).cwiseMax(c2));
+        const Vec3 n = (c1 - a).cross(c2 - a);
+        b.normal_sum += n;
+        const double len = n.norm();
+        degenerate = degenerate || !(len > 0.0);
+        normals[k - p.tri_begin] = len > 0.0 ? Vec3(n / len) : Vec3::Zero();
+      }
+      const double len = b.normal_sum.norm();
+      b.axis = len > 0.0 ? Vec3(b.normal_sum / len) : Vec3::Zero();
+      double lowest = 1.0;
+      for (int k = 0; k < p.tri_end - p.tri_begin; ++k)
+        lowest = std::min(lowest, normals[k].dot(b.axis));
+      b.angle = degenerate || !(len > 0.0) || lowest < kCrossingFlatCos - 1e-9
+                    ? pi
+                    : std::acos(std::clamp(lowest, -1.0, 1.0));
+    } else {
+      const PatchBounds& l = bounds[static_cast<std::size_t>(p.left)];
+      const PatchBounds& r = bounds[static_cast<std::size_t>(p.right)];
+      b.lo = l.lo.cwiseMin(r.lo);
+      b.hi = l.hi.cwiseMax(r.hi);
+      b.normal_sum = l.normal_sum + r.normal_sum;
+      const double len = b.normal_sum.norm();
+      b.axis = len > 0.0 ? Vec3(b.normal_sum / len) : Vec3::Zero();
+      b.angle = !(len > 0.0) || l.angle >= kCrossingFlatAngle || r.angle >= kCrossingFlatAngle
+                    ? pi
+                    : std::min(pi, std::max(angle_between(b.axis, l.axis) + l.angle,
+                                            angle_between(b.axis, r.axis) + r.angle));
+    }
+  }
+}
+
+// The descent of hierarchy_crossings. Every (edge, triangle) pair is met once: an edge is owned by
+// one leaf (Patch), a triangle lies in one, and the descent reaches each leaf alone (own) and each
+// pair of leaves (between) once, unless a patch or union holding both is flat or two patches
+// holding them are apart.
+struct CrossingSearch {
+  const SelfCollision& sc;
+  const ClothMesh& mesh;
+  const Eigen::Matrix3Xd& x;
+  HierarchyCrossingScratch& work;
+  ContourScratch scratch;
+
+  const Patch& patch(int id) const { return sc.patches[static_cast<std::size_t>(id)]; }
+  const PatchBounds& bounds(int id) const { return work.bounds[static_cast<std::size_t>(id)]; }
+
+  bool flat(int id) {
+    const Patch& p = patch(id);
+    const PatchBounds& b = bounds(id);
+    if (!p.disk || !(b.angle < kCrossingFlatAngle)) return false;
+    return contour_is_simple(mesh, x, sc.contour.data() + p.contour_begin,
+                             p.contour_end - p.contour_begin, b.axis, scratch);
+  }
+
+  // Whether disks a and b share a path of edges and their union is flat (the union of two disks
+  // is a disk when the shared vertices number one more than the shared edges). A contour edge of
+  // one is shared when the triangle across it lies in the other (SelfCollision::contour_across);
+  // the union's contour is both contours without those.
+  bool union_flat(int a, int b) {
+    const Patch& pa = patch(a);
+    const Patch& pb = patch(b);
+    if (!pa.disk || !pb.disk) return false;
+    const PatchBounds& ba = bounds(a);
+    const PatchBounds& bb = bounds(b);
+    if (!(ba.angle < kCrossingFlatAngle) || !(bb.angle < kCrossingFlatAngle)) return false;
+    auto in = [](int position, const Patch& p) {
+      return (position >= p.tri_begin) & (position < p.tri_end);
+    };
+    // Most pairs met here share no edge (they overlap across a fold or meet at a corner): the
+    // shorter contour says so before the acos below.
+    {
+      const Patch* p = &pa;
+      const Patch* q = &pb;
+      if (p->contour_end - p->contour_begin > q->contour_end - q->contour_begin) std::swap(p, q);
+      int k = p->contour_begin;
+      while (k < p->contour_end && !in(sc.contour_across[static_cast<std::size_t>(k)], *q)) ++k;
+      if (k == p->contour_end) return false;
+    }
+    const Vec3 sum = ba.normal_sum + bb.normal_sum;
+    const double len = sum.norm();
+    if (!(len > 0.0)) return false;
+    const Vec3 axis = sum / len;
+    const double angle = std::max(std::acos(std::clamp(axis.dot(ba.axis), -1.0, 1.0)) + ba.angle,
+                                  std::acos(std::clamp(axis.dot(bb.axis), -1.0, 1.0)) + bb.angle);
+    if (!(angle < kCrossingFlatAngle)) return false;
+    if (work.stamp == INT_MAX || work.vertex_stamp.size() != std::size_t(mesh.vertex_count())) {
+      work.vertex_stamp.assign(static_cast<std::size_t>(mesh.vertex_count()), 0);
+      work.stamp = 0;
+    }
+    const int stamp = ++work.stamp;
+    int* const vertex_stamp = work.vertex_stamp.data();
+    std::vector<int>& contour = work.union_contour;
+    contour.clear();
+    int shared_edges = 0;
+    for (int k = pa.contour_begin; k < pa.contour_end; ++k) {
+      const int e = sc.contour[static_cast<std::size_t>(k)];
+      for (int v : mesh.edges[static_cast<std::size_t>(e)]) vertex_stamp[v] = stamp;
+      if (in(sc.contour_across[static_cast<std::size_t>(k)], pb))
+        ++shared_edges;
+      else
+        contour.push_back(e);
+    }
+    int shared_vertices = 0;  // each counted once: re-stamped with -stamp when met from b
+    for (int k = pb.contour_begin; k < pb.contour_end; ++k) {
+      const int e = sc.contour[static_cast<std::size_t>(k)];
+      for (int v : mesh.edges[static_cast<std::size_t>(e)])
+        if (vertex_stamp[v] == stamp) {
+          ++shared_vertices;
+          vertex_stamp[v] = -stamp;
+        }
+      if (!in(sc.contour_across[static_cast<std::size_t>(k)], pa)) contour.push_back(e);
+    }
+    if (shared_vertices != shared_edges + 1) return false;
+    return contour_is_simple(mesh, x, contour.data(), static_cast<int>(contour.size()), axis,
+                             scratch);
+  }
+
+  // Whether no edge owned by a can meet a triangle of b, nor one owned by b a triangle of a, by
+  // edge_triangle_crossings' own box test: an edge's box against a triangle's grown by
+  // kCrossingBoxSlack. A patch's box holds the boxes of its edges and triangles, and rounding is
+  // monotone (lo <= lo' gives lo - s <= lo' - s), so the test below fails whenever that one
+  // would fail for some pair of theirs.
+  bool apart(int a, int b) const {
+    const PatchBounds& p = bounds(a);
+    const PatchBounds& q = bounds(b);
+    constexpr double s = kCrossingBoxSlack;
+    const bool edges_of_a = (p.hi[0] < q.lo[0] - s) | (p.hi[1] < q.lo[1] - s) |
+                            (p.hi[2] < q.lo[2] - s) | (p.lo[0] > q.hi[0] + s) |
+                            (p.lo[1] > q.hi[1] + s) | (p.lo[2] > q.hi[2] + s);
+    const bool edges_of_b = (q.hi[0] < p.lo[0] - s) | (q.hi[1] < p.lo[1] - s) |
+                            (q.hi[2] < p.lo[2] - s) | (q.lo[0] > p.hi[0] + s) |
+                            (q.lo[1] > p.hi[1] + s) | (q.lo[2] > p.hi[2] + s);
+    return edges_of_a && edges_of_b;
+  }
+
+  // The edges owned by leaf `edges` against the triangles of leaf `tris`, each pair as
+  // edge_triangle_crossings tests it (the same box test, shared vertices, then
+  // segment_crosses_triangle, whose operations are the metric's). The edges whose boxes the box
+  // test would keep away from every triangle of the leaf (its box holds theirs) are left out
+  // first.
+  void test(int edges, int tris) {
+    const Patch& pe = patch(edges);
+    const Patch& pt = patch(tris);
+    const PatchBounds& bt = bounds(tris);
+    const Vec3 near_lo = bt.lo - Vec3::Constant(kCrossingBoxSlack),
+               near_hi = bt.hi + Vec3::Constant(kCrossingBoxSlack);
+    struct Edge {
+      Vec3 lo, hi;
+      int edge, v0, v1;
+    };
+    Edge near[3 * kLeafTriangles];
+    int count = 0;
+    for (int j = pe.edge_begin; j < pe.edge_end; ++j) {
+      Edge& n = near[count];
+      n.edge = sc.edge_order[static_cast<std::size_t>(j)];
+      n.v0 = mesh.edges[static_cast<std::size_t>(n.edge)][0];
+      n.v1 = mesh.edges[static_cast<std::size_t>(n.edge)][1];
+      const Vec3 p = x.col(n.v0), q = x.col(n.v1);
+      n.lo = p.cwiseMin(q);
+      n.hi = p.cwiseMax(q);
+      count += !((n.hi.array() < near_lo.array()).any() | (n.lo.array() > near_hi.array()).any());
+    }
+    if (count == 0) return;
+    for (int k = pt.tri_begin; k < pt.tri_end; ++k) {
+      const int t = sc.tri_order[static_cast<std::size_t>(k)];
+      const std::array<int, 3>& tri = mesh.triangles[static_cast<std::size_t>(t)];
+      const Vec3 a = x.col(tri[0]), b = x.col(tri[1]), c = x.col(tri[2]);
+      const Vec3 lo = a.cwiseMin(b).cwiseMin(c) - Vec3::Constant(kCrossingBoxSlack),
+                 hi = a.cwiseMax(b).cwiseMax(c) + Vec3::Constant(kCrossingBoxSlack);
+      for (int j = 0; j < count; ++j) {
+        const Edge& n = near[j];
+        if (n.hi[0] < lo[0] || n.hi[1] < lo[1] || n.hi[2] < lo[2] || n.lo[0] > hi[0] ||
+            n.lo[1] > hi[1] || n.lo[2] > hi[2])
+          continue;
+        if (n.v0 == tri[0] || n.v0 == tri[1] || n.v0 == tri[2] || n.v1 == tri[0] ||
+            n.v1 == tri[1] || n.v1 == tri[2])
+          continue;
+        if (segment_crosses_triangle(x.col(n.v0), x.col(n.v1), a, b, c))
+          work.found.push_back({t, n.edge});
+      }
+    }
+  }
+
+  void own(int id) {
+    if (flat(id)) return;
+    const Patch& p = patch(id);
+    if (p.left < 0) {
+      test(id, id);
+      return;
+    }
+    own(p.left);
+    own(p.right);
+    between(p.left, p.right);
+  }
+
+  void between(int a, int b) {
+    if (apart(a, b) || union_flat(a, b)) return;
+    const Patch& pa = patch(a);
+    const Patch& pb = patch(b);
+    if (pa.left < 0 && pb.left < 0) {
+      test(a, b);
+      test(b, a);
+      return;
+    }
+    // Descend the larger (by triangles) of the two that can be split.
+    if (pb.left < 0 || (pa.left >= 0 && pa.tri_end - pa.tri_begin >= pb.tri_end - pb.tri_begin)) {
+      between(pa.left, b);
+      between(pa.right, b);
+    } else {
+      between(a, pb.left);
+      between(a, pb.right);
+    }
+  }
+};
+
+}  // namespace
+
+std::vector<std::array<int, 2>> hierarchy_crossings(SelfCollision& sc, const ClothMesh& mesh,
+                                                    const Eigen::Matrix3Xd& x) {
+  // The grid where the hierarchy cannot answer for it: positions it rejects (wrong count,
+  // non-finite: it throws or decides as it does), no hierarchy, or edges no triangle owns (a mesh
+  // whose edges are not its triangles'; build_topology's meshes have none).
+  if (x.cols() != mesh.vertex_count() || !x.allFinite() || sc.patches.empty() ||
+      sc.edge_order.size() != mesh.edges.size())
+    return edge_triangle_crossings(mesh, x, &sc.crossing_scratch);
+  HierarchyCrossingScratch& work = sc.hierarchy_crossing;
+  refit_crossing_bounds(sc, mesh, x, work.bounds);
+  work.found.clear();
+  CrossingSearch search{sc, mesh, x, work, {}};
+  search.own(0);
+  // By triangle, then by edge: the metric's order (the untangling's constraints follow it).
+  std::sort(work.found.begin(), work.found.end());
+  std::vector<std::array<int, 2>> out;
+  out.reserve(work.found.size());
+  for (const auto& f : work.found) out.push_back({f[1], f[0]});
+  return out;
+}
+
 int plan_untangle(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
                   const Eigen::Matrix3Xd& x_start) {
   const ClothMesh& mesh = model.mesh;
   const double* w = model.inv_mass.data();
   const std::size_t n = static_cast<std::size_t>(x.cols());
-  const std::vector<std::array<int, 2>> crossings =
-      edge_triangle_crossings(mesh, x, &sc.crossing_scratch);
+  const std::vector<std::array<int, 2>> crossings = hierarchy_crossings(sc, mesh, x);
   if (crossings.empty()) return 0;
   // The pieces the crossing edges cut the mesh into (BWK 2003 sec. 4: the intersection contour
   // bounds a region on each side; the one that went through is the smaller). Union-find over the

@@ -114,6 +114,18 @@ struct UntangleConstraint {
   double reach;
 };
 
+// The hierarchy's crossing search's arrays (hierarchy_crossings, below), kept from call to call so
+// that a search allocates nothing: per patch its box and normal cone at the positions searched
+// (refit by the search itself, so the build's patch_bounds are not touched; angle compared with
+// the search's own flat cone, not the build's), a stamp per vertex and the contour of the union
+// test, and the crossings found as (triangle, edge).
+struct HierarchyCrossingScratch {
+  std::vector<PatchBounds> bounds;
+  std::vector<int> vertex_stamp, union_contour;
+  int stamp = 0;
+  std::vector<std::array<int, 2>> found;
+};
+
 struct SelfCollision {
   double thickness = 0.0;  // m
   double skin = 0.0;       // m: how much farther than thickness a listed pair may be at build
@@ -166,8 +178,10 @@ struct SelfCollision {
   // much, no deeper (docs/notebook/self_collision.md, "Eleventh round").
   Eigen::Matrix3Xd body_normal;
   std::vector<double> body_room;
-  // The crossing search's arrays, kept from step to step (plan_untangle runs it once a step).
+  // The crossing search's arrays, kept from step to step (plan_untangle runs it once a step):
+  // the grid's (edge_triangle_crossings, used where the hierarchy cannot be) and the hierarchy's.
   CrossingScratch crossing_scratch;
+  HierarchyCrossingScratch hierarchy_crossing;
   long body_cuts = 0;  // contact moves the body's room has cut short so far
   long builds = 0;     // how many builds so far (reported by describe / benchmarks)
 };
@@ -229,6 +243,20 @@ constexpr int kUntangleRedos = 3;
 // crossings found (0: nothing appended).
 int plan_untangle(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
                   const Eigen::Matrix3Xd& x_start);
+// The crossings of x: exactly edge_triangle_crossings(mesh, x), the same pairs in the same order
+// (by triangle, then by edge), found by descending sc's patch hierarchy with reach 0 instead of a
+// grid over the whole mesh (docs/notebook/self_collision.md, "Fourteenth round (b)"). A patch, or
+// a union of two bordering patches, that is flat (a disk whose normals lie in a cone below
+// kCrossingFlatAngle, self_collision.cpp, and whose contour projected along the cone's axis does
+// not cross itself) is a height field: it cannot pass through itself (Volino & Magnenat-Thalmann
+// 1994). Two patches whose boxes are apart by more than the metric's slack (kCrossingBoxSlack)
+// hold no pair the metric would test. What is left (leaves and pairs of leaves) is tested with the
+// metric's own box test and segment_crosses_triangle, so each pair gets the metric's answer to the
+// bit. The grid answers instead for positions it would reject and for a mesh without the
+// hierarchy. Refits only sc.hierarchy_crossing.
+std::vector<std::array<int, 2>> hierarchy_crossings(SelfCollision& sc, const ClothMesh& mesh,
+                                                    const Eigen::Matrix3Xd& x);
+
 // One Gauss-Seidel pass over sc.untangle: C = side (x_v - q) . n - thickness >= 0, q the point of
 // the triangle at `weight`, with inverse-mass weights as the vertex-triangle contacts. Returns the
 // constraints projected.
