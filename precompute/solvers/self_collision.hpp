@@ -122,8 +122,8 @@ struct UntangleConstraint {
 // unless their patches hold more than this share of the garment's triangles: then it searches
 // everything, which also leaves the regions as coarse as the search finds them (partial searches
 // only ever split them further). On the 12k skirt's first 20 frames of 01_01, self-collision's
-// samples per sample of the rest were 0.24 for shares 0.25-0.5, 0.25 at 0.7, 0.28 at 1 and
-// 0.31 at 2 (lists and watches 25-30 % longer), against 0.30 rebuilding everything
+// samples per sample of the rest were 0.24 for shares 0.25-0.5, 0.25 at 0.7 and 0.28-0.31 at 1-2
+// (at 2 the watches and lists about 30 % longer), against 0.30 rebuilding everything
 // (docs/notebook/self_collision.md, "Fourteenth round").
 constexpr double kPartialShare = 0.5;
 
