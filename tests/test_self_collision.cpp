@@ -7,6 +7,7 @@
 #include <array>
 #include <cmath>
 #include <cstdio>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -477,19 +478,28 @@ TEST(SelfCollisionSearch, ContourAcrossNamesTheTriangleBeyondEachContourEdge) {
 }
 
 // The lists kept between builds (refresh_self_collision, docs/notebook/self_collision.md, "Ninth
-// round" and "Thirteenth round"): a 16 x 16 sheet (1 m) rolled up step by step about the y axis, in
-// 70 steps to 1.05 turns of a spiral whose end lies 6 mm inside its start, so the end comes onto
-// the start within the thickness (1 cm). After every refresh the lists hold every pair a search of
-// all pairs finds nearer than the thickness (no patch holding both ends is flat, so the flat
-// patches leave none of them out). And the lists are rebuilt less often than the test before the
-// watches asked (every vertex within skin / 2 of the common motion since the build, emulated here):
-// the roll moves the sheet's ends a lot against each other but bends it smoothly, so patches near
-// each other move together. Rebuilding at the old test's steps fails the second expectation; a
-// watch that lets a region move more than its slack would fail the first.
+// round", "Thirteenth round" and "Fourteenth round"): a 16 x 16 sheet (1 m) rolled up step by step
+// about the y axis, in 70 steps to 1.05 turns of a spiral whose end lies 6 mm inside its start, so
+// the end comes onto the start within the thickness (1 cm). After every refresh the lists hold
+// every pair a search of all pairs finds nearer than the thickness (no patch holding both ends is
+// flat, so the flat patches leave none of them out), sorted, each with a gap no more than its
+// distance less the thickness. The lists are rebuilt less often than the test before the watches
+// asked (every vertex within skin / 2 of the common motion since the build, emulated here): the
+// roll moves the sheet's ends a lot against each other but bends it smoothly, so patches near each
+// other move together. And partial builds (only the failed watches' regions searched again, here
+// however many fail: the roll moves most of the sheet at once, more than kPartialShare) settle
+// fewer regions than rebuilding everything at each failed watch (partial_share 0, run on the same
+// positions beside it). Rebuilding at the old test's steps fails the builds'
+// expectation, rebuilding everything at every failed watch the regions'; a watch that lets a
+// region move more than its slack (also after a partial build) fails the lists', a kept pair's gap
+// not lowered by its parts' motion the gaps'.
 TEST(SelfCollisionSearch, ListsKeptBetweenBuildsHoldEveryPairNearerThanTheThickness) {
   const ClothModel model = make_model(make_quad_grid(16, 16, 1.0, 1.0), Material{}, {});
   const double thickness = 0.01;
   SelfCollision sc = make_self_collision(model, thickness);
+  sc.partial_share = INFINITY;  // every failed watch's region alone, however many fail
+  SelfCollision whole = make_self_collision(model, thickness);
+  whole.partial_share = 0.0;
   const double pi = 3.14159265358979323846;
   auto rolled = [&](double turns) {
     Eigen::Matrix3Xd x = model.mesh.rest;
@@ -506,20 +516,47 @@ TEST(SelfCollisionSearch, ListsKeptBetweenBuildsHoldEveryPairNearerThanTheThickn
                         const std::array<int, 2>& pair) {
     return std::binary_search(list.begin(), list.end(), pair);  // the lists are sorted
   };
-  Eigen::Matrix3Xd start = model.mesh.rest, old_reference;
+  const ClothMesh& mesh = model.mesh;
+  Eigen::Matrix3Xd start = mesh.rest, old_reference;
   long old_builds = 0;
-  std::size_t near_pairs = 0;
+  std::size_t near_pairs = 0, gaps_checked = 0;
   for (int step = 1; step <= 70; ++step) {
     const Eigen::Matrix3Xd x = rolled(1.05 * step / 70.0);
     refresh_self_collision(sc, model, x, start);
-    const Pairs near = brute_force_pairs(model.mesh, x, thickness);
+    refresh_self_collision(whole, model, x, start);
+    const Pairs near = brute_force_pairs(mesh, x, thickness);
     near_pairs += near.vt.size() + near.ee.size();
-    for (const auto& pair : near.vt)
-      EXPECT_TRUE(listed_pair(sc.vertex_triangle, pair))
-          << "step " << step << ": vertex " << pair[1] << " near triangle " << pair[0];
-    for (const auto& pair : near.ee)
-      EXPECT_TRUE(listed_pair(sc.edge_edge, pair))
-          << "step " << step << ": edges " << pair[0] << " and " << pair[1];
+    for (const SelfCollision* lists : {&sc, &whole}) {
+      for (const auto& pair : near.vt)
+        EXPECT_TRUE(listed_pair(lists->vertex_triangle, pair))
+            << "step " << step << ": vertex " << pair[1] << " near triangle " << pair[0];
+      for (const auto& pair : near.ee)
+        EXPECT_TRUE(listed_pair(lists->edge_edge, pair))
+            << "step " << step << ": edges " << pair[0] << " and " << pair[1];
+    }
+    // Sorted, each pair once; every gap a lower bound on its distance less the thickness at the
+    // last build, full or partial (built_at), which the contacts' motion bounds count from.
+    const Eigen::Matrix3Xd& b = sc.built_at;
+    EXPECT_EQ(std::adjacent_find(sc.vertex_triangle.begin(), sc.vertex_triangle.end(),
+                                 std::greater_equal<>()),
+              sc.vertex_triangle.end());
+    EXPECT_EQ(std::adjacent_find(sc.edge_edge.begin(), sc.edge_edge.end(), std::greater_equal<>()),
+              sc.edge_edge.end());
+    for (std::size_t k = 0; k < sc.vertex_triangle.size(); ++k) {
+      const auto& [t, v] = sc.vertex_triangle[k];
+      const auto& tri = mesh.triangles[static_cast<std::size_t>(t)];
+      const double d = triangle_distance(b.col(v), b.col(tri[0]), b.col(tri[1]), b.col(tri[2]));
+      EXPECT_LE(double(sc.vertex_triangle_gap[k]), d - thickness + 1e-12)
+          << "step " << step << ": vertex " << v << " and triangle " << t;
+    }
+    for (std::size_t k = 0; k < sc.edge_edge.size(); ++k) {
+      const auto& e = mesh.edges[static_cast<std::size_t>(sc.edge_edge[k][0])];
+      const auto& f = mesh.edges[static_cast<std::size_t>(sc.edge_edge[k][1])];
+      const double d = segments_distance(b.col(e[0]), b.col(e[1]), b.col(f[0]), b.col(f[1]));
+      EXPECT_LE(double(sc.edge_edge_gap[k]), d - thickness + 1e-12)
+          << "step " << step << ": edges " << sc.edge_edge[k][0] << " and " << sc.edge_edge[k][1];
+    }
+    gaps_checked += sc.vertex_triangle.size() + sc.edge_edge.size();
     // The old test: rebuild when some vertex is more than skin / 2 from the centre of the box of
     // the displacements since the last rebuild.
     if (step == 1) old_reference = x;
@@ -538,9 +575,15 @@ TEST(SelfCollisionSearch, ListsKeptBetweenBuildsHoldEveryPairNearerThanTheThickn
     start = x;
   }
   EXPECT_GT(near_pairs, 100u) << "the ends never came within the thickness: nothing was tested";
-  EXPECT_LT(sc.builds, old_builds);
-  std::printf("rolled sheet: %zu near pairs checked, %ld builds (old test: %ld)\n", near_pairs,
-              sc.builds, old_builds);
+  EXPECT_EQ(whole.partial_builds, 0);
+  EXPECT_LT(whole.builds, old_builds);
+  EXPECT_GT(sc.partial_builds, 0);
+  EXPECT_LT(sc.regions_settled, whole.regions_settled);
+  std::printf(
+      "rolled sheet: %zu near pairs and %zu gaps checked; %ld builds (old test: %ld); partial: %ld "
+      "full and %ld partial builds, %ld regions settled (everything at each failed watch: %ld)\n",
+      near_pairs, gaps_checked, whole.builds, old_builds, sc.builds, sc.partial_builds,
+      sc.regions_settled, whole.regions_settled);
 }
 
 SolverSettings xpbd(double thickness_mm, int threads = 1) {

@@ -1,8 +1,11 @@
 #include "solvers/self_collision.hpp"
 
 #include <algorithm>
+#include <bit>
 #include <climits>
 #include <cmath>
+#include <cstdint>
+#include <initializer_list>
 #include <stdexcept>
 #include <string>
 
@@ -135,9 +138,13 @@ bool push_vertex_off_triangle(Eigen::Matrix3Xd& x, SelfCollision& sc, const doub
 // Largest float not above d, and smallest not below it (gaps and boxes must not overstate a
 // distance).
 float float_below(double d) {
-  float f = static_cast<float>(d);
-  if (static_cast<double>(f) > d) f = std::nextafter(f, -INFINITY);
-  return f;
+  const float f = static_cast<float>(d);
+  // The next float down, as std::nextafter(f, -INFINITY) gives it, without its library call or a
+  // branch (the rounding goes either way at random; partial builds lower tens of thousands of
+  // gaps and slacks a sub-step).
+  const auto bits = std::bit_cast<std::uint32_t>(f);
+  const std::uint32_t down = f > 0.0f ? bits - 1 : (f < 0.0f ? bits + 1 : 0x80000001u);  // -0: tiny
+  return static_cast<double>(f) > d ? std::bit_cast<float>(down) : f;
 }
 bool listed(const std::vector<int>& begin, const std::vector<int>& items, int owner, int other) {
   for (int k = begin[static_cast<std::size_t>(owner)];
@@ -490,11 +497,23 @@ void make_patches(SelfCollision& sc, const ClothMesh& mesh) {
   }
 }
 
-// Boxes and normal cones at positions x, bottom-up (children after parents in sc.patches). A
-// parent's cone holds its children's: half-angle max(angle(axis, child axis) + child half-angle).
-void refit_patches(SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix3Xd& x) {
+// One past the last patch of `root`'s subtree: the tree is made depth first (build_patch), so a
+// subtree is the range of ids [root, subtree_end(root)), its last leaf reached by right children.
+int subtree_end(const SelfCollision& sc, int root) {
+  while (sc.patches[static_cast<std::size_t>(root)].right >= 0)
+    root = sc.patches[static_cast<std::size_t>(root)].right;
+  return root + 1;
+}
+
+// Boxes and normal cones at positions x of the subtree of patch `root` (0: all), bottom-up
+// (children after parents in sc.patches), and the boxes of its edges and triangles. A parent's
+// cone holds its children's: half-angle max(angle(axis, child axis) + child half-angle).
+void refit_patches(SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix3Xd& x,
+                   int root = 0) {
   constexpr double pi = 3.14159265358979323846;
-  for (EdgeBox& box : sc.edge_boxes) {
+  const Patch& top = sc.patches[static_cast<std::size_t>(root)];
+  for (int i = top.edge_begin; i < top.edge_end; ++i) {
+    EdgeBox& box = sc.edge_boxes[static_cast<std::size_t>(i)];
     for (int k = 0; k < 3; ++k) {
       box.lo[k] = std::min(x(k, box.v0), x(k, box.v1));
       box.hi[k] = std::max(x(k, box.v0), x(k, box.v1));
@@ -503,7 +522,8 @@ void refit_patches(SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix
   auto angle_between = [](const Vec3& a, const Vec3& b) {
     return std::acos(std::clamp(a.dot(b), -1.0, 1.0));
   };
-  for (std::size_t id = sc.patches.size(); id-- > 0;) {
+  for (auto id = static_cast<std::size_t>(subtree_end(sc, root));
+       id-- > static_cast<std::size_t>(root);) {
     const Patch& p = sc.patches[id];
     PatchBounds& b = sc.patch_bounds[id];
     if (p.left < 0) {
@@ -677,6 +697,10 @@ struct PairSearch {
   std::vector<std::array<int, 2>>& ee;
   std::vector<float>* vt_gap;
   std::vector<float>* ee_gap;
+  // At a build, per pair found, the index its region's watch gets: each leaf or pair of leaves
+  // searched lists its pairs and then leaves its watch (own, between).
+  std::vector<int>* vt_region = nullptr;
+  std::vector<int>* ee_region = nullptr;
   ContourScratch scratch;
   // Scratch for the union of two patches (union_is_flat): stamps per vertex and edge, its
   // contour.
@@ -794,6 +818,7 @@ struct PairSearch {
     if (d_sq >= reach_sq) return;
     vt.push_back({tri, v});
     if (vt_gap) vt_gap->push_back(float_below(std::sqrt(d_sq) - thickness));
+    if (vt_region) vt_region->push_back(static_cast<int>(watches->size()));
   }
 
   // Triangles of leaf `tris` against the vertices owned by leaf `verts`: first the vertices
@@ -872,6 +897,7 @@ struct PairSearch {
     if (d_sq >= reach_sq) return;
     ee.push_back({e1.edge, e2.edge});
     if (ee_gap) ee_gap->push_back(float_below(std::sqrt(d_sq) - thickness));
+    if (ee_region) ee_region->push_back(static_cast<int>(watches->size()));
   }
 
   // Own edges of leaf `of` within reach of leaf `to`'s box, as their boxes.
@@ -964,20 +990,24 @@ struct PairSearch {
   }
 };
 
-// Every vertex-triangle and edge-edge pair nearer than `reach` at positions x (see
-// find_self_collision_pairs), with their distances less the thickness when gaps are given.
-void find_pairs(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x, double reach,
-                bool skip_rest_neighbours, bool skip_flat, std::vector<std::array<int, 2>>& vt,
-                std::vector<std::array<int, 2>>& ee, std::vector<float>* vt_gap = nullptr,
-                std::vector<float>* ee_gap = nullptr, std::vector<PatchWatch>* watches = nullptr) {
-  vt.clear();
-  ee.clear();
-  if (vt_gap) vt_gap->clear();
-  if (ee_gap) ee_gap->clear();
-  if (watches) watches->clear();
-  if (!x.allFinite() || model.mesh.edges.empty() || sc.patches.empty())
-    return;  // the solver's sanity check reports it
-  refit_patches(sc, model.mesh, x);
+// What a search lists: the pairs, and at a build their gaps, and the watches and each pair's.
+struct SearchOut {
+  std::vector<std::array<int, 2>>& vt;
+  std::vector<std::array<int, 2>>& ee;
+  std::vector<float>* vt_gap = nullptr;
+  std::vector<float>* ee_gap = nullptr;
+  std::vector<PatchWatch>* watches = nullptr;
+  std::vector<int>* vt_region = nullptr;
+  std::vector<int>* ee_region = nullptr;
+};
+
+// Appends to `out` the vertex-triangle and edge-edge pairs nearer than `reach` at positions x (see
+// find_self_collision_pairs) of the regions `roots` (a, b): a == b, the pairs within patch a,
+// otherwise those between a and b. The patches' bounds must be refit to x over the roots'
+// subtrees. Each region searched is settled into regions of its own, each leaving a watch.
+void search_regions(const SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
+                    double reach, bool skip_rest_neighbours, bool skip_flat,
+                    const std::vector<std::array<int, 2>>& roots, SearchOut out) {
   // The exact tests' computed distances are within about 1e-15 times the largest coordinate of the
   // true ones (closest_on_segments: points on the segments to a few ulps): 1e-13 of it, and 1 nm,
   // leave a margin of two orders of magnitude.
@@ -992,17 +1022,42 @@ void find_pairs(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3
                     far * far,
                     skip_rest_neighbours,
                     skip_flat,
-                    vt,
-                    ee,
-                    vt_gap,
-                    ee_gap,
+                    out.vt,
+                    out.ee,
+                    out.vt_gap,
+                    out.ee_gap,
+                    out.vt_region,
+                    out.ee_region,
                     {},
                     {},
                     {},
                     {},
                     0};
-  search.watches = watches;
-  search.own(0);
+  search.watches = out.watches;
+  for (const auto& [a, b] : roots) {
+    if (a == b)
+      search.own(a);
+    else
+      search.between(a, b);
+  }
+}
+
+// Every vertex-triangle and edge-edge pair nearer than `reach` at positions x (see
+// find_self_collision_pairs); at a build (out's gaps, watches and regions given) with their
+// gaps, the watches and each pair's region.
+void find_pairs(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x, double reach,
+                bool skip_rest_neighbours, bool skip_flat, SearchOut out) {
+  out.vt.clear();
+  out.ee.clear();
+  for (std::vector<float>* gaps : {out.vt_gap, out.ee_gap})
+    if (gaps) gaps->clear();
+  for (std::vector<int>* regions : {out.vt_region, out.ee_region})
+    if (regions) regions->clear();
+  if (out.watches) out.watches->clear();
+  if (!x.allFinite() || model.mesh.edges.empty() || sc.patches.empty())
+    return;  // the solver's sanity check reports it
+  refit_patches(sc, model.mesh, x);
+  search_regions(sc, model, x, reach, skip_rest_neighbours, skip_flat, {{0, 0}}, out);
 }
 
 // Pairs (owner, other) sorted by owner as compressed rows: begin[owner] .. begin[owner + 1].
@@ -1022,19 +1077,24 @@ void to_rows(const std::vector<std::array<int, 2>>& pairs, int owners, std::vect
 // them), then insertion sort within each owner's few pairs. The Gauss-Seidel order of the
 // contacts is then the pairs' own order, whatever order the grid found them in (the crossings
 // left depend on that order: docs/notebook/self_collision.md, "Fourth round").
-void sort_pairs(std::vector<std::array<int, 2>>& pairs, std::vector<float>& gaps, int owners,
-                std::vector<int>& begin, std::vector<std::array<int, 2>>& pairs_out,
-                std::vector<float>& gaps_out) {
+void sort_pairs(std::vector<std::array<int, 2>>& pairs, std::vector<float>& gaps,
+                std::vector<int>& regions, int owners, SelfCollision::RebuildScratch& scratch) {
+  std::vector<int>& begin = scratch.order;
   begin.assign(static_cast<std::size_t>(owners) + 1, 0);
   for (const auto& p : pairs) ++begin[static_cast<std::size_t>(p[0]) + 1];
   for (int o = 0; o < owners; ++o)
     begin[static_cast<std::size_t>(o) + 1] += begin[static_cast<std::size_t>(o)];
+  std::vector<std::array<int, 2>>& pairs_out = scratch.pairs_out;
+  std::vector<float>& gaps_out = scratch.gaps_out;
+  std::vector<int>& regions_out = scratch.regions_out;
   pairs_out.resize(pairs.size());
   gaps_out.resize(gaps.size());
+  regions_out.resize(regions.size());
   for (std::size_t k = 0; k < pairs.size(); ++k) {
     const auto slot = static_cast<std::size_t>(begin[static_cast<std::size_t>(pairs[k][0])]++);
     pairs_out[slot] = pairs[k];
     gaps_out[slot] = gaps[k];
+    regions_out[slot] = regions[k];
   }
   // begin[o] now holds the end of owner o's run, which is the start of o + 1's; sort each run.
   std::size_t start = 0;
@@ -1044,25 +1104,75 @@ void sort_pairs(std::vector<std::array<int, 2>>& pairs, std::vector<float>& gaps
       for (std::size_t b = a; b > start && pairs_out[b][1] < pairs_out[b - 1][1]; --b) {
         std::swap(pairs_out[b], pairs_out[b - 1]);
         std::swap(gaps_out[b], gaps_out[b - 1]);
+        std::swap(regions_out[b], regions_out[b - 1]);
       }
     start = end;
   }
   pairs.swap(pairs_out);
   gaps.swap(gaps_out);
+  regions.swap(regions_out);
 }
 
+// A full build: every region searched, the lists sorted.
 void build_candidates(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x) {
-  find_pairs(sc, model, x, sc.thickness + sc.skin, true, true, sc.vertex_triangle, sc.edge_edge,
-             &sc.vertex_triangle_gap, &sc.edge_edge_gap, &sc.watches);
-  std::vector<int> begin;
-  std::vector<std::array<int, 2>> pairs_out;
-  std::vector<float> gaps_out;
-  sort_pairs(sc.vertex_triangle, sc.vertex_triangle_gap,
-             static_cast<int>(model.mesh.triangles.size()), begin, pairs_out, gaps_out);
-  sort_pairs(sc.edge_edge, sc.edge_edge_gap, static_cast<int>(model.mesh.edges.size()), begin,
-             pairs_out, gaps_out);
+  find_pairs(sc, model, x, sc.thickness + sc.skin, true, true,
+             {sc.vertex_triangle, sc.edge_edge, &sc.vertex_triangle_gap, &sc.edge_edge_gap,
+              &sc.watches, &sc.vertex_triangle_region, &sc.edge_edge_region});
+  sort_pairs(sc.vertex_triangle, sc.vertex_triangle_gap, sc.vertex_triangle_region,
+             static_cast<int>(model.mesh.triangles.size()), sc.rebuild);
+  sort_pairs(sc.edge_edge, sc.edge_edge_gap, sc.edge_edge_region,
+             static_cast<int>(model.mesh.edges.size()), sc.rebuild);
   sc.built_at = x;
   ++sc.builds;
+  sc.regions_settled += static_cast<long>(sc.watches.size());
+}
+
+// A partial build's lists (rebuild_regions): drops the pairs of the regions searched again
+// (renumber[region] < 0), renumbers the others' regions and lowers their gaps by spread[new
+// region] (how far the pair's parts may have moved relative to each other since the last build),
+// then merges in the new pairs `found`. Both parts are sorted by (first, second) and no pair is in
+// both (each lies in one region), so the list ends sorted as a full build sorts it: the contacts'
+// Gauss-Seidel order does not depend on which regions were searched when.
+void merge_pairs(std::vector<std::array<int, 2>>& pairs, std::vector<float>& gaps,
+                 std::vector<int>& regions, const std::vector<int>& renumber,
+                 const std::vector<double>& spread, const std::vector<std::array<int, 2>>& found,
+                 const std::vector<float>& found_gaps, const std::vector<int>& found_regions,
+                 std::vector<int>& order) {
+  std::size_t kept = 0;
+  for (std::size_t k = 0; k < pairs.size(); ++k) {
+    const int region = renumber[static_cast<std::size_t>(regions[k])];
+    if (region < 0) continue;
+    pairs[kept] = pairs[k];
+    gaps[kept] = float_below(double(gaps[k]) - spread[static_cast<std::size_t>(region)]);
+    regions[kept] = region;
+    ++kept;
+  }
+  order.resize(found.size());
+  for (std::size_t k = 0; k < found.size(); ++k) order[k] = static_cast<int>(k);
+  std::sort(order.begin(), order.end(), [&found](int a, int b) {
+    return found[static_cast<std::size_t>(a)] < found[static_cast<std::size_t>(b)];
+  });
+  // Merged from the back, in place.
+  const std::size_t total = kept + found.size();
+  pairs.resize(total);
+  gaps.resize(total);
+  regions.resize(total);
+  std::size_t i = kept, j = found.size(), k = total;
+  while (j > 0) {
+    const auto f = static_cast<std::size_t>(order[j - 1]);
+    --k;
+    if (i > 0 && found[f] < pairs[i - 1]) {
+      --i;
+      pairs[k] = pairs[i];
+      gaps[k] = gaps[i];
+      regions[k] = regions[i];
+    } else {
+      --j;
+      pairs[k] = found[f];
+      gaps[k] = found_gaps[f];
+      regions[k] = found_regions[f];
+    }
+  }
 }
 
 }  // namespace
@@ -1087,7 +1197,7 @@ SelfCollision make_self_collision(const ClothModel& model, double thickness) {
   // The rest neighbours: every pair nearer than rest_gap in the rest shape (flat patches searched
   // too), found once.
   std::vector<std::array<int, 2>> vt, ee;
-  find_pairs(sc, model, model.mesh.rest, sc.rest_gap, false, false, vt, ee);
+  find_pairs(sc, model, model.mesh.rest, sc.rest_gap, false, false, {vt, ee});
   to_rows(vt, static_cast<int>(model.mesh.triangles.size()), sc.rest_vt_begin, sc.rest_vt);
   to_rows(ee, static_cast<int>(model.mesh.edges.size()), sc.rest_ee_begin, sc.rest_ee);
   return sc;
@@ -1115,17 +1225,19 @@ void raise_moved(std::vector<double>& moved, const Eigen::Matrix3Xd& x,
         std::max(moved[static_cast<std::size_t>(i)], (x.col(i) - built.col(i) - m).norm());
 }
 
-// Whether the last build's lists are still complete at x (docs/notebook/self_collision.md, "Ninth
-// round" and "Thirteenth round"): for every watch (PatchWatch), the box of the displacements since
-// the build over the vertices of its patches has a diagonal of at most the watch's slack. Any two
-// of those vertices have then moved by at most the slack relative to each other, and a
-// vertex-triangle or edge-edge distance changes by at most the largest relative motion of its
-// corners, so a pair left out at the build (farther than thickness + slack) is still farther than
-// the thickness (the Verlet argument per region). A patch found flat keeps the bound on its bending
-// (the skin) it had under the old test, every vertex within skin / 2 of the garment's common
-// motion, which asked this of every two vertices at once: the swinging hem rebuilt the lists of
-// the whole skirt, although only patches near each other need to keep together.
-bool lists_still_complete(SelfCollision& sc, const Eigen::Matrix3Xd& x) {
+// The watches that fail at x (docs/notebook/self_collision.md, "Ninth round", "Thirteenth round"
+// and "Fourteenth round"), into sc.rebuild.failed in their order: those for which the box of the
+// displacements since the last build over the vertices of its patches has a diagonal of more than
+// the watch's slack. While a watch holds, any two of those vertices have moved by at most the
+// slack relative to each other, and a vertex-triangle or edge-edge distance changes by at most the
+// largest relative motion of its corners, so a pair of its region left out (farther than
+// thickness + slack at the last build) is still farther than the thickness (the Verlet argument
+// per region). A patch found flat keeps the bound on its bending (the skin) it had under the old
+// test, every vertex within skin / 2 of the garment's common motion, which asked this of every two
+// vertices at once: the swinging hem rebuilt the lists of the whole skirt, although only patches
+// near each other need to keep together. Leaves each watch's squared diagonal in
+// sc.rebuild.drift (rebuild_regions reads it).
+void find_failed_watches(SelfCollision& sc, const Eigen::Matrix3Xd& x) {
   const Eigen::Matrix3Xd& built = sc.built_at;
   // Per patch, the box of its vertices' displacements, bottom-up (children come after parents).
   const std::size_t count = sc.patches.size();
@@ -1148,13 +1260,107 @@ bool lists_still_complete(SelfCollision& sc, const Eigen::Matrix3Xd& x) {
       box = {l[0].cwiseMin(r[0]), l[1].cwiseMax(r[1])};
     }
   }
-  for (const PatchWatch& wt : sc.watches) {
+  std::vector<int>& failed = sc.rebuild.failed;
+  std::vector<double>& drift = sc.rebuild.drift;
+  failed.clear();
+  drift.resize(sc.watches.size());
+  for (std::size_t k = 0; k < sc.watches.size(); ++k) {
+    const PatchWatch& wt = sc.watches[k];
     const std::array<Vec3, 2>& a = sc.displacement_box[static_cast<std::size_t>(wt.a)];
     const std::array<Vec3, 2>& b = sc.displacement_box[static_cast<std::size_t>(wt.b)];
     const Vec3 span = a[1].cwiseMax(b[1]) - a[0].cwiseMin(b[0]);
     const double slack = wt.slack;
-    if (!(span.squaredNorm() <= slack * slack)) return false;  // NaN positions rebuild too
+    drift[k] = span.squaredNorm();
+    if (!(drift[k] <= slack * slack))  // NaN positions fail too
+      failed.push_back(static_cast<int>(k));
   }
+}
+
+// A partial build at x (docs/notebook/self_collision.md, "Fourteenth round"): the regions of the
+// failed watches (sc.rebuild.failed) are searched again, from their patches (a, b) (a == b: from
+// a alone), after refitting those patches' subtrees; every other region keeps its pairs and its
+// watch. x becomes the one reference of all of them (built_at), and what each kept part promised
+// about the old reference is carried over to it by the triangle inequality:
+// - A watch that held with slack s, its region's displacements since the old reference spanning a
+//   box of diagonal d <= s, keeps slack s - d: a pair of the region left out by its search was
+//   farther than thickness + s at the old reference (by induction: at its search, less what every
+//   later partial build took off), and has moved by at most d relative to itself since, so is
+//   farther than thickness + (s - d) at x; and from x on the region's vertices may move by s - d
+//   relative to each other before a pair left out could come within the thickness. For a flat
+//   patch or union the slack bounds its bending since it was found flat in the same way.
+// - A kept pair's gap g (a lower bound on its distance less the thickness at the old reference)
+//   becomes g - d for d its region's drift: its corners are vertices of the region's patches
+//   (leaf_vertices holds every corner of a leaf's triangles), so they moved by at most d relative
+//   to each other, and a distance to a triangle or segment moves by at most its farthest corner's
+//   relative motion. (The contacts' motion bounds would do too, g - moved_p - max moved_q, but
+//   they are measured from the garment's common motion, which the swinging hem leaves by far
+//   more than its regions drift.) `moved` then restarts from 0 at x, as after a full build.
+// The lists end sorted by (first, second) as a full build sorts them (merge_pairs). Returns false
+// (nothing changed) when the failed regions' patches hold more than sc.partial_share of the
+// garment's triangles, or x is not finite: then the caller searches everything.
+bool rebuild_regions(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x) {
+  SelfCollision::RebuildScratch& r = sc.rebuild;
+  auto triangles = [&sc](int id) {
+    const Patch& p = sc.patches[static_cast<std::size_t>(id)];
+    return p.tri_end - p.tri_begin;
+  };
+  // The regions searched again: the failed ones.
+  r.roots.clear();
+  long share = 0;
+  for (int f : r.failed) {
+    const PatchWatch& wt = sc.watches[static_cast<std::size_t>(f)];
+    r.roots.push_back({wt.a, wt.b});
+    share += triangles(wt.a) + (wt.a != wt.b ? triangles(wt.b) : 0);
+  }
+  if (!(double(share) <= sc.partial_share * double(model.mesh.triangles.size())) || !x.allFinite())
+    return false;
+  // The kept watches renumbered, with their slack and drift against x.
+  r.renumber.resize(sc.watches.size());
+  for (int f : r.failed) r.renumber[static_cast<std::size_t>(f)] = -1;
+  std::size_t kept = 0, next_failed = 0;
+  for (std::size_t k = 0; k < sc.watches.size(); ++k) {
+    if (next_failed < r.failed.size() && r.failed[next_failed] == static_cast<int>(k)) {
+      ++next_failed;
+      continue;
+    }
+    const PatchWatch wt = sc.watches[k];
+    const double d = std::sqrt(r.drift[k]);
+    sc.watches[kept] = {wt.a, wt.b, float_below(double(wt.slack) - d)};
+    r.drift[kept] = d;
+    r.renumber[k] = static_cast<int>(kept++);
+  }
+  sc.watches.resize(kept);
+  // Each root's subtree refit once: an ancestor (a lower id) first, which covers its descendants.
+  r.patches.clear();
+  for (const auto& [a, b] : r.roots) {
+    r.patches.push_back(a);
+    if (b != a) r.patches.push_back(b);
+  }
+  std::sort(r.patches.begin(), r.patches.end());
+  r.refit.assign(sc.patches.size(), 0);
+  for (int id : r.patches) {
+    if (r.refit[static_cast<std::size_t>(id)]) continue;
+    refit_patches(sc, model.mesh, x, id);
+    std::fill(r.refit.begin() + id, r.refit.begin() + subtree_end(sc, id), 1);
+  }
+  r.vertex_triangle.clear();
+  r.edge_edge.clear();
+  r.vertex_triangle_gap.clear();
+  r.edge_edge_gap.clear();
+  r.vertex_triangle_region.clear();
+  r.edge_edge_region.clear();
+  const std::size_t before = sc.watches.size();
+  search_regions(sc, model, x, sc.thickness + sc.skin, true, true, r.roots,
+                 {r.vertex_triangle, r.edge_edge, &r.vertex_triangle_gap, &r.edge_edge_gap,
+                  &sc.watches, &r.vertex_triangle_region, &r.edge_edge_region});
+  // Kept pairs' gaps lowered by their regions' drift (above).
+  merge_pairs(sc.vertex_triangle, sc.vertex_triangle_gap, sc.vertex_triangle_region, r.renumber,
+              r.drift, r.vertex_triangle, r.vertex_triangle_gap, r.vertex_triangle_region, r.order);
+  merge_pairs(sc.edge_edge, sc.edge_edge_gap, sc.edge_edge_region, r.renumber, r.drift, r.edge_edge,
+              r.edge_edge_gap, r.edge_edge_region, r.order);
+  sc.built_at = x;
+  ++sc.partial_builds;
+  sc.regions_settled += static_cast<long>(sc.watches.size() - before);
   return true;
 }
 
@@ -1163,6 +1369,7 @@ bool lists_still_complete(SelfCollision& sc, const Eigen::Matrix3Xd& x) {
 bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
                             const Eigen::Matrix3Xd& x_start) {
   const bool built = sc.built_at.cols() == x.cols() && sc.moved.size() == std::size_t(x.cols());
+  bool partial = false;
   if (built) {
     // The contacts' motion bounds (SelfCollision::moved): a pair's distance changes by at most
     // |d_i - d_j| <= |d_i - m| + |d_j - m| for the vertex displacements d since the build and any
@@ -1189,12 +1396,14 @@ bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Ei
       moved[i] = std::max(moved[i], (x.col(i) - built_at.col(i) - m).norm());
       moved[i] = std::max(moved[i], (x_start.col(i) - built_at.col(i) - m_start).norm());
     }
-    // The lists stay complete while the regions the last build settled keep together, each
-    // within its slack (lists_still_complete).
-    if (lists_still_complete(sc, x))
-      return false;  // NaN positions rebuild (and the solver's check reports them)
+    // The lists stay complete while the regions the searches settled keep together, each within
+    // its slack (find_failed_watches); when some do not, only theirs are searched again, unless
+    // that is most of the garment (rebuild_regions).
+    find_failed_watches(sc, x);
+    if (sc.rebuild.failed.empty()) return false;
+    partial = rebuild_regions(sc, model, x);
   }
-  build_candidates(sc, model, x);
+  if (!partial) build_candidates(sc, model, x);  // NaN positions: empty lists (the solver reports)
   // The bounds at x, the build's positions, are 0; the sub-step's start's are raised.
   sc.moved.assign(static_cast<std::size_t>(x.cols()), 0.0);
   raise_moved(sc.moved, x_start, sc.built_at, common_motion(x_start, sc.built_at));
@@ -1673,7 +1882,7 @@ void find_self_collision_pairs(SelfCollision& sc, const ClothModel& model,
                                const Eigen::Matrix3Xd& x, double reach, bool skip_rest_neighbours,
                                bool skip_flat, std::vector<std::array<int, 2>>& vertex_triangle,
                                std::vector<std::array<int, 2>>& edge_edge) {
-  find_pairs(sc, model, x, reach, skip_rest_neighbours, skip_flat, vertex_triangle, edge_edge);
+  find_pairs(sc, model, x, reach, skip_rest_neighbours, skip_flat, {vertex_triangle, edge_edge});
 }
 
 }  // namespace clothdb

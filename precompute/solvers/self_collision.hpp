@@ -10,12 +10,15 @@
 // together, each within its own slack (PatchWatch; a pair's distance changes by at most the largest
 // motion of its corners relative to each other): two patches near each other by no more than the
 // skin, two found apart by no more than their separation less the thickness. This is checked every
-// sub-step in O(vertices + watches). Until the thirteenth round the test was every vertex within
-// skin / 2 of the garment's common motion, which the swinging hem failed although the patches near
-// each other moved together (20 % more builds on the 12k skirt; docs/notebook/self_collision.md,
-// "Ninth round" and "Thirteenth round"). Every sub-step tests only the listed pairs, and of those
-// only the ones whose distance at the build (less the thickness) is not more than their parts have
-// moved since (`moved`).
+// sub-step in O(vertices + watches). When some watches fail, only their regions are searched
+// again (a partial build), unless they hold most of the garment; the other regions keep their
+// pairs and watches, with slacks and gaps carried over to the new reference by the triangle
+// inequality (refresh_self_collision; docs/notebook/self_collision.md, "Fourteenth round"). Until
+// the thirteenth round the test was every vertex within skin / 2 of the garment's common motion,
+// which the swinging hem failed although the patches near each other moved together (20 % more
+// builds on the 12k skirt; docs/notebook/self_collision.md, "Ninth round" and "Thirteenth round").
+// Every sub-step tests only the listed pairs, and of those only the ones whose distance at the
+// build (less the thickness) is not more than their parts have moved since (`moved`).
 //
 // The build searches a hierarchy of patches of the garment (Volino & Magnenat-Thalmann 1994,
 // "Efficient self-collision detection on smoothly discretized surface animations using geometrical
@@ -97,7 +100,8 @@ struct TriangleBox {
 // (the reach less the thickness); for two patches found apart, their boxes' separation less the
 // thickness. The search leaves one watch per region, and they cover every pair once. The lists
 // stay complete while no two vertices of a and b have moved by more than the slack relative to
-// each other since the build (refresh_self_collision).
+// each other since the last build, full or partial (refresh_self_collision; a partial build lowers
+// a kept watch's slack by how far its region has drifted).
 struct PatchWatch {
   int a, b;
   float slack;
@@ -126,6 +130,15 @@ struct HierarchyCrossingScratch {
   std::vector<std::array<int, 2>> found;
 };
 
+// A partial build (refresh_self_collision) searches again only the regions whose watches failed,
+// unless their patches hold more than this share of the garment's triangles: then it searches
+// everything, which also leaves the regions as coarse as the search finds them (partial searches
+// only ever split them further). On the 12k skirt's first 20 frames of 01_01, self-collision's
+// samples per sample of the rest were 0.24 for shares 0.25-0.5, 0.25 at 0.7 and 0.28-0.31 at 1-2
+// (at 2 the watches and lists about 30 % longer), against 0.30 rebuilding everything
+// (docs/notebook/self_collision.md, "Fourteenth round").
+constexpr double kPartialShare = 0.5;
+
 struct SelfCollision {
   double thickness = 0.0;  // m
   double skin = 0.0;       // m: how much farther than thickness a listed pair may be at build
@@ -140,9 +153,15 @@ struct SelfCollision {
   // mesh.edges, the first less than the second.
   std::vector<std::array<int, 2>> vertex_triangle;
   std::vector<std::array<int, 2>> edge_edge;
-  // Per listed pair, its distance at the build minus the thickness (m, rounded down to float): how
-  // far its parts must still move towards each other before it can be in contact.
+  // Per listed pair, a lower bound on its distance at the last build (`built_at`) minus the
+  // thickness (m, rounded down to float): how far its parts must still move towards each other
+  // before it can be in contact. Exact at the search that found the pair; for a pair kept
+  // through a partial build, the earlier bound less how far its parts may have moved relative to
+  // each other since (refresh_self_collision).
   std::vector<float> vertex_triangle_gap, edge_edge_gap;
+  // Per listed pair, the watch (index into `watches`) of the region whose search found it: a
+  // partial build drops the pairs of the regions it searches again.
+  std::vector<int> vertex_triangle_region, edge_edge_region;
   // The patch hierarchy (topology from the rest shape; bounds refit at each build).
   std::vector<Patch> patches;
   std::vector<int> tri_order, vert_order, edge_order, contour;
@@ -155,11 +174,19 @@ struct SelfCollision {
   // position (boxes refit likewise).
   std::vector<EdgeBox> edge_boxes;
   std::vector<TriangleBox> triangle_boxes;
-  Eigen::Matrix3Xd built_at;  // positions at the last build (empty: never built)
-  // The last build's watches, and per patch the box (low, high corner) of its vertices'
-  // displacements since the build (scratch of their test).
+  // Positions at the last build, full or partial (empty: never built): the one reference of the
+  // watches' slacks, the gaps and `moved`.
+  Eigen::Matrix3Xd built_at;
+  // The watches (one per region the searches settled, together covering every pair once), and
+  // per patch the box (low, high corner) of its vertices' displacements since the last build
+  // (scratch of their test).
   std::vector<PatchWatch> watches;
   std::vector<std::array<Vec3, 2>> displacement_box;
+  // A partial build searches again only the regions whose watches failed, unless their patches
+  // hold more than this share of the garment's triangles (counted once per watch and patch, so
+  // the share may pass 1): then it searches everything (refresh_self_collision). 0: every failed
+  // watch rebuilds everything (the rule before partial builds).
+  double partial_share = kPartialShare;
   // Per leaf patch id, its vertices (those of its triangles, each once):
   // leaf_vertices[leaf_vertex_begin[id] .. leaf_vertex_begin[id + 1]) (empty for other patches).
   std::vector<int> leaf_vertex_begin, leaf_vertices;
@@ -182,8 +209,21 @@ struct SelfCollision {
   // the grid's (edge_triangle_crossings, used where the hierarchy cannot be) and the hierarchy's.
   CrossingScratch crossing_scratch;
   HierarchyCrossingScratch hierarchy_crossing;
-  long body_cuts = 0;  // contact moves the body's room has cut short so far
-  long builds = 0;     // how many builds so far (reported by describe / benchmarks)
+  long body_cuts = 0;       // contact moves the body's room has cut short so far
+  long builds = 0;          // how many full builds so far (reported by describe / benchmarks)
+  long partial_builds = 0;  // how many partial builds so far
+  // Watches the searches have made so far, full builds and partial: one per region settled, so a
+  // measure of the searches' work that does not depend on the machine.
+  long regions_settled = 0;
+  // Scratch of the partial builds, kept from build to build (lists of tens of thousands).
+  struct RebuildScratch {
+    std::vector<int> failed, renumber, order, patches;
+    std::vector<double> drift;
+    std::vector<char> refit;
+    std::vector<std::array<int, 2>> roots, vertex_triangle, edge_edge, pairs_out;
+    std::vector<float> vertex_triangle_gap, edge_edge_gap, gaps_out;
+    std::vector<int> vertex_triangle_region, edge_edge_region, regions_out;
+  } rebuild;
 };
 
 // The contacts after the body's collision pass (xpbd.cpp) push the layer next to the body into it
@@ -209,7 +249,9 @@ SelfCollision make_self_collision(const ClothModel& model, double thickness);
 
 // Rebuilds the candidate lists if they may be incomplete for positions x (some watch of the last
 // build fails, or they were never built), and brings the per-vertex motion bounds up to x and
-// x_start (the sub-step's start). Returns whether it rebuilt.
+// x_start (the sub-step's start). A rebuild searches only the failed watches' regions again
+// unless their patches hold more than sc.partial_share of the triangles (or the lists were never
+// built): then it searches everything. Returns whether it rebuilt (fully or partly).
 bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
                             const Eigen::Matrix3Xd& x_start);
 
