@@ -505,27 +505,23 @@ int subtree_end(const SelfCollision& sc, int root) {
   return root + 1;
 }
 
-// Boxes and normal cones at positions x of the subtree of patch `root` (0: all), bottom-up
-// (children after parents in sc.patches), and the boxes of its edges and triangles. A parent's
-// cone holds its children's: half-angle max(angle(axis, child axis) + child half-angle).
-void refit_patches(SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix3Xd& x,
-                   int root = 0) {
+// Boxes and normal cones at positions x of patches [begin, end) into `bounds`, bottom-up (children
+// after parents in sc.patches, and a range that holds a patch holds its subtree). A parent's cone
+// holds its children's: half-angle max(angle(axis, child axis) + child half-angle). A cone at least
+// `flat_angle` wide (cos `flat_cos`) is stored as pi: every test compares a cone with that angle,
+// and one that wide decides nothing else (PatchBounds::angle). When `triangle_boxes` is given, the
+// leaves' triangle boxes are refit too (the build's; the crossing search has its own bounds and
+// angle, hierarchy_crossings).
+void refit_bounds(const SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix3Xd& x,
+                  int begin, int end, double flat_angle, double flat_cos,
+                  std::vector<PatchBounds>& bounds, TriangleBox* triangle_boxes) {
   constexpr double pi = 3.14159265358979323846;
-  const Patch& top = sc.patches[static_cast<std::size_t>(root)];
-  for (int i = top.edge_begin; i < top.edge_end; ++i) {
-    EdgeBox& box = sc.edge_boxes[static_cast<std::size_t>(i)];
-    for (int k = 0; k < 3; ++k) {
-      box.lo[k] = std::min(x(k, box.v0), x(k, box.v1));
-      box.hi[k] = std::max(x(k, box.v0), x(k, box.v1));
-    }
-  }
   auto angle_between = [](const Vec3& a, const Vec3& b) {
     return std::acos(std::clamp(a.dot(b), -1.0, 1.0));
   };
-  for (auto id = static_cast<std::size_t>(subtree_end(sc, root));
-       id-- > static_cast<std::size_t>(root);) {
+  for (auto id = static_cast<std::size_t>(end); id-- > static_cast<std::size_t>(begin);) {
     const Patch& p = sc.patches[id];
-    PatchBounds& b = sc.patch_bounds[id];
+    PatchBounds& b = bounds[id];
     if (p.left < 0) {
       b.lo = Vec3::Constant(INFINITY);
       b.hi = Vec3::Constant(-INFINITY);
@@ -536,10 +532,12 @@ void refit_patches(SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix
         const auto& t =
             mesh.triangles[static_cast<std::size_t>(sc.tri_order[static_cast<std::size_t>(k)])];
         const Vec3 a = x.col(t[0]), c1 = x.col(t[1]), c2 = x.col(t[2]);
-        TriangleBox& tb = sc.triangle_boxes[static_cast<std::size_t>(k)];
-        for (int i = 0; i < 3; ++i) {
-          tb.lo[i] = std::min(std::min(a[i], c1[i]), c2[i]);
-          tb.hi[i] = std::max(std::max(a[i], c1[i]), c2[i]);
+        if (triangle_boxes != nullptr) {
+          TriangleBox& tb = triangle_boxes[k];
+          for (int i = 0; i < 3; ++i) {
+            tb.lo[i] = std::min(std::min(a[i], c1[i]), c2[i]);
+            tb.hi[i] = std::max(std::max(a[i], c1[i]), c2[i]);
+          }
         }
         b.lo = b.lo.cwiseMin(a.cwiseMin(c1).cwiseMin(c2));
         b.hi = b.hi.cwiseMax(a.cwiseMax(c1).cwiseMax(c2));
@@ -554,28 +552,43 @@ void refit_patches(SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix
       double lowest = 1.0;
       for (int k = 0; k < p.tri_end - p.tri_begin; ++k)
         lowest = std::min(lowest, normals[k].dot(b.axis));
-      // A cone surely at least kFlatAngle wide (acos is monotone and exact to an ulp or so, far
-      // inside the 1e-9 margin) is stored as pi without its acos: every test compares a cone with
-      // kFlatAngle, and one that wide decides nothing else (PatchBounds::angle).
-      b.angle = degenerate || !(len > 0.0) || lowest < kFlatCos - 1e-9
+      // A cone surely at least flat_angle wide (acos is monotone and exact to an ulp or so, far
+      // inside the 1e-9 margin) is stored as pi without its acos.
+      b.angle = degenerate || !(len > 0.0) || lowest < flat_cos - 1e-9
                     ? pi
                     : std::acos(std::clamp(lowest, -1.0, 1.0));
     } else {
-      const PatchBounds& l = sc.patch_bounds[static_cast<std::size_t>(p.left)];
-      const PatchBounds& r = sc.patch_bounds[static_cast<std::size_t>(p.right)];
+      const PatchBounds& l = bounds[static_cast<std::size_t>(p.left)];
+      const PatchBounds& r = bounds[static_cast<std::size_t>(p.right)];
       b.lo = l.lo.cwiseMin(r.lo);
       b.hi = l.hi.cwiseMax(r.hi);
       b.normal_sum = l.normal_sum + r.normal_sum;
       const double len = b.normal_sum.norm();
       b.axis = len > 0.0 ? Vec3(b.normal_sum / len) : Vec3::Zero();
-      // A child's cone at least kFlatAngle wide makes the parent's so (it holds the child's):
-      // pi, without the two acos (PatchBounds::angle).
-      b.angle = !(len > 0.0) || l.angle >= kFlatAngle || r.angle >= kFlatAngle
+      // A child's cone at least flat_angle wide makes the parent's so (it holds the child's): pi,
+      // without the two acos.
+      b.angle = !(len > 0.0) || l.angle >= flat_angle || r.angle >= flat_angle
                     ? pi
                     : std::min(pi, std::max(angle_between(b.axis, l.axis) + l.angle,
                                             angle_between(b.axis, r.axis) + r.angle));
     }
   }
+}
+
+// The build's bounds (sc.patch_bounds, against kFlatAngle) and its edge and triangle boxes at
+// positions x, for the subtree of patch `root` (0: all).
+void refit_patches(SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix3Xd& x,
+                   int root = 0) {
+  const Patch& top = sc.patches[static_cast<std::size_t>(root)];
+  for (int i = top.edge_begin; i < top.edge_end; ++i) {
+    EdgeBox& box = sc.edge_boxes[static_cast<std::size_t>(i)];
+    for (int k = 0; k < 3; ++k) {
+      box.lo[k] = std::min(x(k, box.v0), x(k, box.v1));
+      box.hi[k] = std::max(x(k, box.v0), x(k, box.v1));
+    }
+  }
+  refit_bounds(sc, mesh, x, root, subtree_end(sc, root), kFlatAngle, kFlatCos, sc.patch_bounds,
+               sc.triangle_boxes.data());
 }
 
 // Whether segments ab and cd of the plane meet (touching and collinear overlap count: a patch
@@ -1525,61 +1538,6 @@ constexpr double kCrossingFlatAngle = 2.0 * 3.14159265358979323846 / 5.0;
 // cos(2 pi / 5) = (sqrt 5 - 1) / 4, as a literal (std::cos is not constexpr here).
 constexpr double kCrossingFlatCos = 0.30901699437494742410;
 
-// Boxes and normal cones of every patch at x, bottom-up, by refit_patches' rule (a parent's cone
-// holds its children's) but against kCrossingFlatAngle and into the search's own array (the
-// build's bounds belong to the build's positions).
-void refit_crossing_bounds(const SelfCollision& sc, const ClothMesh& mesh,
-                           const Eigen::Matrix3Xd& x, std::vector<PatchBounds>& bounds) {
-  constexpr double pi = 3.14159265358979323846;
-  bounds.resize(sc.patches.size());
-  auto angle_between = [](const Vec3& a, const Vec3& b) {
-    return std::acos(std::clamp(a.dot(b), -1.0, 1.0));
-  };
-  for (std::size_t id = sc.patches.size(); id-- > 0;) {
-    const Patch& p = sc.patches[id];
-    PatchBounds& b = bounds[id];
-    if (p.left < 0) {
-      b.lo = Vec3::Constant(INFINITY);
-      b.hi = Vec3::Constant(-INFINITY);
-      b.normal_sum.setZero();
-      Vec3 normals[kLeafTriangles];
-      bool degenerate = false;
-      for (int k = p.tri_begin; k < p.tri_end; ++k) {
-        const auto& t =
-            mesh.triangles[static_cast<std::size_t>(sc.tri_order[static_cast<std::size_t>(k)])];
-        const Vec3 a = x.col(t[0]), c1 = x.col(t[1]), c2 = x.col(t[2]);
-        b.lo = b.lo.cwiseMin(a.cwiseMin(c1).cwiseMin(c2));
-        b.hi = b.hi.cwiseMax(a.cwiseMax(c1).cwiseMax(c2));
-        const Vec3 n = (c1 - a).cross(c2 - a);
-        b.normal_sum += n;
-        const double len = n.norm();
-        degenerate = degenerate || !(len > 0.0);
-        normals[k - p.tri_begin] = len > 0.0 ? Vec3(n / len) : Vec3::Zero();
-      }
-      const double len = b.normal_sum.norm();
-      b.axis = len > 0.0 ? Vec3(b.normal_sum / len) : Vec3::Zero();
-      double lowest = 1.0;
-      for (int k = 0; k < p.tri_end - p.tri_begin; ++k)
-        lowest = std::min(lowest, normals[k].dot(b.axis));
-      b.angle = degenerate || !(len > 0.0) || lowest < kCrossingFlatCos - 1e-9
-                    ? pi
-                    : std::acos(std::clamp(lowest, -1.0, 1.0));
-    } else {
-      const PatchBounds& l = bounds[static_cast<std::size_t>(p.left)];
-      const PatchBounds& r = bounds[static_cast<std::size_t>(p.right)];
-      b.lo = l.lo.cwiseMin(r.lo);
-      b.hi = l.hi.cwiseMax(r.hi);
-      b.normal_sum = l.normal_sum + r.normal_sum;
-      const double len = b.normal_sum.norm();
-      b.axis = len > 0.0 ? Vec3(b.normal_sum / len) : Vec3::Zero();
-      b.angle = !(len > 0.0) || l.angle >= kCrossingFlatAngle || r.angle >= kCrossingFlatAngle
-                    ? pi
-                    : std::min(pi, std::max(angle_between(b.axis, l.axis) + l.angle,
-                                            angle_between(b.axis, r.axis) + r.angle));
-    }
-  }
-}
-
 // The descent of hierarchy_crossings. Every (edge, triangle) pair is met once: an edge is owned by
 // one leaf (Patch), a triangle lies in one, and the descent reaches each leaf alone (own) and each
 // pair of leaves (between) once, unless a patch or union holding both is flat or two patches
@@ -1774,7 +1732,11 @@ std::vector<std::array<int, 2>> hierarchy_crossings(SelfCollision& sc, const Clo
       sc.edge_order.size() != mesh.edges.size())
     return edge_triangle_crossings(mesh, x, &sc.crossing_scratch);
   HierarchyCrossingScratch& work = sc.hierarchy_crossing;
-  refit_crossing_bounds(sc, mesh, x, work.bounds);
+  // Into the search's own array, against its own flat cone: the build's bounds belong to the
+  // build's positions.
+  work.bounds.resize(sc.patches.size());
+  refit_bounds(sc, mesh, x, 0, static_cast<int>(sc.patches.size()), kCrossingFlatAngle,
+               kCrossingFlatCos, work.bounds, nullptr);
   work.found.clear();
   CrossingSearch search{sc, mesh, x, work, {}};
   search.own(0);
