@@ -605,19 +605,7 @@ bool segments_meet(const double* a, const double* b, const double* c, const doub
   return !(o1 * o2 > 0.0) && !(o3 * o4 > 0.0);
 }
 
-// A contour edge projected onto the plane of a cone's axis: its ends (u, v) and its range in u.
-struct ProjectedEdge {
-  double high;                   // its largest value along the sweep's coordinate (a[0], b[0])
-  double cross_low, cross_high;  // its range along the other one
-  double a[2], b[2];             // its ends
-  int v0, v1;                    // its vertices
-};
-// The contour test's scratch: the projected edges, and their (lowest sweep value, position), which
-// are sorted instead of the edges themselves (a sixth of the bytes to move).
-struct ContourScratch {
-  std::vector<ProjectedEdge> edges;
-  std::vector<std::pair<double, int>> by_low;
-};
+using ProjectedEdge = FlatTestScratch::ProjectedEdge;
 
 // Whether the contour edges `contour[0, k)`, projected onto the plane normal to `axis`, keep
 // apart (edges sharing a vertex excepted). A sweep along the coordinate of the plane in which the
@@ -627,7 +615,7 @@ struct ContourScratch {
 // sweep (segments_meet tests both ranges first, and swapping the coordinates negates each
 // orientation exactly, so its products keep their signs).
 bool contour_is_simple(const ClothMesh& mesh, const Eigen::Matrix3Xd& x, const int* contour, int k,
-                       const Vec3& axis, ContourScratch& scratch) {
+                       const Vec3& axis, FlatTestScratch& scratch) {
   if (k > kMaxContour) return false;
   // A basis (u, v) of the plane normal to the axis.
   const Vec3 helper = std::abs(axis[0]) < 0.6 ? Vec3(1, 0, 0) : Vec3(0, 1, 0);
@@ -681,16 +669,100 @@ bool contour_is_simple(const ClothMesh& mesh, const Eigen::Matrix3Xd& x, const i
 }
 
 // Volino & Magnenat-Thalmann 1994's test: a disk whose normals lie within a cone of half-angle
-// below kFlatAngle (< pi/2, so it projects onto the plane normal to the axis without folding
+// below flat_angle (< pi/2, so it projects onto the plane normal to the axis without folding
 // locally) and whose contour projects onto that plane without crossing itself projects one to
-// one: a height field, which cannot pass through itself.
+// one: a height field, which cannot pass through itself. `bounds`: the patches' at x (the build's
+// sc.patch_bounds against kFlatAngle, or the crossing search's own against kCrossingFlatAngle).
 bool patch_is_flat(const SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix3Xd& x,
-                   int id, ContourScratch& scratch) {
+                   const std::vector<PatchBounds>& bounds, double flat_angle, int id,
+                   FlatTestScratch& scratch) {
   const Patch& p = sc.patches[static_cast<std::size_t>(id)];
-  const PatchBounds& b = sc.patch_bounds[static_cast<std::size_t>(id)];
-  if (!p.disk || !(b.angle < kFlatAngle)) return false;
+  const PatchBounds& b = bounds[static_cast<std::size_t>(id)];
+  if (!p.disk || !(b.angle < flat_angle)) return false;
   return contour_is_simple(mesh, x, sc.contour.data() + p.contour_begin,
                            p.contour_end - p.contour_begin, b.axis, scratch);
+}
+
+// Whether patches a and b share an edge (SelfCollision::contour_across).
+bool patches_share_an_edge(const SelfCollision& sc, int a, int b) {
+  const Patch* p = &sc.patches[static_cast<std::size_t>(a)];
+  const Patch* q = &sc.patches[static_cast<std::size_t>(b)];
+  if (p->contour_end - p->contour_begin > q->contour_end - q->contour_begin) std::swap(p, q);
+  for (int k = p->contour_begin; k < p->contour_end; ++k) {
+    const int across = sc.contour_across[static_cast<std::size_t>(k)];
+    if ((across >= q->tri_begin) & (across < q->tri_end)) return true;
+  }
+  return false;
+}
+
+// Whether two disks that border each other form a flat disk (the same test as patch_is_flat, on
+// their union): a pair of patches split apart high in the tree along a flat stretch of cloth is
+// then not descended to the leaves along their border (Volino & Magnenat-Thalmann 1994 treat
+// adjacent patches so). The union of two disks is a disk when they share a path: shared edges
+// E_s >= 1 and shared vertices V_s = E_s + 1 (chi = 1 + 1 - (V_s - E_s)); its contour is the
+// two contours without the shared edges.
+bool union_is_flat(const SelfCollision& sc, const ClothMesh& mesh, const Eigen::Matrix3Xd& x,
+                   const std::vector<PatchBounds>& bounds, double flat_angle, int a, int b,
+                   FlatTestScratch& scratch) {
+  const Patch& pa = sc.patches[static_cast<std::size_t>(a)];
+  const Patch& pb = sc.patches[static_cast<std::size_t>(b)];
+  if (!pa.disk || !pb.disk) return false;
+  const PatchBounds& ba = bounds[static_cast<std::size_t>(a)];
+  const PatchBounds& bb = bounds[static_cast<std::size_t>(b)];
+  // The union's cone holds each part's, so a part's cone at least flat_angle wide decides it
+  // before the acos below.
+  if (!(ba.angle < flat_angle) || !(bb.angle < flat_angle)) return false;
+  // Most pairs tested share no edge (they meet across a fold, or at a corner): the shorter
+  // contour's edges across which lies a triangle of the other patch say so before the acos and
+  // the stamps below.
+  if (!patches_share_an_edge(sc, a, b)) return false;
+  const Vec3 sum = ba.normal_sum + bb.normal_sum;
+  const double len = sum.norm();
+  if (!(len > 0.0)) return false;
+  const Vec3 axis = sum / len;
+  const double angle = std::max(std::acos(std::clamp(axis.dot(ba.axis), -1.0, 1.0)) + ba.angle,
+                                std::acos(std::clamp(axis.dot(bb.axis), -1.0, 1.0)) + bb.angle);
+  if (!(angle < flat_angle)) return false;
+  std::vector<int>& vertex_stamp = scratch.vertex_stamp;
+  std::vector<int>& edge_stamp = scratch.edge_stamp;
+  std::vector<int>& union_contour = scratch.union_contour;
+  if (vertex_stamp.size() != static_cast<std::size_t>(mesh.vertex_count()) ||
+      edge_stamp.size() != mesh.edges.size() || scratch.stamp == INT_MAX) {
+    vertex_stamp.assign(static_cast<std::size_t>(mesh.vertex_count()), 0);
+    edge_stamp.assign(mesh.edges.size(), 0);
+    scratch.stamp = 0;
+  }
+  const int stamp = ++scratch.stamp;
+  for (int k = pa.contour_begin; k < pa.contour_end; ++k) {
+    const int e = sc.contour[static_cast<std::size_t>(k)];
+    edge_stamp[static_cast<std::size_t>(e)] = stamp;
+    for (int v : mesh.edges[static_cast<std::size_t>(e)])
+      vertex_stamp[static_cast<std::size_t>(v)] = stamp;
+  }
+  // Shared vertices counted once each: re-stamped with -stamp when seen from b.
+  int shared_vertices = 0, shared_edges = 0;
+  union_contour.clear();
+  for (int k = pb.contour_begin; k < pb.contour_end; ++k) {
+    const int e = sc.contour[static_cast<std::size_t>(k)];
+    if (edge_stamp[static_cast<std::size_t>(e)] == stamp) {
+      ++shared_edges;
+      edge_stamp[static_cast<std::size_t>(e)] = -stamp;
+    } else {
+      union_contour.push_back(e);
+    }
+    for (int v : mesh.edges[static_cast<std::size_t>(e)])
+      if (vertex_stamp[static_cast<std::size_t>(v)] == stamp) {
+        ++shared_vertices;
+        vertex_stamp[static_cast<std::size_t>(v)] = -stamp;
+      }
+  }
+  if (shared_edges < 1 || shared_vertices != shared_edges + 1) return false;
+  for (int k = pa.contour_begin; k < pa.contour_end; ++k) {
+    const int e = sc.contour[static_cast<std::size_t>(k)];
+    if (edge_stamp[static_cast<std::size_t>(e)] == stamp) union_contour.push_back(e);
+  }
+  return contour_is_simple(mesh, x, union_contour.data(), static_cast<int>(union_contour.size()),
+                           axis, scratch);
 }
 
 // The search over the hierarchy: a patch's own pairs (unless flat), then pairs of patches whose
@@ -714,11 +786,7 @@ struct PairSearch {
   // searched lists its pairs and then leaves its watch (own, between).
   std::vector<int>* vt_region = nullptr;
   std::vector<int>* ee_region = nullptr;
-  ContourScratch scratch;
-  // Scratch for the union of two patches (union_is_flat): stamps per vertex and edge, its
-  // contour.
-  std::vector<int> vertex_stamp, edge_stamp, union_contour;
-  int stamp = 0;
+  FlatTestScratch& flat;
   // At a build: what keeps the lists complete, one watch per region the search settles
   // (PatchWatch); null for the searches that only list pairs.
   std::vector<PatchWatch>* watches = nullptr;
@@ -726,82 +794,7 @@ struct PairSearch {
     if (watches) watches->push_back({a, b, float_below(slack)});
   }
 
-  // Whether two disks that border each other form a flat disk (the same test as patch_is_flat, on
-  // their union): a pair of patches split apart high in the tree along a flat stretch of cloth is
-  // then not descended to the leaves along their border (Volino & Magnenat-Thalmann 1994 treat
-  // adjacent patches so). The union of two disks is a disk when they share a path: shared edges
-  // E_s >= 1 and shared vertices V_s = E_s + 1 (chi = 1 + 1 - (V_s - E_s)); its contour is the
-  // two contours without the shared edges.
-  bool union_is_flat(int a, int b) {
-    const Patch& pa = patch(a);
-    const Patch& pb = patch(b);
-    if (!pa.disk || !pb.disk) return false;
-    const PatchBounds& ba = sc.patch_bounds[static_cast<std::size_t>(a)];
-    const PatchBounds& bb = sc.patch_bounds[static_cast<std::size_t>(b)];
-    // The union's cone holds each part's, so a part's cone at least kFlatAngle wide decides it
-    // before the acos below.
-    if (!(ba.angle < kFlatAngle) || !(bb.angle < kFlatAngle)) return false;
-    // Most pairs tested share no edge (they meet across a fold, or at a corner): the shorter
-    // contour's edges across which lies a triangle of the other patch say so before the acos and
-    // the stamps below.
-    if (!share_an_edge(a, b)) return false;
-    const Vec3 sum = ba.normal_sum + bb.normal_sum;
-    const double len = sum.norm();
-    if (!(len > 0.0)) return false;
-    const Vec3 axis = sum / len;
-    const double angle = std::max(std::acos(std::clamp(axis.dot(ba.axis), -1.0, 1.0)) + ba.angle,
-                                  std::acos(std::clamp(axis.dot(bb.axis), -1.0, 1.0)) + bb.angle);
-    if (!(angle < kFlatAngle)) return false;
-    if (vertex_stamp.empty()) {
-      vertex_stamp.assign(static_cast<std::size_t>(mesh.vertex_count()), 0);
-      edge_stamp.assign(mesh.edges.size(), 0);
-    }
-    ++stamp;
-    for (int k = pa.contour_begin; k < pa.contour_end; ++k) {
-      const int e = sc.contour[static_cast<std::size_t>(k)];
-      edge_stamp[static_cast<std::size_t>(e)] = stamp;
-      for (int v : mesh.edges[static_cast<std::size_t>(e)])
-        vertex_stamp[static_cast<std::size_t>(v)] = stamp;
-    }
-    // Shared vertices counted once each: re-stamped with -stamp when seen from b.
-    int shared_vertices = 0, shared_edges = 0;
-    union_contour.clear();
-    for (int k = pb.contour_begin; k < pb.contour_end; ++k) {
-      const int e = sc.contour[static_cast<std::size_t>(k)];
-      if (edge_stamp[static_cast<std::size_t>(e)] == stamp) {
-        ++shared_edges;
-        edge_stamp[static_cast<std::size_t>(e)] = -stamp;
-      } else {
-        union_contour.push_back(e);
-      }
-      for (int v : mesh.edges[static_cast<std::size_t>(e)])
-        if (vertex_stamp[static_cast<std::size_t>(v)] == stamp) {
-          ++shared_vertices;
-          vertex_stamp[static_cast<std::size_t>(v)] = -stamp;
-        }
-    }
-    if (shared_edges < 1 || shared_vertices != shared_edges + 1) return false;
-    for (int k = pa.contour_begin; k < pa.contour_end; ++k) {
-      const int e = sc.contour[static_cast<std::size_t>(k)];
-      if (edge_stamp[static_cast<std::size_t>(e)] == stamp) union_contour.push_back(e);
-    }
-    return contour_is_simple(mesh, x, union_contour.data(), static_cast<int>(union_contour.size()),
-                             axis, scratch);
-  }
-
   const Patch& patch(int id) const { return sc.patches[static_cast<std::size_t>(id)]; }
-
-  // Whether patches a and b share an edge (SelfCollision::contour_across).
-  bool share_an_edge(int a, int b) const {
-    const Patch* p = &patch(a);
-    const Patch* q = &patch(b);
-    if (p->contour_end - p->contour_begin > q->contour_end - q->contour_begin) std::swap(p, q);
-    for (int k = p->contour_begin; k < p->contour_end; ++k) {
-      const int across = sc.contour_across[static_cast<std::size_t>(k)];
-      if ((across >= q->tri_begin) & (across < q->tri_end)) return true;
-    }
-    return false;
-  }
 
   // The largest separation of the two patches' boxes along an axis: a lower bound on the distance
   // between any parts of the two.
@@ -958,7 +951,7 @@ struct PairSearch {
   // separation less the thickness). Together they cover every vertex-triangle and edge-edge pair
   // once.
   void own(int id) {
-    if (skip_flat && patch_is_flat(sc, mesh, x, id, scratch)) {
+    if (skip_flat && patch_is_flat(sc, mesh, x, sc.patch_bounds, kFlatAngle, id, flat)) {
       watch(id, id, reach - thickness);
       return;
     }
@@ -979,7 +972,7 @@ struct PairSearch {
       if (watches) watch(a, b, separation(a, b) - thickness);
       return;
     }
-    if (skip_flat && union_is_flat(a, b)) {
+    if (skip_flat && union_is_flat(sc, mesh, x, sc.patch_bounds, kFlatAngle, a, b, flat)) {
       watch(a, b, reach - thickness);
       return;
     }
@@ -1020,7 +1013,8 @@ struct SearchOut {
 // subtrees. Each region searched is settled into regions of its own, each leaving a watch.
 void search_regions(const SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
                     double reach, bool skip_rest_neighbours, bool skip_flat,
-                    const std::vector<std::array<int, 2>>& roots, SearchOut out) {
+                    const std::vector<std::array<int, 2>>& roots, SearchOut out,
+                    FlatTestScratch& flat) {
   // The exact tests' computed distances are within about 1e-15 times the largest coordinate of the
   // true ones (closest_on_segments: points on the segments to a few ulps): 1e-13 of it, and 1 nm,
   // leave a margin of two orders of magnitude.
@@ -1041,11 +1035,7 @@ void search_regions(const SelfCollision& sc, const ClothModel& model, const Eige
                     out.ee_gap,
                     out.vt_region,
                     out.ee_region,
-                    {},
-                    {},
-                    {},
-                    {},
-                    0};
+                    flat};
   search.watches = out.watches;
   for (const auto& [a, b] : roots) {
     if (a == b)
@@ -1070,7 +1060,8 @@ void find_pairs(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3
   if (!x.allFinite() || model.mesh.edges.empty() || sc.patches.empty())
     return;  // the solver's sanity check reports it
   refit_patches(sc, model.mesh, x);
-  search_regions(sc, model, x, reach, skip_rest_neighbours, skip_flat, {{0, 0}}, out);
+  search_regions(sc, model, x, reach, skip_rest_neighbours, skip_flat, {{0, 0}}, out,
+                 sc.flat_tests);
 }
 
 // Pairs (owner, other) sorted by owner as compressed rows: begin[owner] .. begin[owner + 1].
@@ -1365,7 +1356,8 @@ bool rebuild_regions(SelfCollision& sc, const ClothModel& model, const Eigen::Ma
   const std::size_t before = sc.watches.size();
   search_regions(sc, model, x, sc.thickness + sc.skin, true, true, r.roots,
                  {r.vertex_triangle, r.edge_edge, &r.vertex_triangle_gap, &r.edge_edge_gap,
-                  &sc.watches, &r.vertex_triangle_region, &r.edge_edge_region});
+                  &sc.watches, &r.vertex_triangle_region, &r.edge_edge_region},
+                 sc.flat_tests);
   // Kept pairs' gaps lowered by their regions' drift (above).
   merge_pairs(sc.vertex_triangle, sc.vertex_triangle_gap, sc.vertex_triangle_region, r.renumber,
               r.drift, r.vertex_triangle, r.vertex_triangle_gap, r.vertex_triangle_region, r.order);
@@ -1547,81 +1539,10 @@ struct CrossingSearch {
   const ClothMesh& mesh;
   const Eigen::Matrix3Xd& x;
   HierarchyCrossingScratch& work;
-  ContourScratch scratch;
+  FlatTestScratch& flat;
 
   const Patch& patch(int id) const { return sc.patches[static_cast<std::size_t>(id)]; }
   const PatchBounds& bounds(int id) const { return work.bounds[static_cast<std::size_t>(id)]; }
-
-  bool flat(int id) {
-    const Patch& p = patch(id);
-    const PatchBounds& b = bounds(id);
-    if (!p.disk || !(b.angle < kCrossingFlatAngle)) return false;
-    return contour_is_simple(mesh, x, sc.contour.data() + p.contour_begin,
-                             p.contour_end - p.contour_begin, b.axis, scratch);
-  }
-
-  // Whether disks a and b share a path of edges and their union is flat (the union of two disks
-  // is a disk when the shared vertices number one more than the shared edges). A contour edge of
-  // one is shared when the triangle across it lies in the other (SelfCollision::contour_across);
-  // the union's contour is both contours without those.
-  bool union_flat(int a, int b) {
-    const Patch& pa = patch(a);
-    const Patch& pb = patch(b);
-    if (!pa.disk || !pb.disk) return false;
-    const PatchBounds& ba = bounds(a);
-    const PatchBounds& bb = bounds(b);
-    if (!(ba.angle < kCrossingFlatAngle) || !(bb.angle < kCrossingFlatAngle)) return false;
-    auto in = [](int position, const Patch& p) {
-      return (position >= p.tri_begin) & (position < p.tri_end);
-    };
-    // Most pairs met here share no edge (they overlap across a fold or meet at a corner): the
-    // shorter contour says so before the acos below.
-    {
-      const Patch* p = &pa;
-      const Patch* q = &pb;
-      if (p->contour_end - p->contour_begin > q->contour_end - q->contour_begin) std::swap(p, q);
-      int k = p->contour_begin;
-      while (k < p->contour_end && !in(sc.contour_across[static_cast<std::size_t>(k)], *q)) ++k;
-      if (k == p->contour_end) return false;
-    }
-    const Vec3 sum = ba.normal_sum + bb.normal_sum;
-    const double len = sum.norm();
-    if (!(len > 0.0)) return false;
-    const Vec3 axis = sum / len;
-    const double angle = std::max(std::acos(std::clamp(axis.dot(ba.axis), -1.0, 1.0)) + ba.angle,
-                                  std::acos(std::clamp(axis.dot(bb.axis), -1.0, 1.0)) + bb.angle);
-    if (!(angle < kCrossingFlatAngle)) return false;
-    if (work.stamp == INT_MAX || work.vertex_stamp.size() != std::size_t(mesh.vertex_count())) {
-      work.vertex_stamp.assign(static_cast<std::size_t>(mesh.vertex_count()), 0);
-      work.stamp = 0;
-    }
-    const int stamp = ++work.stamp;
-    int* const vertex_stamp = work.vertex_stamp.data();
-    std::vector<int>& contour = work.union_contour;
-    contour.clear();
-    int shared_edges = 0;
-    for (int k = pa.contour_begin; k < pa.contour_end; ++k) {
-      const int e = sc.contour[static_cast<std::size_t>(k)];
-      for (int v : mesh.edges[static_cast<std::size_t>(e)]) vertex_stamp[v] = stamp;
-      if (in(sc.contour_across[static_cast<std::size_t>(k)], pb))
-        ++shared_edges;
-      else
-        contour.push_back(e);
-    }
-    int shared_vertices = 0;  // each counted once: re-stamped with -stamp when met from b
-    for (int k = pb.contour_begin; k < pb.contour_end; ++k) {
-      const int e = sc.contour[static_cast<std::size_t>(k)];
-      for (int v : mesh.edges[static_cast<std::size_t>(e)])
-        if (vertex_stamp[v] == stamp) {
-          ++shared_vertices;
-          vertex_stamp[v] = -stamp;
-        }
-      if (!in(sc.contour_across[static_cast<std::size_t>(k)], pa)) contour.push_back(e);
-    }
-    if (shared_vertices != shared_edges + 1) return false;
-    return contour_is_simple(mesh, x, contour.data(), static_cast<int>(contour.size()), axis,
-                             scratch);
-  }
 
   // Whether no edge owned by a can meet a triangle of b, nor one owned by b a triangle of a, by
   // edge_triangle_crossings' own box test: an edge's box against a triangle's grown by
@@ -1690,7 +1611,7 @@ struct CrossingSearch {
   }
 
   void own(int id) {
-    if (flat(id)) return;
+    if (patch_is_flat(sc, mesh, x, work.bounds, kCrossingFlatAngle, id, flat)) return;
     const Patch& p = patch(id);
     if (p.left < 0) {
       test(id, id);
@@ -1702,7 +1623,8 @@ struct CrossingSearch {
   }
 
   void between(int a, int b) {
-    if (apart(a, b) || union_flat(a, b)) return;
+    if (apart(a, b) || union_is_flat(sc, mesh, x, work.bounds, kCrossingFlatAngle, a, b, flat))
+      return;
     const Patch& pa = patch(a);
     const Patch& pb = patch(b);
     if (pa.left < 0 && pb.left < 0) {
@@ -1738,7 +1660,7 @@ std::vector<std::array<int, 2>> hierarchy_crossings(SelfCollision& sc, const Clo
   refit_bounds(sc, mesh, x, 0, static_cast<int>(sc.patches.size()), kCrossingFlatAngle,
                kCrossingFlatCos, work.bounds, nullptr);
   work.found.clear();
-  CrossingSearch search{sc, mesh, x, work, {}};
+  CrossingSearch search{sc, mesh, x, work, sc.flat_tests};
   search.own(0);
   // By triangle, then by edge: the metric's order (the untangling's constraints follow it).
   std::sort(work.found.begin(), work.found.end());

@@ -50,6 +50,7 @@
 
 #include <Eigen/Core>
 #include <array>
+#include <utility>
 #include <vector>
 
 #include "cloth/model.hpp"
@@ -121,13 +122,31 @@ struct UntangleConstraint {
 // The hierarchy's crossing search's arrays (hierarchy_crossings, below), kept from call to call so
 // that a search allocates nothing: per patch its box and normal cone at the positions searched
 // (refit by the search itself, so the build's patch_bounds are not touched; angle compared with
-// the search's own flat cone, not the build's), a stamp per vertex and the contour of the union
-// test, and the crossings found as (triangle, edge).
+// the search's own flat cone, not the build's), and the crossings found as (triangle, edge).
 struct HierarchyCrossingScratch {
   std::vector<PatchBounds> bounds;
-  std::vector<int> vertex_stamp, union_contour;
-  int stamp = 0;
   std::vector<std::array<int, 2>> found;
+};
+
+// The flat tests' working arrays (self_collision.cpp: contour_is_simple, union_is_flat), one set
+// for the build, its partial builds (most sub-steps) and the crossing search (once a step), kept
+// from search to search: stamps made afresh per search were a vertex and an edge array allocated
+// at every partial build.
+struct FlatTestScratch {
+  // A contour edge projected onto the plane of a cone's axis.
+  struct ProjectedEdge {
+    double high;                   // its largest value along the sweep's coordinate (a[0], b[0])
+    double cross_low, cross_high;  // its range along the other one
+    double a[2], b[2];             // its ends
+    int v0, v1;                    // its vertices
+  };
+  std::vector<ProjectedEdge> edges;
+  // Per edge, (lowest sweep value, position), sorted instead of the edges themselves (a sixth of
+  // the bytes to move).
+  std::vector<std::pair<double, int>> by_low;
+  // The union test's stamps per vertex and per edge, and the union's contour.
+  std::vector<int> vertex_stamp, edge_stamp, union_contour;
+  int stamp = 0;
 };
 
 // A partial build (refresh_self_collision) searches again only the regions whose watches failed,
@@ -209,6 +228,7 @@ struct SelfCollision {
   // the grid's (edge_triangle_crossings, used where the hierarchy cannot be) and the hierarchy's.
   CrossingScratch crossing_scratch;
   HierarchyCrossingScratch hierarchy_crossing;
+  FlatTestScratch flat_tests;
   long body_cuts = 0;       // contact moves the body's room has cut short so far
   long builds = 0;          // how many full builds so far (reported by describe / benchmarks)
   long partial_builds = 0;  // how many partial builds so far
