@@ -208,12 +208,21 @@ struct SelfCollision {
   double partial_share = kPartialShare;
   // Per leaf patch id, its vertices (those of its triangles, each once):
   // leaf_vertices[leaf_vertex_begin[id] .. leaf_vertex_begin[id + 1]) (empty for other patches).
-  std::vector<int> leaf_vertex_begin, leaf_vertices;
+  // The vertices of no triangle are loose_vertices: the root's displacement box and theirs
+  // together are the box of every vertex's displacement (refresh_self_collision's common motion).
+  std::vector<int> leaf_vertex_begin, leaf_vertices, loose_vertices;
   // Per vertex, a bound (m) on how far it has moved since the build relative to the garment's
   // common motion, over every position a pass may see (the sub-step's start and now, and each move
   // of the passes): a pair whose gap exceeds the sum of its parts' bounds cannot be in contact and
   // is skipped (docs/notebook/self_collision.md, "Fourth round").
   std::vector<double> moved;
+  // The vertices the lists name (every corner of a listed pair), ascending, remade at every build,
+  // full or partial. The contacts read `moved` only for these, and a build sets it afresh for the
+  // vertices its lists name, so it is kept for them alone (an entry of another vertex may be out of
+  // date: nothing reads it before a build names that vertex; docs/notebook/self_collision.md,
+  // "Fifteenth round (b)"). listed_mark is their scratch (one flag per vertex).
+  std::vector<int> listed_vertices;
+  std::vector<char> listed_mark;
   // Untangling constraints of the step being run again (plan_untangle); empty otherwise.
   std::vector<UntangleConstraint> untangle;
   // The body under the cloth, set by the solver after its collision pass in each sub-step (empty:
