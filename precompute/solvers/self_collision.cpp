@@ -1225,29 +1225,12 @@ Vec3 common_motion(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& built) {
   return 0.5 * (lo + hi);
 }
 
-// moved[i] = |x_i - built_i - m| for the listed vertices i, m the common motion of x
-// (common_motion). Written as the maximum with 0, the value after a build, so that the bounds are
-// those of the code that raised every vertex's from 0 (a NaN distance leaves 0).
-void raise_moved(std::vector<double>& moved, const std::vector<int>& listed,
-                 const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& built, const Vec3& m) {
-  for (int i : listed)
-    moved[static_cast<std::size_t>(i)] = std::max(0.0, (x.col(i) - built.col(i) - m).norm());
-}
-
-// SelfCollision::listed_vertices from the lists.
-void list_vertices(SelfCollision& sc, const ClothMesh& mesh) {
-  std::vector<char>& mark = sc.listed_mark;
-  mark.assign(static_cast<std::size_t>(mesh.vertex_count()), 0);
-  for (const auto& [t, v] : sc.vertex_triangle) {
-    mark[static_cast<std::size_t>(v)] = 1;
-    for (int c : mesh.triangles[static_cast<std::size_t>(t)]) mark[static_cast<std::size_t>(c)] = 1;
-  }
-  for (const auto& pair : sc.edge_edge)
-    for (int e : pair)
-      for (int c : mesh.edges[static_cast<std::size_t>(e)]) mark[static_cast<std::size_t>(c)] = 1;
-  sc.listed_vertices.clear();
-  for (int v = 0; v < mesh.vertex_count(); ++v)
-    if (mark[static_cast<std::size_t>(v)]) sc.listed_vertices.push_back(v);
+// moved[i] = max(moved[i], |x_i - built_i - m|) for m the common motion of x (common_motion).
+void raise_moved(std::vector<double>& moved, const Eigen::Matrix3Xd& x,
+                 const Eigen::Matrix3Xd& built, const Vec3& m) {
+  for (Eigen::Index i = 0; i < x.cols(); ++i)
+    moved[static_cast<std::size_t>(i)] =
+        std::max(moved[static_cast<std::size_t>(i)], (x.col(i) - built.col(i) - m).norm());
 }
 
 // The contacts' motion bounds (SelfCollision::moved) brought up to x and x_start (the sub-step's
@@ -1261,7 +1244,6 @@ void list_vertices(SelfCollision& sc, const ClothMesh& mesh) {
 void raise_kept_moved(SelfCollision& sc, const Eigen::Matrix3Xd& x,
                       const Eigen::Matrix3Xd& x_start) {
   const Eigen::Matrix3Xd& built = sc.built_at;
-  if (sc.listed_vertices.empty()) return;
   Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
   if (!sc.patches.empty()) {
     lo = sc.displacement_box[0][0];
@@ -1280,7 +1262,7 @@ void raise_kept_moved(SelfCollision& sc, const Eigen::Matrix3Xd& x,
   }
   const Vec3 m = 0.5 * (lo + hi), m_start = 0.5 * (lo_start + hi_start);
   double* moved = sc.moved.data();
-  for (int i : sc.listed_vertices) {
+  for (Eigen::Index i = 0; i < x.cols(); ++i) {
     moved[i] = std::max(moved[i], (x.col(i) - built.col(i) - m).norm());
     moved[i] = std::max(moved[i], (x_start.col(i) - built.col(i) - m_start).norm());
   }
@@ -1447,13 +1429,9 @@ bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Ei
     partial = rebuild_regions(sc, model, x);
   }
   if (!partial) build_candidates(sc, model, x);  // NaN positions: empty lists (the solver reports)
-  list_vertices(sc, model.mesh);
-  // The bounds at x, the build's positions, are 0; the sub-step's start's are raised. Only the
-  // listed vertices' are read (SelfCollision::listed_vertices).
-  sc.moved.resize(static_cast<std::size_t>(x.cols()));
-  if (!sc.listed_vertices.empty())
-    raise_moved(sc.moved, sc.listed_vertices, x_start, sc.built_at,
-                common_motion(x_start, sc.built_at));
+  // The bounds at x, the build's positions, are 0; the sub-step's start's are raised.
+  sc.moved.assign(static_cast<std::size_t>(x.cols()), 0.0);
+  raise_moved(sc.moved, x_start, sc.built_at, common_motion(x_start, sc.built_at));
   return true;
 }
 

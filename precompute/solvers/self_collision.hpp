@@ -216,13 +216,6 @@ struct SelfCollision {
   // of the passes): a pair whose gap exceeds the sum of its parts' bounds cannot be in contact and
   // is skipped (docs/notebook/self_collision.md, "Fourth round").
   std::vector<double> moved;
-  // The vertices the lists name (every corner of a listed pair), ascending, remade at every build,
-  // full or partial. The contacts read `moved` only for these, and a build sets it afresh for the
-  // vertices its lists name, so it is kept for them alone (an entry of another vertex may be out of
-  // date: nothing reads it before a build names that vertex; docs/notebook/self_collision.md,
-  // "Fifteenth round (b)"). listed_mark is their scratch (one flag per vertex).
-  std::vector<int> listed_vertices;
-  std::vector<char> listed_mark;
   // Untangling constraints of the step being run again (plan_untangle); empty otherwise.
   std::vector<UntangleConstraint> untangle;
   // The body under the cloth, set by the solver after its collision pass in each sub-step (empty:
