@@ -586,6 +586,91 @@ TEST(SelfCollisionSearch, ListsKeptBetweenBuildsHoldEveryPairNearerThanTheThickn
       sc.regions_settled, whole.regions_settled);
 }
 
+// The contacts' motion bounds (SelfCollision::moved) are raised only in refreshes that keep the
+// lists (a build sets them afresh), with the common motion at x taken from the root patch's
+// displacement box that the watches' test has made and the vertices of no triangle. Over the
+// rolled sheet of the test above, with partial builds and full ones, after every refresh every
+// vertex's bound is exactly what the rule before gave it (raised to x and the sub-step's start from
+// the common motion of all vertices in every refresh, reset at a build). The sub-step's start is
+// not the last refresh's positions (the contacts and the rest of the sub-step move the cloth in
+// between), and a vertex of no triangle runs away from the sheet, so that the common motion is
+// wrong if it is left out (the root patch's box does not hold it).
+TEST(SelfCollisionSearch, MotionBoundsAreThoseOfTheRuleForEveryVertex) {
+  ClothMesh grid = make_quad_grid(16, 16, 1.0, 1.0);
+  const Eigen::Index loose = grid.rest.cols();
+  grid.rest.conservativeResize(3, loose + 1);
+  grid.rest.col(loose) = Vec3(2.0, 0.0, 0.0);
+  build_topology(grid);
+  const ClothModel model = make_model(grid, Material{}, {});
+  const ClothMesh& mesh = model.mesh;
+  const double thickness = 0.01, pi = 3.14159265358979323846;
+  auto rolled = [&](double turns, int step) {
+    Eigen::Matrix3Xd x = mesh.rest;
+    const double total = 2.0 * pi * turns, radius = 1.0 / total;
+    for (Eigen::Index i = 0; i < loose; ++i) {
+      const double phi = mesh.rest(0, i) * total;
+      const double r = radius - 0.006 * phi / (2.0 * pi);
+      x(0, i) = r * std::sin(phi);
+      x(2, i) = radius - r * std::cos(phi);
+    }
+    x.col(loose) = Vec3(2.0 + 0.01 * step * step, 0.1 * step, -0.05 * step);
+    return x;
+  };
+  for (const double share : {double(INFINITY), kPartialShare}) {
+    SelfCollision sc = make_self_collision(model, thickness);
+    sc.partial_share = share;
+    ASSERT_EQ(sc.loose_vertices, std::vector<int>{static_cast<int>(loose)});
+    std::vector<double> bound(static_cast<std::size_t>(mesh.vertex_count()), 0.0);
+    auto centre = [&](const Eigen::Matrix3Xd& y, const Eigen::Matrix3Xd& b) {
+      Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
+      for (Eigen::Index i = 0; i < y.cols(); ++i) {
+        lo = lo.cwiseMin(Vec3(y.col(i) - b.col(i)));
+        hi = hi.cwiseMax(Vec3(y.col(i) - b.col(i)));
+      }
+      return Vec3(0.5 * (lo + hi));
+    };
+    Eigen::Matrix3Xd previous = rolled(0.0, 0);
+    std::size_t bounds_checked = 0;
+    long kept = 0;
+    for (int step = 1; step <= 280; ++step) {
+      const Eigen::Matrix3Xd x = rolled(1.05 * step / 280.0, step);
+      Eigen::Matrix3Xd start = previous;
+      for (Eigen::Index i = 0; i < loose; ++i)
+        start.col(i) += 0.001 * Vec3(std::sin(1.3 * double(i) + step), std::cos(0.7 * double(i)),
+                                     std::sin(0.9 * double(i) * step));
+      // The rule, for every vertex, from the same reference (built_at before the refresh, or after
+      // it when it built).
+      const Eigen::Matrix3Xd before = sc.built_at;
+      const bool rebuilt = refresh_self_collision(sc, model, x, start);
+      const Eigen::Matrix3Xd& b = sc.built_at;
+      if (rebuilt) {
+        const Vec3 m_start = centre(start, b);
+        for (Eigen::Index i = 0; i < x.cols(); ++i)
+          bound[static_cast<std::size_t>(i)] =
+              std::max(0.0, (start.col(i) - b.col(i) - m_start).norm());
+      } else {
+        ++kept;
+        const Vec3 m = centre(x, before), m_start = centre(start, before);
+        for (Eigen::Index i = 0; i < x.cols(); ++i) {
+          double& d = bound[static_cast<std::size_t>(i)];
+          d = std::max(d, (x.col(i) - before.col(i) - m).norm());
+          d = std::max(d, (start.col(i) - before.col(i) - m_start).norm());
+        }
+      }
+      for (Eigen::Index i = 0; i < x.cols(); ++i)
+        EXPECT_EQ(sc.moved[static_cast<std::size_t>(i)], bound[static_cast<std::size_t>(i)])
+            << "step " << step << ": vertex " << i;
+      bounds_checked += static_cast<std::size_t>(x.cols());
+      previous = x;
+    }
+    EXPECT_GT(bounds_checked, 1000u) << "share " << share;
+    EXPECT_GT(kept, 5) << "share " << share << ": the lists were never kept";
+    EXPECT_GT(sc.builds + sc.partial_builds, 5) << "share " << share;
+    std::printf("share %g: %zu bounds checked, %ld refreshes kept the lists, %ld + %ld builds\n",
+                share, bounds_checked, kept, sc.builds, sc.partial_builds);
+  }
+}
+
 SolverSettings xpbd(double thickness_mm, int threads = 1) {
   SolverSettings s;
   s.substeps = 20;

@@ -1198,6 +1198,10 @@ SelfCollision make_self_collision(const ClothModel& model, double thickness) {
   // skirt over 01_01, against 4 and 71 (docs/notebook/self_collision.md, "Cost, second round").
   sc.rest_gap = thickness;
   make_patches(sc, model.mesh);
+  std::vector<char> in_leaf(static_cast<std::size_t>(model.vertex_count()), 0);
+  for (int v : sc.leaf_vertices) in_leaf[static_cast<std::size_t>(v)] = 1;
+  for (int v = 0; v < model.vertex_count(); ++v)
+    if (!in_leaf[static_cast<std::size_t>(v)]) sc.loose_vertices.push_back(v);
   // The rest neighbours: every pair nearer than rest_gap in the rest shape (flat patches searched
   // too), found once.
   std::vector<std::array<int, 2>> vt, ee;
@@ -1229,6 +1233,41 @@ void raise_moved(std::vector<double>& moved, const Eigen::Matrix3Xd& x,
         std::max(moved[static_cast<std::size_t>(i)], (x.col(i) - built.col(i) - m).norm());
 }
 
+// The contacts' motion bounds (SelfCollision::moved) brought up to x and x_start (the sub-step's
+// start) while the lists are kept: a pair's distance changes by at most |d_i - d_j| <= |d_i - m| +
+// |d_j - m| for the vertex displacements d since the build and any common m, here the centre of
+// the displacements' box. The bounds cover the sub-step's start too (its side decides a contact),
+// and the positions left by the constraints after the last pass. The box at x is the one
+// find_failed_watches has just made (the root patch's, with the loose vertices'), so only x_start
+// takes a pass over the vertices before the bounds' own (docs/notebook/self_collision.md,
+// "Fifteenth round (b)"). No scratch matrix: this runs in every sub-step without a build.
+void raise_kept_moved(SelfCollision& sc, const Eigen::Matrix3Xd& x,
+                      const Eigen::Matrix3Xd& x_start) {
+  const Eigen::Matrix3Xd& built = sc.built_at;
+  Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
+  if (!sc.patches.empty()) {
+    lo = sc.displacement_box[0][0];
+    hi = sc.displacement_box[0][1];
+  }
+  for (int v : sc.loose_vertices) {
+    const Vec3 d = x.col(v) - built.col(v);
+    lo = lo.cwiseMin(d);
+    hi = hi.cwiseMax(d);
+  }
+  Vec3 lo_start = Vec3::Constant(INFINITY), hi_start = Vec3::Constant(-INFINITY);
+  for (Eigen::Index i = 0; i < x.cols(); ++i) {
+    const Vec3 d_start = x_start.col(i) - built.col(i);
+    lo_start = lo_start.cwiseMin(d_start);
+    hi_start = hi_start.cwiseMax(d_start);
+  }
+  const Vec3 m = 0.5 * (lo + hi), m_start = 0.5 * (lo_start + hi_start);
+  double* moved = sc.moved.data();
+  for (Eigen::Index i = 0; i < x.cols(); ++i) {
+    moved[i] = std::max(moved[i], (x.col(i) - built.col(i) - m).norm());
+    moved[i] = std::max(moved[i], (x_start.col(i) - built.col(i) - m_start).norm());
+  }
+}
+
 // The watches that fail at x (docs/notebook/self_collision.md, "Ninth round", "Thirteenth round"
 // and "Fourteenth round"), into sc.rebuild.failed in their order: those for which the box of the
 // displacements since the last build over the vertices of its patches has a diagonal of more than
@@ -1240,7 +1279,8 @@ void raise_moved(std::vector<double>& moved, const Eigen::Matrix3Xd& x,
 // test, every vertex within skin / 2 of the garment's common motion, which asked this of every two
 // vertices at once: the swinging hem rebuilt the lists of the whole skirt, although only patches
 // near each other need to keep together. Leaves each watch's squared diagonal in
-// sc.rebuild.drift (rebuild_regions reads it).
+// sc.rebuild.drift (rebuild_regions reads it) and each patch's displacement box in
+// sc.displacement_box (raise_kept_moved reads the root's).
 void find_failed_watches(SelfCollision& sc, const Eigen::Matrix3Xd& x) {
   const Eigen::Matrix3Xd& built = sc.built_at;
   // Per patch, the box of its vertices' displacements, bottom-up (children come after parents).
@@ -1376,36 +1416,16 @@ bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Ei
   const bool built = sc.built_at.cols() == x.cols() && sc.moved.size() == std::size_t(x.cols());
   bool partial = false;
   if (built) {
-    // The contacts' motion bounds (SelfCollision::moved): a pair's distance changes by at most
-    // |d_i - d_j| <= |d_i - m| + |d_j - m| for the vertex displacements d since the build and any
-    // common m, here the centre of the displacements' box. No scratch matrix: this runs every
-    // sub-step, in two passes over the vertices (the common motions of x and of the sub-step's
-    // start, then both motion bounds).
-    const Eigen::Matrix3Xd& built_at = sc.built_at;
-    Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
-    Vec3 lo_start = lo, hi_start = hi;
-    for (Eigen::Index i = 0; i < x.cols(); ++i) {
-      const Vec3 d = x.col(i) - built_at.col(i);
-      lo = lo.cwiseMin(d);
-      hi = hi.cwiseMax(d);
-      const Vec3 d_start = x_start.col(i) - built_at.col(i);
-      lo_start = lo_start.cwiseMin(d_start);
-      hi_start = hi_start.cwiseMax(d_start);
-    }
-    const Vec3 m = 0.5 * (lo + hi), m_start = 0.5 * (lo_start + hi_start);
-    // The bounds cover the sub-step's start too (its side decides a contact), and the positions
-    // left by the constraints after the last pass. Raised before the lists' test: after a build
-    // they are reset below anyway.
-    double* moved = sc.moved.data();
-    for (Eigen::Index i = 0; i < x.cols(); ++i) {
-      moved[i] = std::max(moved[i], (x.col(i) - built_at.col(i) - m).norm());
-      moved[i] = std::max(moved[i], (x_start.col(i) - built_at.col(i) - m_start).norm());
-    }
     // The lists stay complete while the regions the searches settled keep together, each within
     // its slack (find_failed_watches); when some do not, only theirs are searched again, unless
-    // that is most of the garment (rebuild_regions).
+    // that is most of the garment (rebuild_regions). The watches are tested before the motion
+    // bounds are raised: a build sets the bounds afresh, so they are raised only when the lists
+    // are kept.
     find_failed_watches(sc, x);
-    if (sc.rebuild.failed.empty()) return false;
+    if (sc.rebuild.failed.empty()) {
+      raise_kept_moved(sc, x, x_start);
+      return false;
+    }
     partial = rebuild_regions(sc, model, x);
   }
   if (!partial) build_candidates(sc, model, x);  // NaN positions: empty lists (the solver reports)

@@ -208,7 +208,9 @@ struct SelfCollision {
   double partial_share = kPartialShare;
   // Per leaf patch id, its vertices (those of its triangles, each once):
   // leaf_vertices[leaf_vertex_begin[id] .. leaf_vertex_begin[id + 1]) (empty for other patches).
-  std::vector<int> leaf_vertex_begin, leaf_vertices;
+  // The vertices of no triangle are loose_vertices: the root's displacement box and theirs
+  // together are the box of every vertex's displacement (refresh_self_collision's common motion).
+  std::vector<int> leaf_vertex_begin, leaf_vertices, loose_vertices;
   // Per vertex, a bound (m) on how far it has moved since the build relative to the garment's
   // common motion, over every position a pass may see (the sub-step's start and now, and each move
   // of the passes): a pair whose gap exceeds the sum of its parts' bounds cannot be in contact and
