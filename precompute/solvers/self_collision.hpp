@@ -164,15 +164,16 @@ struct FlatTestScratch {
 // while the share rule was also what merged the regions back; since kRegrowth does that and
 // watches of patches found apart hold by their boxes, most full builds it made were for failures
 // of large regions that a partial search settles again cheaply: on the 12k skirt's first 60
-// frames of 01_01, 0.308 at 0.5, 0.279 at 1.5 and 0.282-0.291 at 3 (never reached)
-// (docs/notebook/self_collision.md, "Fifteenth round: exact watches").
+// frames of 01_01 (with the box test against the thickness, before it was made the reach), 0.308
+// at 0.5, 0.279 at 1.5 and 0.282-0.291 at 3 (never reached); main's rule 0.333-0.367, the rule
+// as committed 0.254-0.261 (docs/notebook/self_collision.md, "Fifteenth round: exact watches").
 constexpr double kPartialShare = 1.5;
 // A partial search only ever splits regions further (a failed flat patch that is no longer flat
 // leaves its leaves' watches, which stay leaves after it is flat again), so between full builds the
 // watches and lists grow. When a partial build would start from more than kRegrowth times the
 // watches the last full build left, everything is searched instead, which merges the regions back.
-// Same 60 frames: 0.282-0.291 at 1.05, 0.286 at 1.03, 0.337 at 1.2 (watches 7 % more, lists 7 %
-// longer) (docs/notebook/self_collision.md, "Fifteenth round: exact watches").
+// Same 60 frames and box test: 0.282-0.291 at 1.05, 0.286 at 1.03, 0.337 at 1.2 (watches 7 % more,
+// lists 7 % longer) (docs/notebook/self_collision.md, "Fifteenth round: exact watches").
 constexpr double kRegrowth = 1.05;
 
 struct SelfCollision {
