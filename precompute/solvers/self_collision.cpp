@@ -1253,7 +1253,7 @@ void raise_moved(std::vector<double>& moved, const Eigen::Matrix3Xd& x,
 // only be bounded through their motion; these have a bound at x itself), and the region keeps
 // the skin a search leaves for the motion until the next test. Against the thickness alone (no
 // skin kept) the twisted skirt went through itself (188,902 summed crossings). On the 12k skirt
-// over 01_01 the apart watches of large patches had been the largest failed region at 96 % of the
+// over 01_01 the apart watches of large patches had been the largest failed region at 98 % of the
 // full builds (docs/notebook/self_collision.md, "Fifteenth round: exact watches"). Leaves each
 // watch's squared diagonal in sc.rebuild.drift (rebuild_regions reads it).
 void find_failed_watches(SelfCollision& sc, const Eigen::Matrix3Xd& x) {
