@@ -239,9 +239,9 @@ Pairs brute_force_pairs(const ClothMesh& mesh, const Eigen::Matrix3Xd& x, double
 }
 
 // A 16 x 16 sheet (1 m, edges 6.7 cm) folded into a U: its right part turned over the left along
-// x = 0.5 round a half circle of radius 2 cm, so the two layers lie 4 cm apart.
-Eigen::Matrix3Xd folded_u(const ClothMesh& mesh) {
-  const double r = 0.02, pi = 3.14159265358979323846;
+// x = 0.5 round a half circle of radius r (2 cm), so the two layers lie 2 r apart.
+Eigen::Matrix3Xd folded_u(const ClothMesh& mesh, double r = 0.02) {
+  const double pi = 3.14159265358979323846;
   Eigen::Matrix3Xd x = mesh.rest;
   for (int i = 0; i < mesh.vertex_count(); ++i) {
     const double u = mesh.rest(0, i) - 0.5;
@@ -489,15 +489,27 @@ TEST(SelfCollisionSearch, ContourAcrossNamesTheTriangleBeyondEachContourEdge) {
 // other move together. And partial builds (only the failed watches' regions searched again, here
 // however many fail: the roll moves most of the sheet at once, more than kPartialShare) settle
 // fewer regions than rebuilding everything at each failed watch (partial_share 0, run on the same
-// positions beside it). Rebuilding at the old test's steps fails the builds'
-// expectation, rebuilding everything at every failed watch the regions'; a watch that lets a
-// region move more than its slack (also after a partial build) fails the lists', a kept pair's gap
-// not lowered by its parts' motion the gaps'.
+// positions beside it). Watches of patches found apart that also hold while the patches' boxes
+// stay apart by more than the reach (PatchWatch, "Fifteenth round: exact watches") settle fewer
+// regions than the same partial builds with slacks only (apart_boxes off, the fourteenth round's
+// rule), in no more builds; and the default rule (kPartialShare, kRegrowth) keeps the lists
+// complete too. Rebuilding at the old test's steps fails the builds' expectation, rebuilding
+// everything at every failed watch the regions'; a watch that lets a region move more than its
+// slack (also after a partial build) fails the lists', a kept pair's gap not lowered by its parts'
+// motion the gaps'; so does a box test against a separation of 0 instead of the reach, against the
+// boxes of the build instead of those at the positions tested, or a watch held by its boxes whose
+// slack, carried below zero, is taken as holding.
 TEST(SelfCollisionSearch, ListsKeptBetweenBuildsHoldEveryPairNearerThanTheThickness) {
   const ClothModel model = make_model(make_quad_grid(16, 16, 1.0, 1.0), Material{}, {});
   const double thickness = 0.01;
   SelfCollision sc = make_self_collision(model, thickness);
   sc.partial_share = INFINITY;  // every failed watch's region alone, however many fail
+  sc.regrowth = INFINITY;
+  SelfCollision slacks_only = make_self_collision(model, thickness);
+  slacks_only.partial_share = INFINITY;
+  slacks_only.regrowth = INFINITY;
+  slacks_only.apart_boxes = false;
+  SelfCollision standard = make_self_collision(model, thickness);  // kPartialShare, kRegrowth
   SelfCollision whole = make_self_collision(model, thickness);
   whole.partial_share = 0.0;
   const double pi = 3.14159265358979323846;
@@ -516,23 +528,31 @@ TEST(SelfCollisionSearch, ListsKeptBetweenBuildsHoldEveryPairNearerThanTheThickn
                         const std::array<int, 2>& pair) {
     return std::binary_search(list.begin(), list.end(), pair);  // the lists are sorted
   };
+  auto name = [&](const SelfCollision* lists) {
+    return lists == &sc            ? "partial"
+           : lists == &slacks_only ? "slacks only"
+           : lists == &standard    ? "default"
+                                   : "whole";
+  };
   const ClothMesh& mesh = model.mesh;
   Eigen::Matrix3Xd start = mesh.rest, old_reference;
   long old_builds = 0;
   std::size_t near_pairs = 0, gaps_checked = 0;
   for (int step = 1; step <= 70; ++step) {
     const Eigen::Matrix3Xd x = rolled(1.05 * step / 70.0);
-    refresh_self_collision(sc, model, x, start);
-    refresh_self_collision(whole, model, x, start);
+    for (SelfCollision* each : {&sc, &slacks_only, &standard, &whole})
+      refresh_self_collision(*each, model, x, start);
     const Pairs near = brute_force_pairs(mesh, x, thickness);
     near_pairs += near.vt.size() + near.ee.size();
-    for (const SelfCollision* lists : {&sc, &whole}) {
+    for (const SelfCollision* lists : {&sc, &slacks_only, &standard, &whole}) {
       for (const auto& pair : near.vt)
         EXPECT_TRUE(listed_pair(lists->vertex_triangle, pair))
-            << "step " << step << ": vertex " << pair[1] << " near triangle " << pair[0];
+            << "step " << step << ": vertex " << pair[1] << " near triangle " << pair[0] << " ("
+            << name(lists) << ")";
       for (const auto& pair : near.ee)
         EXPECT_TRUE(listed_pair(lists->edge_edge, pair))
-            << "step " << step << ": edges " << pair[0] << " and " << pair[1];
+            << "step " << step << ": edges " << pair[0] << " and " << pair[1] << " (" << name(lists)
+            << ")";
     }
     // Sorted, each pair once; every gap a lower bound on its distance less the thickness at the
     // last build, full or partial (built_at), which the contacts' motion bounds count from.
@@ -575,15 +595,46 @@ TEST(SelfCollisionSearch, ListsKeptBetweenBuildsHoldEveryPairNearerThanTheThickn
     start = x;
   }
   EXPECT_GT(near_pairs, 100u) << "the ends never came within the thickness: nothing was tested";
+  // Two layers closing face to face: the U above, its radius from 5 cm down to 3 mm in 30 steps.
+  // Patches of the two layers are found apart, their boxes apart along z by the layers' distance,
+  // which falls below the thickness at r = 5 mm: a box test against 0 instead of the reach keeps
+  // their watches and misses the pairs that then come near.
+  SelfCollision closing = make_self_collision(model, thickness);
+  closing.partial_share = INFINITY;
+  closing.regrowth = INFINITY;
+  std::size_t closing_near = 0;
+  start = mesh.rest;
+  for (int step = 0; step <= 30; ++step) {
+    const Eigen::Matrix3Xd x = folded_u(mesh, 0.05 * std::pow(0.003 / 0.05, step / 30.0));
+    refresh_self_collision(closing, model, x, start);
+    const Pairs near = brute_force_pairs(mesh, x, thickness);
+    closing_near += near.vt.size() + near.ee.size();
+    for (const auto& pair : near.vt)
+      EXPECT_TRUE(listed_pair(closing.vertex_triangle, pair))
+          << "closing step " << step << ": vertex " << pair[1] << " near triangle " << pair[0];
+    for (const auto& pair : near.ee)
+      EXPECT_TRUE(listed_pair(closing.edge_edge, pair))
+          << "closing step " << step << ": edges " << pair[0] << " and " << pair[1];
+    start = x;
+  }
+  EXPECT_GT(closing_near, 100u) << "the layers never came within the thickness";
   EXPECT_EQ(whole.partial_builds, 0);
   EXPECT_LT(whole.builds, old_builds);
   EXPECT_GT(sc.partial_builds, 0);
   EXPECT_LT(sc.regions_settled, whole.regions_settled);
+  EXPECT_LT(sc.regions_settled, slacks_only.regions_settled);
+  EXPECT_LE(sc.builds + sc.partial_builds, slacks_only.builds + slacks_only.partial_builds);
   std::printf(
       "rolled sheet: %zu near pairs and %zu gaps checked; %ld builds (old test: %ld); partial: %ld "
-      "full and %ld partial builds, %ld regions settled (everything at each failed watch: %ld)\n",
+      "full and %ld partial builds, %ld regions settled (everything at each failed watch: %ld; "
+      "slacks only: %ld full and %ld partial builds, %ld regions; default rule: %ld full and %ld "
+      "partial builds, %ld regions)\n",
       near_pairs, gaps_checked, whole.builds, old_builds, sc.builds, sc.partial_builds,
-      sc.regions_settled, whole.regions_settled);
+      sc.regions_settled, whole.regions_settled, slacks_only.builds, slacks_only.partial_builds,
+      slacks_only.regions_settled, standard.builds, standard.partial_builds,
+      standard.regions_settled);
+  std::printf("closing U: %zu near pairs; %ld full and %ld partial builds\n", closing_near,
+              closing.builds, closing.partial_builds);
 }
 
 // The contacts' motion bounds (SelfCollision::moved) are raised only in refreshes that keep the

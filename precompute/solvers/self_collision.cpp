@@ -141,10 +141,16 @@ float float_below(double d) {
   const float f = static_cast<float>(d);
   // The next float down, as std::nextafter(f, -INFINITY) gives it, without its library call or a
   // branch (the rounding goes either way at random; partial builds lower tens of thousands of
-  // gaps and slacks a sub-step).
+  // gaps and slacks a sub-step): bits - 1 above zero, bits + 1 below, the smallest negative float
+  // for either zero. Masks, not conditionals: the compiler made the conditionals branches, which
+  // mispredicted about every second slack and gap a partial build carried
+  // (docs/notebook/self_collision.md, "Fifteenth round: exact watches").
   const auto bits = std::bit_cast<std::uint32_t>(f);
-  const std::uint32_t down = f > 0.0f ? bits - 1 : (f < 0.0f ? bits + 1 : 0x80000001u);  // -0: tiny
-  return static_cast<double>(f) > d ? std::bit_cast<float>(down) : f;
+  const std::uint32_t negative = bits >> 31;
+  const std::uint32_t zero = 0u - static_cast<std::uint32_t>((bits & 0x7fffffffu) == 0u);
+  const std::uint32_t over = 0u - static_cast<std::uint32_t>(static_cast<double>(f) > d);
+  const std::uint32_t down = (zero & 0x80000001u) | (~zero & (bits + 2u * negative - 1u));
+  return std::bit_cast<float>((over & down) | (~over & bits));
 }
 bool listed(const std::vector<int>& begin, const std::vector<int>& items, int owner, int other) {
   for (int k = begin[static_cast<std::size_t>(owner)];
@@ -790,8 +796,8 @@ struct PairSearch {
   // At a build: what keeps the lists complete, one watch per region the search settles
   // (PatchWatch); null for the searches that only list pairs.
   std::vector<PatchWatch>* watches = nullptr;
-  void watch(int a, int b, double slack) {
-    if (watches) watches->push_back({a, b, float_below(slack)});
+  void watch(int a, int b, double slack, bool found_apart = false) {
+    if (watches) watches->push_back({a, b, float_below(slack), found_apart});
   }
 
   const Patch& patch(int id) const { return sc.patches[static_cast<std::size_t>(id)]; }
@@ -969,7 +975,7 @@ struct PairSearch {
 
   void between(int a, int b) {
     if (apart(a, b)) {
-      if (watches) watch(a, b, separation(a, b) - thickness);
+      if (watches) watch(a, b, separation(a, b) - thickness, true);
       return;
     }
     if (skip_flat && union_is_flat(sc, mesh, x, sc.patch_bounds, kFlatAngle, a, b, flat)) {
@@ -1129,6 +1135,7 @@ void build_candidates(SelfCollision& sc, const ClothModel& model, const Eigen::M
   sc.built_at = x;
   ++sc.builds;
   sc.regions_settled += static_cast<long>(sc.watches.size());
+  sc.full_build_watches = sc.watches.size();
 }
 
 // A partial build's lists (rebuild_regions): drops the pairs of the regions searched again
@@ -1278,30 +1285,48 @@ void raise_kept_moved(SelfCollision& sc, const Eigen::Matrix3Xd& x,
 // per region). A patch found flat keeps the bound on its bending (the skin) it had under the old
 // test, every vertex within skin / 2 of the garment's common motion, which asked this of every two
 // vertices at once: the swinging hem rebuilt the lists of the whole skirt, although only patches
-// near each other need to keep together. Leaves each watch's squared diagonal in
-// sc.rebuild.drift (rebuild_regions reads it) and each patch's displacement box in
-// sc.displacement_box (raise_kept_moved reads the root's).
+// near each other need to keep together. A watch of two patches found apart also holds while
+// their boxes at x are still apart by more than the reach along an axis, as a search at x would
+// find them: every vertex-triangle and edge-edge pair between them has its corners in the two
+// boxes, so is farther than thickness + skin at x (Verlet's bound is for pairs whose distance can
+// only be bounded through their motion; these have a bound at x itself), and the region keeps
+// the skin a search leaves for the motion until the next test. Against the thickness alone (no
+// skin kept) the twisted skirt went through itself (188,902 summed crossings). On the 12k skirt
+// over 01_01 the apart watches of large patches had been the largest failed region at 98 % of the
+// full builds (docs/notebook/self_collision.md, "Fifteenth round: exact watches"). Leaves each
+// watch's squared diagonal in sc.rebuild.drift (rebuild_regions reads it) and each patch's
+// displacement box in sc.displacement_box (raise_kept_moved reads the root's).
 void find_failed_watches(SelfCollision& sc, const Eigen::Matrix3Xd& x) {
   const Eigen::Matrix3Xd& built = sc.built_at;
-  // Per patch, the box of its vertices' displacements, bottom-up (children come after parents).
+  // Per patch, the box of its vertices' displacements and the box of the vertices themselves
+  // (for the watches of patches found apart), bottom-up (children come after parents).
   const std::size_t count = sc.patches.size();
   sc.displacement_box.resize(count);
+  sc.position_box.resize(count);
   for (std::size_t id = count; id-- > 0;) {
     const Patch& p = sc.patches[id];
     std::array<Vec3, 2>& box = sc.displacement_box[id];
+    std::array<Vec3, 2>& at = sc.position_box[id];
     if (p.left < 0) {
       Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
+      Vec3 at_lo = lo, at_hi = hi;
       for (int k = sc.leaf_vertex_begin[id]; k < sc.leaf_vertex_begin[id + 1]; ++k) {
         const int v = sc.leaf_vertices[static_cast<std::size_t>(k)];
         const Vec3 d = x.col(v) - built.col(v);
         lo = lo.cwiseMin(d);
         hi = hi.cwiseMax(d);
+        at_lo = at_lo.cwiseMin(x.col(v));
+        at_hi = at_hi.cwiseMax(x.col(v));
       }
       box = {lo, hi};
+      at = {at_lo, at_hi};
     } else {
       const std::array<Vec3, 2>& l = sc.displacement_box[static_cast<std::size_t>(p.left)];
       const std::array<Vec3, 2>& r = sc.displacement_box[static_cast<std::size_t>(p.right)];
       box = {l[0].cwiseMin(r[0]), l[1].cwiseMax(r[1])};
+      const std::array<Vec3, 2>& l_at = sc.position_box[static_cast<std::size_t>(p.left)];
+      const std::array<Vec3, 2>& r_at = sc.position_box[static_cast<std::size_t>(p.right)];
+      at = {l_at[0].cwiseMin(r_at[0]), l_at[1].cwiseMax(r_at[1])};
     }
   }
   std::vector<int>& failed = sc.rebuild.failed;
@@ -1315,8 +1340,18 @@ void find_failed_watches(SelfCollision& sc, const Eigen::Matrix3Xd& x) {
     const Vec3 span = a[1].cwiseMax(b[1]) - a[0].cwiseMin(b[0]);
     const double slack = wt.slack;
     drift[k] = span.squaredNorm();
-    if (!(drift[k] <= slack * slack))  // NaN positions fail too
-      failed.push_back(static_cast<int>(k));
+    // A slack below zero holds nothing: a watch held by its boxes alone through a partial build
+    // had more drift than slack to carry over.
+    if (slack >= 0.0 && drift[k] <= slack * slack) continue;
+    if (wt.apart && sc.apart_boxes) {
+      // Boxes apart by more than the reach along an axis: every pair between the two patches is at
+      // least that far (PatchWatch). NaN positions fail (the comparison is false).
+      const std::array<Vec3, 2>& p = sc.position_box[static_cast<std::size_t>(wt.a)];
+      const std::array<Vec3, 2>& q = sc.position_box[static_cast<std::size_t>(wt.b)];
+      if (std::max((p[0] - q[1]).maxCoeff(), (q[0] - p[1]).maxCoeff()) > sc.thickness + sc.skin)
+        continue;
+    }
+    failed.push_back(static_cast<int>(k));  // NaN positions fail too
   }
 }
 
@@ -1331,7 +1366,10 @@ void find_failed_watches(SelfCollision& sc, const Eigen::Matrix3Xd& x) {
 //   later partial build took off), and has moved by at most d relative to itself since, so is
 //   farther than thickness + (s - d) at x; and from x on the region's vertices may move by s - d
 //   relative to each other before a pair left out could come within the thickness. For a flat
-//   patch or union the slack bounds its bending since it was found flat in the same way.
+//   patch or union the slack bounds its bending since it was found flat in the same way. A watch
+//   of two patches found apart may have held by its boxes alone (d > s): its slack then falls
+//   below zero and holds nothing, and the watch lives only while its boxes stay apart, a test of
+//   the positions tested alone that needs nothing carried over.
 // - A kept pair's gap g (a lower bound on its distance less the thickness at the old reference)
 //   becomes g - d for d its region's drift: its corners are vertices of the region's patches
 //   (leaf_vertices holds every corner of a leaf's triangles), so they moved by at most d relative
@@ -1358,7 +1396,10 @@ bool rebuild_regions(SelfCollision& sc, const ClothModel& model, const Eigen::Ma
   }
   if (!(double(share) <= sc.partial_share * double(model.mesh.triangles.size())) || !x.allFinite())
     return false;
-  // The kept watches renumbered, with their slack and drift against x.
+  // The kept watches renumbered, with their slack and drift against x. The drifts' square roots
+  // are taken in one vectorised pass first (a scalar sqrt a watch was a third of the loop).
+  Eigen::Map<Eigen::ArrayXd> drift(r.drift.data(), static_cast<Eigen::Index>(r.drift.size()));
+  drift = drift.sqrt();
   r.renumber.resize(sc.watches.size());
   for (int f : r.failed) r.renumber[static_cast<std::size_t>(f)] = -1;
   std::size_t kept = 0, next_failed = 0;
@@ -1368,8 +1409,8 @@ bool rebuild_regions(SelfCollision& sc, const ClothModel& model, const Eigen::Ma
       continue;
     }
     const PatchWatch wt = sc.watches[k];
-    const double d = std::sqrt(r.drift[k]);
-    sc.watches[kept] = {wt.a, wt.b, float_below(double(wt.slack) - d)};
+    const double d = r.drift[k];
+    sc.watches[kept] = {wt.a, wt.b, float_below(double(wt.slack) - d), wt.apart};
     r.drift[kept] = d;
     r.renumber[k] = static_cast<int>(kept++);
   }
@@ -1426,7 +1467,10 @@ bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Ei
       raise_kept_moved(sc, x, x_start);
       return false;
     }
-    partial = rebuild_regions(sc, model, x);
+    // Searching the failed regions only ever splits regions further: once the watches have grown
+    // past sc.regrowth times those of the last full build, everything is searched (kRegrowth).
+    if (double(sc.watches.size()) <= sc.regrowth * double(sc.full_build_watches))
+      partial = rebuild_regions(sc, model, x);
   }
   if (!partial) build_candidates(sc, model, x);  // NaN positions: empty lists (the solver reports)
   // The bounds at x, the build's positions, are 0; the sub-step's start's are raised.

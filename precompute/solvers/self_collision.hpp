@@ -9,11 +9,13 @@
 // skin (a Verlet list). It stays complete while the regions the build's search settled keep
 // together, each within its own slack (PatchWatch; a pair's distance changes by at most the largest
 // motion of its corners relative to each other): two patches near each other by no more than the
-// skin, two found apart by no more than their separation less the thickness. This is checked every
-// sub-step in O(vertices + watches). When some watches fail, only their regions are searched
-// again (a partial build), unless they hold most of the garment; the other regions keep their
-// pairs and watches, with slacks and gaps carried over to the new reference by the triangle
-// inequality (refresh_self_collision; docs/notebook/self_collision.md, "Fourteenth round"). Until
+// skin, two found apart by no more than their separation less the thickness, or while their boxes
+// stay apart by more than the reach. This is checked every sub-step in O(vertices + watches).
+// When some watches fail, only their regions are searched again (a partial build), unless they
+// hold much of the garment or the regions have split into too many since the last full build
+// (kPartialShare, kRegrowth); the other regions keep their pairs and watches, with slacks and gaps
+// carried over to the new reference by the triangle inequality (refresh_self_collision;
+// docs/notebook/self_collision.md, "Fourteenth round" and "Fifteenth round: exact watches"). Until
 // the thirteenth round the test was every vertex within skin / 2 of the garment's common motion,
 // which the swinging hem failed although the patches near each other moved together (20 % more
 // builds on the 12k skirt; docs/notebook/self_collision.md, "Ninth round" and "Thirteenth round").
@@ -102,10 +104,16 @@ struct TriangleBox {
 // thickness. The search leaves one watch per region, and they cover every pair once. The lists
 // stay complete while no two vertices of a and b have moved by more than the slack relative to
 // each other since the last build, full or partial (refresh_self_collision; a partial build lowers
-// a kept watch's slack by how far its region has drifted).
+// a kept watch's slack by how far its region has drifted). A watch of two patches found apart also
+// holds while their boxes at the positions tested are still apart by more than the reach
+// (thickness + skin) along an axis, as a search there would find them (every pair between them is
+// at least that far, whatever either patch did inside its box): the box test does not wear out
+// with the patches' own motion, so the large regions found apart are not searched again because
+// they deformed (docs/notebook/self_collision.md, "Fifteenth round: exact watches").
 struct PatchWatch {
   int a, b;
   float slack;
+  bool apart = false;  // found apart (between, the boxes' separation): the box test applies too
 };
 
 // Holds `vertex` to `side` of `triangle`'s plane (plan_untangle, below).
@@ -150,13 +158,23 @@ struct FlatTestScratch {
 };
 
 // A partial build (refresh_self_collision) searches again only the regions whose watches failed,
-// unless their patches hold more than this share of the garment's triangles: then it searches
-// everything, which also leaves the regions as coarse as the search finds them (partial searches
-// only ever split them further). On the 12k skirt's first 20 frames of 01_01, self-collision's
-// samples per sample of the rest were 0.24 for shares 0.25-0.5, 0.25 at 0.7 and 0.28-0.31 at 1-2
-// (at 2 the watches and lists about 30 % longer), against 0.30 rebuilding everything
-// (docs/notebook/self_collision.md, "Fourteenth round").
-constexpr double kPartialShare = 0.5;
+// unless their patches hold more than this share of the garment's triangles (counted once per
+// watch and patch, so it may pass 1): then it searches everything. It was 0.5 (the fourteenth
+// round: 0.24 self-collision samples per sample of the rest at 0.25-0.5 against 0.28-0.31 at 1-2)
+// while the share rule was also what merged the regions back; since kRegrowth does that and
+// watches of patches found apart hold by their boxes, most full builds it made were for failures
+// of large regions that a partial search settles again cheaply: on the 12k skirt's first 60
+// frames of 01_01 (with the box test against the thickness, before it was made the reach), 0.308
+// at 0.5, 0.279 at 1.5 and 0.282-0.291 at 3 (never reached); main's rule 0.333-0.367, the rule
+// as committed 0.254-0.261 (docs/notebook/self_collision.md, "Fifteenth round: exact watches").
+constexpr double kPartialShare = 1.5;
+// A partial search only ever splits regions further (a failed flat patch that is no longer flat
+// leaves its leaves' watches, which stay leaves after it is flat again), so between full builds the
+// watches and lists grow. When a partial build would start from more than kRegrowth times the
+// watches the last full build left, everything is searched instead, which merges the regions back.
+// Same 60 frames and box test: 0.282-0.291 at 1.05, 0.286 at 1.03, 0.337 at 1.2 (watches 7 % more,
+// lists 7 % longer) (docs/notebook/self_collision.md, "Fifteenth round: exact watches").
+constexpr double kRegrowth = 1.05;
 
 struct SelfCollision {
   double thickness = 0.0;  // m
@@ -201,11 +219,21 @@ struct SelfCollision {
   // (scratch of their test).
   std::vector<PatchWatch> watches;
   std::vector<std::array<Vec3, 2>> displacement_box;
+  // Per patch the box (low, high corner) of its vertices at the positions tested (scratch of the
+  // watches' box test for patches found apart).
+  std::vector<std::array<Vec3, 2>> position_box;
   // A partial build searches again only the regions whose watches failed, unless their patches
   // hold more than this share of the garment's triangles (counted once per watch and patch, so
   // the share may pass 1): then it searches everything (refresh_self_collision). 0: every failed
   // watch rebuilds everything (the rule before partial builds).
   double partial_share = kPartialShare;
+  // Full builds when the watches pass this many times those of the last full build (kRegrowth);
+  // INFINITY: never for that reason.
+  double regrowth = kRegrowth;
+  std::size_t full_build_watches = 0;  // watches the last full build left
+  // Whether watches of patches found apart also hold by their boxes (PatchWatch); false: by their
+  // slack only (the rule before the fifteenth round, which the tests compare with).
+  bool apart_boxes = true;
   // Per leaf patch id, its vertices (those of its triangles, each once):
   // leaf_vertices[leaf_vertex_begin[id] .. leaf_vertex_begin[id + 1]) (empty for other patches).
   // The vertices of no triangle are loose_vertices: the root's displacement box and theirs
@@ -272,8 +300,9 @@ SelfCollision make_self_collision(const ClothModel& model, double thickness);
 // Rebuilds the candidate lists if they may be incomplete for positions x (some watch of the last
 // build fails, or they were never built), and brings the per-vertex motion bounds up to x and
 // x_start (the sub-step's start). A rebuild searches only the failed watches' regions again
-// unless their patches hold more than sc.partial_share of the triangles (or the lists were never
-// built): then it searches everything. Returns whether it rebuilt (fully or partly).
+// unless their patches hold more than sc.partial_share of the triangles, the watches have passed
+// sc.regrowth times those of the last full build, or the lists were never built: then it searches
+// everything. Returns whether it rebuilt (fully or partly).
 bool refresh_self_collision(SelfCollision& sc, const ClothModel& model, const Eigen::Matrix3Xd& x,
                             const Eigen::Matrix3Xd& x_start);
 
