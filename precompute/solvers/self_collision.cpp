@@ -503,6 +503,12 @@ void make_patches(SelfCollision& sc, const ClothMesh& mesh) {
   }
 }
 
+// Which of two patches a descent over pairs of patches splits (the build's search and the
+// crossing search): the larger by triangles of those that can be split, a's on a tie. True: a.
+bool split_first(const Patch& pa, const Patch& pb) {
+  return pb.left < 0 || (pa.left >= 0 && pa.tri_end - pa.tri_begin >= pb.tri_end - pb.tri_begin);
+}
+
 // One past the last patch of `root`'s subtree: the tree is made depth first (build_patch), so a
 // subtree is the range of ids [root, subtree_end(root)), its last leaf reached by right children.
 int subtree_end(const SelfCollision& sc, int root) {
@@ -991,8 +997,7 @@ struct PairSearch {
       watch(a, b, reach - thickness);
       return;
     }
-    // Descend the larger (by triangles) of the two that can be split.
-    if (pb.left < 0 || (pa.left >= 0 && pa.tri_end - pa.tri_begin >= pb.tri_end - pb.tri_begin)) {
+    if (split_first(pa, pb)) {
       between(pa.left, b);
       between(pa.right, b);
     } else {
@@ -1261,13 +1266,7 @@ void raise_kept_moved(SelfCollision& sc, const Eigen::Matrix3Xd& x,
     lo = lo.cwiseMin(d);
     hi = hi.cwiseMax(d);
   }
-  Vec3 lo_start = Vec3::Constant(INFINITY), hi_start = Vec3::Constant(-INFINITY);
-  for (Eigen::Index i = 0; i < x.cols(); ++i) {
-    const Vec3 d_start = x_start.col(i) - built.col(i);
-    lo_start = lo_start.cwiseMin(d_start);
-    hi_start = hi_start.cwiseMax(d_start);
-  }
-  const Vec3 m = 0.5 * (lo + hi), m_start = 0.5 * (lo_start + hi_start);
+  const Vec3 m = 0.5 * (lo + hi), m_start = common_motion(x_start, built);
   double* moved = sc.moved.data();
   for (Eigen::Index i = 0; i < x.cols(); ++i) {
     moved[i] = std::max(moved[i], (x.col(i) - built.col(i) - m).norm());
@@ -1696,8 +1695,7 @@ struct CrossingSearch {
       test(b, a);
       return;
     }
-    // Descend the larger (by triangles) of the two that can be split.
-    if (pb.left < 0 || (pa.left >= 0 && pa.tri_end - pa.tri_begin >= pb.tri_end - pb.tri_begin)) {
+    if (split_first(pa, pb)) {
       between(pa.left, b);
       between(pa.right, b);
     } else {
