@@ -1226,15 +1226,40 @@ SelfCollision make_self_collision(const ClothModel& model, double thickness) {
 namespace {
 
 // The centre of the box of the displacements x - built: the common motion m the bounds are taken
-// relative to (any common vector keeps |d_i - d_j| <= |d_i - m| + |d_j - m|).
+// relative to (any common vector keeps |d_i - d_j| <= |d_i - m| + |d_j - m|). It runs once in
+// every sub-step, so it reads two vertices (six coordinates) as three pairs, each pair's minimum
+// and maximum kept apart and the coordinates' own put together at the end: x, y | z, x | y, z
+// (docs/notebook/self_collision.md, "Sixteenth round (a)"). Each coordinate's minimum and maximum
+// are the same values as a pass vertex by vertex gives (a running std::min or std::max from the
+// infinities leaves out a NaN in either order, and the two halves hold no NaN); only the sign of
+// a zero may differ, which the bounds' norms do not see.
 Vec3 common_motion(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& built) {
-  Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
-  for (Eigen::Index i = 0; i < x.cols(); ++i) {
-    const Vec3 d = x.col(i) - built.col(i);
-    lo = lo.cwiseMin(d);
-    hi = hi.cwiseMax(d);
+  using Pair = Eigen::Array2d;
+  const double* xd = x.data();
+  const double* bd = built.data();
+  const Eigen::Index n = x.cols(), pairs = n / 2;
+  Pair lo[3], hi[3];
+  for (int j = 0; j < 3; ++j) {
+    lo[j] = Pair::Constant(INFINITY);
+    hi[j] = Pair::Constant(-INFINITY);
   }
-  return 0.5 * (lo + hi);
+  for (Eigen::Index i = 0; i < pairs; ++i)
+    for (int j = 0; j < 3; ++j) {
+      const Pair d =
+          Eigen::Map<const Pair>(xd + 6 * i + 2 * j) - Eigen::Map<const Pair>(bd + 6 * i + 2 * j);
+      lo[j] = lo[j].min(d);
+      hi[j] = hi[j].max(d);
+    }
+  Vec3 low(std::min(lo[0][0], lo[1][1]), std::min(lo[0][1], lo[2][0]),
+           std::min(lo[1][0], lo[2][1]));
+  Vec3 high(std::max(hi[0][0], hi[1][1]), std::max(hi[0][1], hi[2][0]),
+            std::max(hi[1][0], hi[2][1]));
+  if (n % 2 == 1) {
+    const Vec3 d = x.col(n - 1) - built.col(n - 1);
+    low = low.cwiseMin(d);
+    high = high.cwiseMax(d);
+  }
+  return 0.5 * (low + high);
 }
 
 // moved[i] = max(moved[i], |x_i - built_i - m|) for m the common motion of x (common_motion).
@@ -1295,7 +1320,8 @@ void raise_kept_moved(SelfCollision& sc, const Eigen::Matrix3Xd& x,
 // over 01_01 the apart watches of large patches had been the largest failed region at 98 % of the
 // full builds (docs/notebook/self_collision.md, "Fifteenth round: exact watches"). Leaves each
 // watch's squared diagonal in sc.rebuild.drift (rebuild_regions reads it) and each patch's
-// displacement box in sc.displacement_box (raise_kept_moved reads the root's).
+// displacement box in sc.displacement_box (raise_kept_moved reads the root's), and x - built in
+// sc.displacement (which it reads too).
 void find_failed_watches(SelfCollision& sc, const Eigen::Matrix3Xd& x) {
   // This runs in every sub-step, so its loops read the vectors through local pointers: through
   // the vectors themselves, every store (a box, a drift, a failed index) may alias their data
