@@ -722,6 +722,109 @@ TEST(SelfCollisionSearch, MotionBoundsAreThoseOfTheRuleForEveryVertex) {
   }
 }
 
+// The watches' test in refresh_self_collision makes the boxes of the patches' vertices at the
+// positions tested only for the patches that watches of patches found apart name once their slack
+// is used up, and their subtrees (docs/notebook/self_collision.md, "Sixteenth round (a)"). Over
+// the rolled sheet and the closing U of the tests above, with partial builds, it fails exactly
+// the watches that the rule fails with every patch's boxes made afresh from its triangles'
+// corners: a watch fails when the box of its patches' displacements since the last build has a
+// diagonal of more than its slack (or its slack is below zero) and, for patches found apart,
+// their boxes at the positions tested are not apart by more than the reach along an axis; in the
+// refreshes that keep the lists the drifts (squared diagonals) are the rule's to the bit. Boxes
+// made for the named patches but not for their subtrees, or kept from an earlier test, fail it.
+TEST(SelfCollisionSearch, WatchesFailAsWithEveryPatchsBoxes) {
+  const ClothModel model = make_model(make_quad_grid(16, 16, 1.0, 1.0), Material{}, {});
+  const ClothMesh& mesh = model.mesh;
+  const double thickness = 0.01, pi = 3.14159265358979323846;
+  auto rolled = [&](double turns) {
+    Eigen::Matrix3Xd x = mesh.rest;
+    const double total = 2.0 * pi * turns, radius = 1.0 / total;
+    for (int i = 0; i < mesh.vertex_count(); ++i) {
+      const double phi = mesh.rest(0, i) * total;
+      const double r = radius - 0.006 * phi / (2.0 * pi);
+      x(0, i) = r * std::sin(phi);
+      x(2, i) = radius - r * std::cos(phi);
+    }
+    return x;
+  };
+  // The rule's failed watches at x, and every watch's squared drift.
+  auto rule = [&](const SelfCollision& sc, const Eigen::Matrix3Xd& x, std::vector<double>& drift) {
+    const std::size_t count = sc.patches.size();
+    std::vector<std::array<Vec3, 2>> moved(count), at(count);
+    for (std::size_t id = 0; id < count; ++id) {
+      const Patch& p = sc.patches[id];
+      Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
+      Vec3 at_lo = lo, at_hi = hi;
+      for (int k = p.tri_begin; k < p.tri_end; ++k)
+        for (int v : mesh.triangles[static_cast<std::size_t>(sc.tri_order[std::size_t(k)])]) {
+          const Vec3 d = x.col(v) - sc.built_at.col(v);
+          lo = lo.cwiseMin(d);
+          hi = hi.cwiseMax(d);
+          at_lo = at_lo.cwiseMin(x.col(v));
+          at_hi = at_hi.cwiseMax(x.col(v));
+        }
+      moved[id] = {lo, hi};
+      at[id] = {at_lo, at_hi};
+    }
+    std::vector<int> failed;
+    drift.clear();
+    for (std::size_t k = 0; k < sc.watches.size(); ++k) {
+      const PatchWatch& w = sc.watches[k];
+      const auto& a = moved[static_cast<std::size_t>(w.a)];
+      const auto& b = moved[static_cast<std::size_t>(w.b)];
+      drift.push_back((a[1].cwiseMax(b[1]) - a[0].cwiseMin(b[0])).squaredNorm());
+      const double slack = w.slack;
+      if (slack >= 0.0 && drift.back() <= slack * slack) continue;
+      const auto& p = at[static_cast<std::size_t>(w.a)];
+      const auto& q = at[static_cast<std::size_t>(w.b)];
+      if (w.apart &&
+          std::max((p[0] - q[1]).maxCoeff(), (q[0] - p[1]).maxCoeff()) > sc.thickness + sc.skin) {
+        failed.push_back(-1 - static_cast<int>(k));  // held by its boxes: told apart below
+        continue;
+      }
+      failed.push_back(static_cast<int>(k));
+    }
+    return failed;
+  };
+  SelfCollision sc = make_self_collision(model, thickness);
+  sc.partial_share = INFINITY;  // every failed watch's region alone, however many fail
+  sc.regrowth = INFINITY;
+  std::vector<Eigen::Matrix3Xd> positions;
+  for (int step = 1; step <= 70; ++step) positions.push_back(rolled(1.05 * step / 70.0));
+  for (int step = 0; step <= 30; ++step)
+    positions.push_back(folded_u(mesh, 0.05 * std::pow(0.003 / 0.05, step / 30.0)));
+  Eigen::Matrix3Xd start = mesh.rest;
+  std::vector<double> drift;
+  long tested = 0, failed = 0, held_by_boxes = 0, kept = 0;
+  for (std::size_t step = 0; step < positions.size(); ++step) {
+    const Eigen::Matrix3Xd& x = positions[step];
+    const bool tests = sc.built_at.cols() == x.cols();
+    std::vector<int> expected;
+    if (tests) {
+      for (int f : rule(sc, x, drift)) {
+        held_by_boxes += f < 0;
+        if (f >= 0) expected.push_back(f);
+      }
+    }
+    const bool rebuilt = refresh_self_collision(sc, model, x, start);
+    start = x;
+    if (!tests) continue;
+    ++tested;
+    failed += static_cast<long>(expected.size());
+    EXPECT_EQ(sc.rebuild.failed, expected) << "step " << step;
+    if (!rebuilt) {
+      ++kept;
+      EXPECT_EQ(sc.rebuild.drift, drift) << "step " << step;
+    }
+  }
+  EXPECT_GT(tested, 90);
+  EXPECT_GT(failed, 20) << "no watch failed: nothing was tested";
+  EXPECT_GT(held_by_boxes, 20) << "no watch was held by its boxes: the boxes were not tested";
+  EXPECT_GT(kept, 5) << "the lists were never kept: the drifts were not compared";
+  std::printf("%ld tests of the watches: %ld failed, %ld held by their boxes, %ld kept the lists\n",
+              tested, failed, held_by_boxes, kept);
+}
+
 SolverSettings xpbd(double thickness_mm, int threads = 1) {
   SolverSettings s;
   s.substeps = 20;

@@ -1226,15 +1226,40 @@ SelfCollision make_self_collision(const ClothModel& model, double thickness) {
 namespace {
 
 // The centre of the box of the displacements x - built: the common motion m the bounds are taken
-// relative to (any common vector keeps |d_i - d_j| <= |d_i - m| + |d_j - m|).
+// relative to (any common vector keeps |d_i - d_j| <= |d_i - m| + |d_j - m|). It runs once in
+// every sub-step, so it reads two vertices (six coordinates) as three pairs, each pair's minimum
+// and maximum kept apart and the coordinates' own put together at the end: x, y | z, x | y, z
+// (docs/notebook/self_collision.md, "Sixteenth round (a)"). Each coordinate's minimum and maximum
+// are the same values as a pass vertex by vertex gives (a running std::min or std::max from the
+// infinities leaves out a NaN in either order, and the two halves hold no NaN); only the sign of
+// a zero may differ, which the bounds' norms do not see.
 Vec3 common_motion(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& built) {
-  Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
-  for (Eigen::Index i = 0; i < x.cols(); ++i) {
-    const Vec3 d = x.col(i) - built.col(i);
-    lo = lo.cwiseMin(d);
-    hi = hi.cwiseMax(d);
+  using Pair = Eigen::Array2d;
+  const double* xd = x.data();
+  const double* bd = built.data();
+  const Eigen::Index n = x.cols(), pairs = n / 2;
+  Pair lo[3], hi[3];
+  for (int j = 0; j < 3; ++j) {
+    lo[j] = Pair::Constant(INFINITY);
+    hi[j] = Pair::Constant(-INFINITY);
   }
-  return 0.5 * (lo + hi);
+  for (Eigen::Index i = 0; i < pairs; ++i)
+    for (int j = 0; j < 3; ++j) {
+      const Pair d =
+          Eigen::Map<const Pair>(xd + 6 * i + 2 * j) - Eigen::Map<const Pair>(bd + 6 * i + 2 * j);
+      lo[j] = lo[j].min(d);
+      hi[j] = hi[j].max(d);
+    }
+  Vec3 low(std::min(lo[0][0], lo[1][1]), std::min(lo[0][1], lo[2][0]),
+           std::min(lo[1][0], lo[2][1]));
+  Vec3 high(std::max(hi[0][0], hi[1][1]), std::max(hi[0][1], hi[2][0]),
+            std::max(hi[1][0], hi[2][1]));
+  if (n % 2 == 1) {
+    const Vec3 d = x.col(n - 1) - built.col(n - 1);
+    low = low.cwiseMin(d);
+    high = high.cwiseMax(d);
+  }
+  return 0.5 * (low + high);
 }
 
 // moved[i] = max(moved[i], |x_i - built_i - m|) for m the common motion of x (common_motion).
@@ -1252,24 +1277,25 @@ void raise_moved(std::vector<double>& moved, const Eigen::Matrix3Xd& x,
 // and the positions left by the constraints after the last pass. The box at x is the one
 // find_failed_watches has just made (the root patch's, with the loose vertices'), so only x_start
 // takes a pass over the vertices before the bounds' own (docs/notebook/self_collision.md,
-// "Fifteenth round (b)"). No scratch matrix: this runs in every sub-step without a build.
+// "Fifteenth round (b)"), and x - built is the matrix that test left (sc.displacement).
 void raise_kept_moved(SelfCollision& sc, const Eigen::Matrix3Xd& x,
                       const Eigen::Matrix3Xd& x_start) {
   const Eigen::Matrix3Xd& built = sc.built_at;
+  // x - built, as find_failed_watches has just made it.
+  const Eigen::Matrix3Xd& d = sc.displacement;
   Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
   if (!sc.patches.empty()) {
     lo = sc.displacement_box[0][0];
     hi = sc.displacement_box[0][1];
   }
   for (int v : sc.loose_vertices) {
-    const Vec3 d = x.col(v) - built.col(v);
-    lo = lo.cwiseMin(d);
-    hi = hi.cwiseMax(d);
+    lo = lo.cwiseMin(d.col(v));
+    hi = hi.cwiseMax(d.col(v));
   }
   const Vec3 m = 0.5 * (lo + hi), m_start = common_motion(x_start, built);
   double* moved = sc.moved.data();
   for (Eigen::Index i = 0; i < x.cols(); ++i) {
-    moved[i] = std::max(moved[i], (x.col(i) - built.col(i) - m).norm());
+    moved[i] = std::max(moved[i], (d.col(i) - m).norm());
     moved[i] = std::max(moved[i], (x_start.col(i) - built.col(i) - m_start).norm());
   }
 }
@@ -1294,64 +1320,117 @@ void raise_kept_moved(SelfCollision& sc, const Eigen::Matrix3Xd& x,
 // over 01_01 the apart watches of large patches had been the largest failed region at 98 % of the
 // full builds (docs/notebook/self_collision.md, "Fifteenth round: exact watches"). Leaves each
 // watch's squared diagonal in sc.rebuild.drift (rebuild_regions reads it) and each patch's
-// displacement box in sc.displacement_box (raise_kept_moved reads the root's).
+// displacement box in sc.displacement_box (raise_kept_moved reads the root's), and x - built in
+// sc.displacement (which it reads too).
 void find_failed_watches(SelfCollision& sc, const Eigen::Matrix3Xd& x) {
-  const Eigen::Matrix3Xd& built = sc.built_at;
-  // Per patch, the box of its vertices' displacements and the box of the vertices themselves
-  // (for the watches of patches found apart), bottom-up (children come after parents).
+  // This runs in every sub-step, so its loops read the vectors through local pointers: through
+  // the vectors themselves, every store (a box, a drift, a failed index) may alias their data
+  // pointers in the compiler's view, which then reloads them for each watch
+  // (docs/notebook/self_collision.md, "Sixteenth round (a)"). The displacements since the last
+  // build are made in one streaming pass: the leaves then gather one column a vertex instead of
+  // two, and raise_kept_moved reads them too (the same differences, so the same bits).
+  sc.displacement = x - sc.built_at;
+  const Eigen::Matrix3Xd& displacement = sc.displacement;
+  // Per patch, the box of its vertices' displacements, bottom-up (children come after parents).
   const std::size_t count = sc.patches.size();
   sc.displacement_box.resize(count);
-  sc.position_box.resize(count);
+  const Patch* patches = sc.patches.data();
+  std::array<Vec3, 2>* dbox = sc.displacement_box.data();
+  const int* leaf_begin = sc.leaf_vertex_begin.data();
+  const int* leaf_vertices = sc.leaf_vertices.data();
   for (std::size_t id = count; id-- > 0;) {
-    const Patch& p = sc.patches[id];
-    std::array<Vec3, 2>& box = sc.displacement_box[id];
-    std::array<Vec3, 2>& at = sc.position_box[id];
+    const Patch& p = patches[id];
     if (p.left < 0) {
       Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
-      Vec3 at_lo = lo, at_hi = hi;
-      for (int k = sc.leaf_vertex_begin[id]; k < sc.leaf_vertex_begin[id + 1]; ++k) {
-        const int v = sc.leaf_vertices[static_cast<std::size_t>(k)];
-        const Vec3 d = x.col(v) - built.col(v);
-        lo = lo.cwiseMin(d);
-        hi = hi.cwiseMax(d);
-        at_lo = at_lo.cwiseMin(x.col(v));
-        at_hi = at_hi.cwiseMax(x.col(v));
+      const int end = leaf_begin[id + 1];
+      for (int k = leaf_begin[id]; k < end; ++k) {
+        const int v = leaf_vertices[k];
+        lo = lo.cwiseMin(displacement.col(v));
+        hi = hi.cwiseMax(displacement.col(v));
       }
-      box = {lo, hi};
-      at = {at_lo, at_hi};
+      dbox[id] = {lo, hi};
     } else {
-      const std::array<Vec3, 2>& l = sc.displacement_box[static_cast<std::size_t>(p.left)];
-      const std::array<Vec3, 2>& r = sc.displacement_box[static_cast<std::size_t>(p.right)];
-      box = {l[0].cwiseMin(r[0]), l[1].cwiseMax(r[1])};
-      const std::array<Vec3, 2>& l_at = sc.position_box[static_cast<std::size_t>(p.left)];
-      const std::array<Vec3, 2>& r_at = sc.position_box[static_cast<std::size_t>(p.right)];
-      at = {l_at[0].cwiseMin(r_at[0]), l_at[1].cwiseMax(r_at[1])};
+      const std::array<Vec3, 2>& l = dbox[static_cast<std::size_t>(p.left)];
+      const std::array<Vec3, 2>& r = dbox[static_cast<std::size_t>(p.right)];
+      dbox[id] = {l[0].cwiseMin(r[0]), l[1].cwiseMax(r[1])};
     }
   }
+  // The watches beyond their slack, in their order.
   std::vector<int>& failed = sc.rebuild.failed;
-  std::vector<double>& drift = sc.rebuild.drift;
   failed.clear();
-  drift.resize(sc.watches.size());
-  for (std::size_t k = 0; k < sc.watches.size(); ++k) {
-    const PatchWatch& wt = sc.watches[k];
-    const std::array<Vec3, 2>& a = sc.displacement_box[static_cast<std::size_t>(wt.a)];
-    const std::array<Vec3, 2>& b = sc.displacement_box[static_cast<std::size_t>(wt.b)];
+  const std::size_t watch_count = sc.watches.size();
+  sc.rebuild.drift.resize(watch_count);
+  double* drift = sc.rebuild.drift.data();
+  const PatchWatch* watches = sc.watches.data();
+  const bool apart_boxes = sc.apart_boxes;
+  bool ask_boxes = false;
+  for (std::size_t k = 0; k < watch_count; ++k) {
+    const PatchWatch& wt = watches[k];
+    const std::array<Vec3, 2>& a = dbox[static_cast<std::size_t>(wt.a)];
+    const std::array<Vec3, 2>& b = dbox[static_cast<std::size_t>(wt.b)];
     const Vec3 span = a[1].cwiseMax(b[1]) - a[0].cwiseMin(b[0]);
     const double slack = wt.slack;
-    drift[k] = span.squaredNorm();
+    const double drift_k = span.squaredNorm();
+    drift[k] = drift_k;
     // A slack below zero holds nothing: a watch held by its boxes alone through a partial build
-    // had more drift than slack to carry over.
-    if (slack >= 0.0 && drift[k] <= slack * slack) continue;
-    if (wt.apart && sc.apart_boxes) {
-      // Boxes apart by more than the reach along an axis: every pair between the two patches is at
-      // least that far (PatchWatch). NaN positions fail (the comparison is false).
-      const std::array<Vec3, 2>& p = sc.position_box[static_cast<std::size_t>(wt.a)];
-      const std::array<Vec3, 2>& q = sc.position_box[static_cast<std::size_t>(wt.b)];
-      if (std::max((p[0] - q[1]).maxCoeff(), (q[0] - p[1]).maxCoeff()) > sc.thickness + sc.skin)
-        continue;
-    }
+    // had more drift than slack to carry over. slack |slack| is slack^2 for a slack of at least
+    // zero and below zero otherwise (-0 gives -0, which a drift of 0 passes as 0 >= -0 does), so
+    // this is slack >= 0 && drift <= slack^2 without the sign's branch; NaN fails both ways.
+    if (drift_k <= slack * std::abs(slack)) continue;
     failed.push_back(static_cast<int>(k));  // NaN positions fail too
+    ask_boxes = ask_boxes || (wt.apart && apart_boxes);
   }
+  if (!ask_boxes) return;
+  // Of those, the watches of patches found apart hold while the boxes of their patches' vertices
+  // at x are apart by more than the reach along an axis (PatchWatch). The boxes are made only
+  // for the patches such a watch names and their subtrees (36 % of the leaf-vertex entries over
+  // the 12k skirt's first 20 frames of 01_01; docs/notebook/self_collision.md, "Sixteenth round
+  // (a)"), by the same operations in the same order as a pass over every patch, so the same
+  // boxes to the bit. A subtree is a range of ids (subtree_end); one already marked is not
+  // marked again.
+  std::vector<char>& needed = sc.rebuild.position_needed;
+  needed.assign(count, 0);
+  for (int f : failed) {
+    const PatchWatch& wt = watches[f];
+    if (!wt.apart) continue;
+    for (int id : {wt.a, wt.b})
+      if (!needed[static_cast<std::size_t>(id)])
+        std::fill(needed.begin() + id, needed.begin() + subtree_end(sc, id), 1);
+  }
+  sc.position_box.resize(count);
+  std::array<Vec3, 2>* pbox = sc.position_box.data();
+  for (std::size_t id = count; id-- > 0;) {
+    if (!needed[id]) continue;
+    const Patch& p = patches[id];
+    if (p.left < 0) {
+      Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
+      const int end = leaf_begin[id + 1];
+      for (int k = leaf_begin[id]; k < end; ++k) {
+        const int v = leaf_vertices[k];
+        lo = lo.cwiseMin(x.col(v));
+        hi = hi.cwiseMax(x.col(v));
+      }
+      pbox[id] = {lo, hi};
+    } else {
+      const std::array<Vec3, 2>& l = pbox[static_cast<std::size_t>(p.left)];
+      const std::array<Vec3, 2>& r = pbox[static_cast<std::size_t>(p.right)];
+      pbox[id] = {l[0].cwiseMin(r[0]), l[1].cwiseMax(r[1])};
+    }
+  }
+  const double reach = sc.thickness + sc.skin;
+  std::size_t kept = 0;
+  for (int f : failed) {
+    const PatchWatch& wt = watches[f];
+    if (wt.apart) {
+      // Every pair between the two patches is at least that far. NaN positions fail (the
+      // comparison is false).
+      const std::array<Vec3, 2>& p = pbox[static_cast<std::size_t>(wt.a)];
+      const std::array<Vec3, 2>& q = pbox[static_cast<std::size_t>(wt.b)];
+      if (std::max((p[0] - q[1]).maxCoeff(), (q[0] - p[1]).maxCoeff()) > reach) continue;
+    }
+    failed[kept++] = f;
+  }
+  failed.resize(kept);
 }
 
 // A partial build at x (docs/notebook/self_collision.md, "Fourteenth round"): the regions of the

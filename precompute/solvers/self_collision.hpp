@@ -219,8 +219,12 @@ struct SelfCollision {
   // (scratch of their test).
   std::vector<PatchWatch> watches;
   std::vector<std::array<Vec3, 2>> displacement_box;
+  // x - built_at at the positions the watches were last tested at (scratch of that test and of
+  // the motion bounds after it).
+  Eigen::Matrix3Xd displacement;
   // Per patch the box (low, high corner) of its vertices at the positions tested (scratch of the
-  // watches' box test for patches found apart).
+  // watches' box test for patches found apart), made only for the patches that test asks about
+  // (RebuildScratch::position_needed).
   std::vector<std::array<Vec3, 2>> position_box;
   // A partial build searches again only the regions whose watches failed, unless their patches
   // hold more than this share of the garment's triangles (counted once per watch and patch, so
@@ -268,6 +272,9 @@ struct SelfCollision {
   // Scratch of the partial builds, kept from build to build (lists of tens of thousands).
   struct RebuildScratch {
     std::vector<int> failed, renumber, order, patches;
+    // The watches' test's: per patch whether its box at the positions tested is made
+    // (find_failed_watches).
+    std::vector<char> position_needed;
     std::vector<double> drift;
     std::vector<char> refit;
     std::vector<std::array<int, 2>> roots, vertex_triangle, edge_edge, pairs_out;
