@@ -498,7 +498,11 @@ TEST(SelfCollisionSearch, ContourAcrossNamesTheTriangleBeyondEachContourEdge) {
 // slack (also after a partial build) fails the lists', a kept pair's gap not lowered by its parts'
 // motion the gaps'; so does a box test against a separation of 0 instead of the reach, against the
 // boxes of the build instead of those at the positions tested, or a watch held by its boxes whose
-// slack, carried below zero, is taken as holding.
+// slack, carried below zero, is taken as holding. Kept gaps that fall below exact_gap_below are
+// computed afresh at the new reference (rebuild_regions, "Sixteenth round (b)"): beside the same
+// partial builds with every kept gap only carried (exact_gap_below -INFINITY), the lists are the
+// same, every gap at least the carried one and some higher; a gap computed at the old reference
+// instead fails the gaps' check.
 TEST(SelfCollisionSearch, ListsKeptBetweenBuildsHoldEveryPairNearerThanTheThickness) {
   const ClothModel model = make_model(make_quad_grid(16, 16, 1.0, 1.0), Material{}, {});
   const double thickness = 0.01;
@@ -512,6 +516,10 @@ TEST(SelfCollisionSearch, ListsKeptBetweenBuildsHoldEveryPairNearerThanTheThickn
   SelfCollision standard = make_self_collision(model, thickness);  // kPartialShare, kRegrowth
   SelfCollision whole = make_self_collision(model, thickness);
   whole.partial_share = 0.0;
+  SelfCollision carried = make_self_collision(model, thickness);
+  carried.partial_share = INFINITY;
+  carried.regrowth = INFINITY;
+  carried.exact_gap_below = -INFINITY;
   const double pi = 3.14159265358979323846;
   auto rolled = [&](double turns) {
     Eigen::Matrix3Xd x = model.mesh.rest;
@@ -537,11 +545,22 @@ TEST(SelfCollisionSearch, ListsKeptBetweenBuildsHoldEveryPairNearerThanTheThickn
   const ClothMesh& mesh = model.mesh;
   Eigen::Matrix3Xd start = mesh.rest, old_reference;
   long old_builds = 0;
-  std::size_t near_pairs = 0, gaps_checked = 0;
+  std::size_t near_pairs = 0, gaps_checked = 0, gaps_raised = 0;
   for (int step = 1; step <= 70; ++step) {
     const Eigen::Matrix3Xd x = rolled(1.05 * step / 70.0);
-    for (SelfCollision* each : {&sc, &slacks_only, &standard, &whole})
+    for (SelfCollision* each : {&sc, &slacks_only, &standard, &whole, &carried})
       refresh_self_collision(*each, model, x, start);
+    // The gaps computed afresh only ever raise the carried ones; the lists and builds are the same.
+    ASSERT_EQ(sc.vertex_triangle, carried.vertex_triangle) << "step " << step;
+    ASSERT_EQ(sc.edge_edge, carried.edge_edge) << "step " << step;
+    for (std::size_t k = 0; k < sc.vertex_triangle.size(); ++k) {
+      EXPECT_GE(sc.vertex_triangle_gap[k], carried.vertex_triangle_gap[k]) << "step " << step;
+      gaps_raised += sc.vertex_triangle_gap[k] > carried.vertex_triangle_gap[k];
+    }
+    for (std::size_t k = 0; k < sc.edge_edge.size(); ++k) {
+      EXPECT_GE(sc.edge_edge_gap[k], carried.edge_edge_gap[k]) << "step " << step;
+      gaps_raised += sc.edge_edge_gap[k] > carried.edge_edge_gap[k];
+    }
     const Pairs near = brute_force_pairs(mesh, x, thickness);
     near_pairs += near.vt.size() + near.ee.size();
     for (const SelfCollision* lists : {&sc, &slacks_only, &standard, &whole}) {
@@ -624,6 +643,11 @@ TEST(SelfCollisionSearch, ListsKeptBetweenBuildsHoldEveryPairNearerThanTheThickn
   EXPECT_LT(sc.regions_settled, whole.regions_settled);
   EXPECT_LT(sc.regions_settled, slacks_only.regions_settled);
   EXPECT_LE(sc.builds + sc.partial_builds, slacks_only.builds + slacks_only.partial_builds);
+  EXPECT_EQ(carried.gaps_computed, 0);
+  EXPECT_GT(sc.gaps_computed, 0);
+  EXPECT_GT(gaps_raised, 0u);
+  std::printf("kept gaps computed afresh: %ld, %zu gaps raised over all steps\n", sc.gaps_computed,
+              gaps_raised);
   std::printf(
       "rolled sheet: %zu near pairs and %zu gaps checked; %ld builds (old test: %ld); partial: %ld "
       "full and %ld partial builds, %ld regions settled (everything at each failed watch: %ld; "

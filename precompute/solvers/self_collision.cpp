@@ -1145,21 +1145,30 @@ void build_candidates(SelfCollision& sc, const ClothModel& model, const Eigen::M
 
 // A partial build's lists (rebuild_regions): drops the pairs of the regions searched again
 // (renumber[region] < 0), renumbers the others' regions and lowers their gaps by spread[new
-// region] (how far the pair's parts may have moved relative to each other since the last build),
-// then merges in the new pairs `found`. Both parts are sorted by (first, second) and no pair is in
-// both (each lies in one region), so the list ends sorted as a full build sorts it: the contacts'
-// Gauss-Seidel order does not depend on which regions were searched when.
-void merge_pairs(std::vector<std::array<int, 2>>& pairs, std::vector<float>& gaps,
+// region] (how far the pair's parts may have moved relative to each other since the last build);
+// a gap that falls below `exact_below` is raised to the pair's distance at the new reference less
+// the thickness, `gap_at(pair)` (rebuild_regions says why both are lower bounds). Then merges in
+// the new pairs `found`. Both parts are sorted by (first, second) and no pair is in both (each lies
+// in one region), so the list ends sorted as a full build sorts it: the contacts' Gauss-Seidel
+// order does not depend on which regions were searched when. Returns how many gaps were computed.
+template <class GapAt>
+long merge_pairs(std::vector<std::array<int, 2>>& pairs, std::vector<float>& gaps,
                  std::vector<int>& regions, const std::vector<int>& renumber,
-                 const std::vector<double>& spread, const std::vector<std::array<int, 2>>& found,
-                 const std::vector<float>& found_gaps, const std::vector<int>& found_regions,
-                 std::vector<int>& order) {
+                 const std::vector<double>& spread, double exact_below, const GapAt& gap_at,
+                 const std::vector<std::array<int, 2>>& found, const std::vector<float>& found_gaps,
+                 const std::vector<int>& found_regions, std::vector<int>& order) {
   std::size_t kept = 0;
+  long computed = 0;
   for (std::size_t k = 0; k < pairs.size(); ++k) {
     const int region = renumber[static_cast<std::size_t>(regions[k])];
     if (region < 0) continue;
     pairs[kept] = pairs[k];
-    gaps[kept] = float_below(double(gaps[k]) - spread[static_cast<std::size_t>(region)]);
+    float gap = float_below(double(gaps[k]) - spread[static_cast<std::size_t>(region)]);
+    if (double(gap) < exact_below) {
+      gap = std::max(gap, float_below(gap_at(pairs[kept])));
+      ++computed;
+    }
+    gaps[kept] = gap;
     regions[kept] = region;
     ++kept;
   }
@@ -1189,6 +1198,7 @@ void merge_pairs(std::vector<std::array<int, 2>>& pairs, std::vector<float>& gap
       regions[k] = found_regions[f];
     }
   }
+  return computed;
 }
 
 }  // namespace
@@ -1204,6 +1214,7 @@ SelfCollision make_self_collision(const ClothModel& model, double thickness) {
   if (!model.edge_rest_length.empty()) mean_edge /= double(model.edge_rest_length.size());
   sc.skin = std::max(thickness, 0.5 * mean_edge);
   sc.mean_edge = mean_edge;
+  sc.exact_gap_below = kExactGapShare * sc.skin;
   // Only pairs nearer than the thickness at rest: leaving out all pairs within thickness + skin at
   // rest (a list of a few hundred pairs instead of 160,000 on the 12k skirt) let pairs two rings
   // apart cross in tight folds: 20 crossings at worst and 615 of 687 frames with any on the 3k
@@ -1455,6 +1466,15 @@ void find_failed_watches(SelfCollision& sc, const Eigen::Matrix3Xd& x) {
 //   relative motion. (The contacts' motion bounds would do too, g - moved_p - max moved_q, but
 //   they are measured from the garment's common motion, which the swinging hem leaves by far
 //   more than its regions drift.) `moved` then restarts from 0 at x, as after a full build.
+// - Those drifts add up: a pair kept through n partial builds has lost the sum of n drifts (the
+//   path of its region's spread, each the diagonal of a box over the whole region), not its own
+//   net approach, and with partial builds in most sub-steps the loosened gaps let many more pairs
+//   through the contacts' gap test (docs/notebook/self_collision.md, "Sixteenth round (b)"). So a
+//   kept gap that falls below sc.exact_gap_below is raised to the pair's own distance at x less
+//   the thickness, rounded down, as a search at x would give it: that is a lower bound on the
+//   distance at the new reference by itself, g - d is another, and the larger of two lower bounds
+//   is one. The gaps above the level are left as carried: computing every kept pair's distance
+//   costs more than the contacts it saves.
 // The lists end sorted by (first, second) as a full build sorts them (merge_pairs). Returns false
 // (nothing changed) when the failed regions' patches hold more than sc.partial_share of the
 // garment's triangles, or x is not finite: then the caller searches everything.
@@ -1517,11 +1537,30 @@ bool rebuild_regions(SelfCollision& sc, const ClothModel& model, const Eigen::Ma
                  {r.vertex_triangle, r.edge_edge, &r.vertex_triangle_gap, &r.edge_edge_gap,
                   &sc.watches, &r.vertex_triangle_region, &r.edge_edge_region},
                  sc.flat_tests);
-  // Kept pairs' gaps lowered by their regions' drift (above).
-  merge_pairs(sc.vertex_triangle, sc.vertex_triangle_gap, sc.vertex_triangle_region, r.renumber,
-              r.drift, r.vertex_triangle, r.vertex_triangle_gap, r.vertex_triangle_region, r.order);
-  merge_pairs(sc.edge_edge, sc.edge_edge_gap, sc.edge_edge_region, r.renumber, r.drift, r.edge_edge,
-              r.edge_edge_gap, r.edge_edge_region, r.order);
+  // Kept pairs' gaps lowered by their regions' drift, the low ones computed at x (above), as the
+  // search computes them (PairSearch::vertex_triangle, edge_pair).
+  const ClothMesh& mesh = model.mesh;
+  const double thickness = sc.thickness;
+  auto vertex_triangle_gap = [&](const std::array<int, 2>& pair) {
+    const auto& t = mesh.triangles[static_cast<std::size_t>(pair[0])];
+    const Vec3 p = x.col(pair[1]);
+    return std::sqrt((closest_on_triangle(p, x.col(t[0]), x.col(t[1]), x.col(t[2])).point - p)
+                         .squaredNorm()) -
+           thickness;
+  };
+  auto edge_edge_gap = [&](const std::array<int, 2>& pair) {
+    const auto& e1 = mesh.edges[static_cast<std::size_t>(pair[0])];
+    const auto& e2 = mesh.edges[static_cast<std::size_t>(pair[1])];
+    return std::sqrt(segment_distance_sq(x.col(e1[0]), x.col(e1[1]), x.col(e2[0]), x.col(e2[1]))) -
+           thickness;
+  };
+  sc.gaps_computed +=
+      merge_pairs(sc.vertex_triangle, sc.vertex_triangle_gap, sc.vertex_triangle_region, r.renumber,
+                  r.drift, sc.exact_gap_below, vertex_triangle_gap, r.vertex_triangle,
+                  r.vertex_triangle_gap, r.vertex_triangle_region, r.order);
+  sc.gaps_computed += merge_pairs(sc.edge_edge, sc.edge_edge_gap, sc.edge_edge_region, r.renumber,
+                                  r.drift, sc.exact_gap_below, edge_edge_gap, r.edge_edge,
+                                  r.edge_edge_gap, r.edge_edge_region, r.order);
   sc.built_at = x;
   ++sc.partial_builds;
   sc.regions_settled += static_cast<long>(sc.watches.size() - before);
@@ -1581,20 +1620,26 @@ int project_self_collision(SelfCollision& sc, const ClothModel& model, Eigen::Ma
       continue;
     // Normals per pair, not cached per triangle: on the 12k skirt about twice as many normals
     // (51k listed pairs, 24k triangles); not measured apart.
-    const Vec3 n = unit_normal(x, t), n0 = unit_normal(x_start, t);
+    const Vec3 n = unit_normal(x, t);
+    if (n.isZero()) continue;
     const Vec3 a = x.col(t[0]);
     const double dist = (x.col(v) - a).dot(n);
-    const double dist_start = (x_start.col(v) - x_start.col(t[0])).dot(n0);
-    const double sigma =
-        dist_start != 0.0 ? (dist_start > 0.0 ? 1.0 : -1.0) : (dist >= 0.0 ? 1.0 : -1.0);
-    const double c = sigma * dist - h;
-    if (c >= 0.0 || n.isZero()) continue;
     // Barycentric coordinates of the projection (Ericson 2005 sec. 3.4); only a vertex over the
-    // triangle's interior touches its face (the edges' own pairs take the rest).
+    // triangle's interior touches its face (the edges' own pairs take the rest). Tested before the
+    // side, which needs the normal at the sub-step's start: of the pairs the gap test lets through
+    // on the 12k skirt over 200 frames of 01_01, 0.9 % lie over their triangle (237,842 of 26.8 M;
+    // docs/notebook/self_collision.md, "Sixteenth round (b)"). The same pairs are skipped, from the
+    // same values, in either order.
     double b1 = 0.0, b2 = 0.0;
     if (!barycentric(x.col(t[1]) - a, x.col(t[2]) - a, x.col(v) - dist * n - a, b1, b2)) continue;
     const double b0 = 1.0 - b1 - b2;
     if (b0 < 0.0 || b1 < 0.0 || b2 < 0.0) continue;
+    const Vec3 n0 = unit_normal(x_start, t);
+    const double dist_start = (x_start.col(v) - x_start.col(t[0])).dot(n0);
+    const double sigma =
+        dist_start != 0.0 ? (dist_start > 0.0 ? 1.0 : -1.0) : (dist >= 0.0 ? 1.0 : -1.0);
+    const double c = sigma * dist - h;
+    if (c >= 0.0) continue;
     if (push_vertex_off_triangle(x, sc, w, moved, v, t, b0, b1, b2, n, sigma, c)) ++contacts;
   }
   // Edge-edge: C = (P - Q) . n - h >= 0 with P, Q the closest points, n their unit direction, or,

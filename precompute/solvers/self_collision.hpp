@@ -14,9 +14,10 @@
 // When some watches fail, only their regions are searched again (a partial build), unless they
 // hold much of the garment or the regions have split into too many since the last full build
 // (kPartialShare, kRegrowth); the other regions keep their pairs and watches, with slacks and gaps
-// carried over to the new reference by the triangle inequality (refresh_self_collision;
-// docs/notebook/self_collision.md, "Fourteenth round" and "Fifteenth round: exact watches"). Until
-// the thirteenth round the test was every vertex within skin / 2 of the garment's common motion,
+// carried over to the new reference by the triangle inequality and low gaps computed afresh there
+// (kExactGapShare; refresh_self_collision; docs/notebook/self_collision.md, "Fourteenth round",
+// "Fifteenth round: exact watches" and "Sixteenth round (b)"). Until the thirteenth round the
+// test was every vertex within skin / 2 of the garment's common motion,
 // which the swinging hem failed although the patches near each other moved together (20 % more
 // builds on the 12k skirt; docs/notebook/self_collision.md, "Ninth round" and "Thirteenth round").
 // Every sub-step tests only the listed pairs, and of those only the ones whose distance at the
@@ -175,6 +176,12 @@ constexpr double kPartialShare = 1.5;
 // Same 60 frames and box test: 0.282-0.291 at 1.05, 0.286 at 1.03, 0.337 at 1.2 (watches 7 % more,
 // lists 7 % longer) (docs/notebook/self_collision.md, "Fifteenth round: exact watches").
 constexpr double kRegrowth = 1.05;
+// A kept pair's gap, lowered at each partial build by its region's drift (a sum of drifts over the
+// partial builds since its search), is computed afresh at the new reference once it falls below
+// this share of the skin, about 1 mm on the 12k skirt (rebuild_regions): over 200 frames of its
+// 01_01, 10.7 M gaps computed, and half as many pairs let through the contacts' gap test
+// (docs/notebook/self_collision.md, "Sixteenth round (b)").
+constexpr double kExactGapShare = 0.15;
 
 struct SelfCollision {
   double thickness = 0.0;  // m
@@ -269,6 +276,10 @@ struct SelfCollision {
   // Watches the searches have made so far, full builds and partial: one per region settled, so a
   // measure of the searches' work that does not depend on the machine.
   long regions_settled = 0;
+  // m: a partial build computes the gap of a kept pair afresh at the new reference when the
+  // carried gap falls below this (kExactGapShare); -INFINITY: never (the rule before).
+  double exact_gap_below = 0.0;
+  long gaps_computed = 0;  // kept pairs' gaps computed afresh so far (partial builds)
   // Scratch of the partial builds, kept from build to build (lists of tens of thousands).
   struct RebuildScratch {
     std::vector<int> failed, renumber, order, patches;
