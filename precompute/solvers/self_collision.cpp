@@ -1311,6 +1311,34 @@ void raise_kept_moved(SelfCollision& sc, const Eigen::Matrix3Xd& x,
   }
 }
 
+// Per patch, the box of its vertices' columns of `points` (displacements or positions), bottom-up:
+// a leaf's from its vertices, a parent's from its children's (children come after parents). Only
+// the patches `needed` marks when it is given (a marked patch's subtree is marked too).
+inline void boxes_bottom_up(const SelfCollision& sc, const Eigen::Matrix3Xd& points,
+                            std::array<Vec3, 2>* boxes, const char* needed) {
+  const Patch* patches = sc.patches.data();
+  const int* leaf_begin = sc.leaf_vertex_begin.data();
+  const int* leaf_vertices = sc.leaf_vertices.data();
+  for (std::size_t id = sc.patches.size(); id-- > 0;) {
+    if (needed && !needed[id]) continue;
+    const Patch& p = patches[id];
+    if (p.left < 0) {
+      Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
+      const int end = leaf_begin[id + 1];
+      for (int k = leaf_begin[id]; k < end; ++k) {
+        const int v = leaf_vertices[k];
+        lo = lo.cwiseMin(points.col(v));
+        hi = hi.cwiseMax(points.col(v));
+      }
+      boxes[id] = {lo, hi};
+    } else {
+      const std::array<Vec3, 2>& l = boxes[static_cast<std::size_t>(p.left)];
+      const std::array<Vec3, 2>& r = boxes[static_cast<std::size_t>(p.right)];
+      boxes[id] = {l[0].cwiseMin(r[0]), l[1].cwiseMax(r[1])};
+    }
+  }
+}
+
 // The watches that fail at x (docs/notebook/self_collision.md, "Ninth round", "Thirteenth round"
 // and "Fourteenth round"), into sc.rebuild.failed in their order: those for which the box of the
 // displacements since the last build over the vertices of its patches has a diagonal of more than
@@ -1342,30 +1370,11 @@ void find_failed_watches(SelfCollision& sc, const Eigen::Matrix3Xd& x) {
   // two, and raise_kept_moved reads them too (the same differences, so the same bits).
   sc.displacement = x - sc.built_at;
   const Eigen::Matrix3Xd& displacement = sc.displacement;
-  // Per patch, the box of its vertices' displacements, bottom-up (children come after parents).
+  // Per patch, the box of its vertices' displacements.
   const std::size_t count = sc.patches.size();
   sc.displacement_box.resize(count);
-  const Patch* patches = sc.patches.data();
   std::array<Vec3, 2>* dbox = sc.displacement_box.data();
-  const int* leaf_begin = sc.leaf_vertex_begin.data();
-  const int* leaf_vertices = sc.leaf_vertices.data();
-  for (std::size_t id = count; id-- > 0;) {
-    const Patch& p = patches[id];
-    if (p.left < 0) {
-      Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
-      const int end = leaf_begin[id + 1];
-      for (int k = leaf_begin[id]; k < end; ++k) {
-        const int v = leaf_vertices[k];
-        lo = lo.cwiseMin(displacement.col(v));
-        hi = hi.cwiseMax(displacement.col(v));
-      }
-      dbox[id] = {lo, hi};
-    } else {
-      const std::array<Vec3, 2>& l = dbox[static_cast<std::size_t>(p.left)];
-      const std::array<Vec3, 2>& r = dbox[static_cast<std::size_t>(p.right)];
-      dbox[id] = {l[0].cwiseMin(r[0]), l[1].cwiseMax(r[1])};
-    }
-  }
+  boxes_bottom_up(sc, displacement, dbox, nullptr);
   // The watches beyond their slack, in their order.
   std::vector<int>& failed = sc.rebuild.failed;
   failed.clear();
@@ -1410,24 +1419,7 @@ void find_failed_watches(SelfCollision& sc, const Eigen::Matrix3Xd& x) {
   }
   sc.position_box.resize(count);
   std::array<Vec3, 2>* pbox = sc.position_box.data();
-  for (std::size_t id = count; id-- > 0;) {
-    if (!needed[id]) continue;
-    const Patch& p = patches[id];
-    if (p.left < 0) {
-      Vec3 lo = Vec3::Constant(INFINITY), hi = Vec3::Constant(-INFINITY);
-      const int end = leaf_begin[id + 1];
-      for (int k = leaf_begin[id]; k < end; ++k) {
-        const int v = leaf_vertices[k];
-        lo = lo.cwiseMin(x.col(v));
-        hi = hi.cwiseMax(x.col(v));
-      }
-      pbox[id] = {lo, hi};
-    } else {
-      const std::array<Vec3, 2>& l = pbox[static_cast<std::size_t>(p.left)];
-      const std::array<Vec3, 2>& r = pbox[static_cast<std::size_t>(p.right)];
-      pbox[id] = {l[0].cwiseMin(r[0]), l[1].cwiseMax(r[1])};
-    }
-  }
+  boxes_bottom_up(sc, x, pbox, needed.data());
   const double reach = sc.thickness + sc.skin;
   std::size_t kept = 0;
   for (int f : failed) {
