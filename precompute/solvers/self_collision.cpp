@@ -56,6 +56,15 @@ double segment_distance_sq(const Vec3& p1, const Vec3& q1, const Vec3& p2, const
   return ((p1 + s * (q1 - p1)) - (p2 + t * (q2 - p2))).squaredNorm();
 }
 
+// Squared distance from vertex v to triangle `tri` at positions x (the build's search lists a pair
+// by it, and a partial build computes a kept pair's gap from it).
+double vertex_triangle_distance_sq(const ClothMesh& mesh, const Eigen::Matrix3Xd& x, int tri,
+                                   int v) {
+  const auto& t = mesh.triangles[static_cast<std::size_t>(tri)];
+  const Vec3 p = x.col(v);
+  return (closest_on_triangle(p, x.col(t[0]), x.col(t[1]), x.col(t[2])).point - p).squaredNorm();
+}
+
 // True if the boxes of segments p1-q1 and p2-q2 are more than `gap` apart along some axis: then
 // the segments are too (the cheap test before the closest points, which most listed pairs fail).
 bool boxes_apart(const Vec3& p1, const Vec3& q1, const Vec3& p2, const Vec3& q2, double gap) {
@@ -830,9 +839,7 @@ struct PairSearch {
     if (v == t[0] || v == t[1] || v == t[2]) return;
     if (w[v] <= 0.0 && !(w[t[0]] + w[t[1]] + w[t[2]] > 0.0)) return;
     if (skip_rest && listed(sc.rest_vt_begin, sc.rest_vt, tri, v)) return;
-    const Vec3 p = x.col(v);
-    const double d_sq =
-        (closest_on_triangle(p, x.col(t[0]), x.col(t[1]), x.col(t[2])).point - p).squaredNorm();
+    const double d_sq = vertex_triangle_distance_sq(mesh, x, tri, v);
     if (d_sq >= reach_sq) return;
     vt.push_back({tri, v});
     if (vt_gap) vt_gap->push_back(float_below(std::sqrt(d_sq) - thickness));
@@ -1534,11 +1541,7 @@ bool rebuild_regions(SelfCollision& sc, const ClothModel& model, const Eigen::Ma
   const ClothMesh& mesh = model.mesh;
   const double thickness = sc.thickness;
   auto vertex_triangle_gap = [&](const std::array<int, 2>& pair) {
-    const auto& t = mesh.triangles[static_cast<std::size_t>(pair[0])];
-    const Vec3 p = x.col(pair[1]);
-    return std::sqrt((closest_on_triangle(p, x.col(t[0]), x.col(t[1]), x.col(t[2])).point - p)
-                         .squaredNorm()) -
-           thickness;
+    return std::sqrt(vertex_triangle_distance_sq(mesh, x, pair[0], pair[1])) - thickness;
   };
   auto edge_edge_gap = [&](const std::array<int, 2>& pair) {
     const auto& e1 = mesh.edges[static_cast<std::size_t>(pair[0])];
