@@ -99,7 +99,8 @@ void register_bench_character(CLI::App& bench) {
   cmd->add_option("--self-collision", args->self_collision,
                   "Comma-separated XPBD self-collision thicknesses in mm, 0: off, e.g. 0,4; "
                   "default: the scene's, and when that is on also a run without it (the table's "
-                  "'CPU vs off' column is its cost)");
+                  "'CPU vs off' column is its cost). The runs of one setting take their frames "
+                  "in turn, so a change in the machine's speed falls on all of them alike");
   cmd->add_flag("--reference", args->options.reference,
                 "Also run each setting at 8x the sub-steps (the converged run of the same model) "
                 "over the same frames and report the RMS and largest vertex distance to it");

@@ -71,26 +71,41 @@ void locate_edge(const CharacterScene& scene, const MotionClip& clip, int f,
   }
 }
 
-CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverKind kind,
-                          const SolverSettings& settings, ColliderMotion motion, int frames,
-                          const std::function<void(const std::string&)>& progress,
-                          std::vector<Eigen::Matrix3Xd>* positions = nullptr) {
-  scene.env.collider_motion = motion;
-  auto solver = make_scene_solver(scene, kind, settings);
+// One run of the clip with one setting, a frame at a time, so that several runs can take their
+// frames in turn (run_interleaved).
+struct BenchRun {
+  CharacterScene& scene;
+  const MotionClip& clip;
+  ColliderMotion motion;
+  std::unique_ptr<Solver> solver;
   CharacterBenchRow row;
-  row.solver = solver->describe();
-  row.threads = settings.threads;
-  row.collider_motion = motion;
-  row.self_collision_mm = settings.self_collision_thickness_mm;
-  row.vertices = scene.model.vertex_count();
-  row.capsules = static_cast<int>(scene.body.capsules.size());
-  ClothState state = settle_garment(scene, *solver, clip_pose(clip, 0));
-  if (positions != nullptr) positions->assign(1, state.x);
+  ClothState state;
+  std::vector<Eigen::Matrix3Xd>* positions = nullptr;
   double wall = 0, cpu = 0;
   long iterations = 0, factorizations = 0, limit_passes = 0;
   std::vector<double> strains;  // every edge at every frame, for the percentile
-  const auto start = std::chrono::steady_clock::now();
-  for (int f = 1; f < frames; ++f) {
+  int substeps = 0;
+  bool done = false;
+
+  BenchRun(CharacterScene& s, const MotionClip& c, SolverKind kind, const SolverSettings& settings,
+           ColliderMotion m, std::vector<Eigen::Matrix3Xd>* p)
+      : scene(s), clip(c), motion(m), positions(p), substeps(settings.substeps) {
+    scene.env.collider_motion = motion;
+    solver = make_scene_solver(scene, kind, settings);
+    row.solver = solver->describe();
+    row.threads = settings.threads;
+    row.collider_motion = motion;
+    row.self_collision_mm = settings.self_collision_thickness_mm;
+    row.vertices = scene.model.vertex_count();
+    row.capsules = static_cast<int>(scene.body.capsules.size());
+    state = settle_garment(scene, *solver, clip_pose(clip, 0));
+    if (positions != nullptr) positions->assign(1, state.x);
+  }
+
+  // Frame f (from f - 1); only the simulation's own call is timed, not the metrics.
+  void step(int f) {
+    if (done) return;
+    scene.env.collider_motion = motion;
     const Eigen::Matrix3Xd x0 = state.x;
     const std::clock_t c0 = std::clock();
     const PoseRun run = simulate_poses(scene, *solver, {clip_pose(clip, f - 1), clip_pose(clip, f)},
@@ -99,7 +114,8 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
     if (!run.stable) {
       row.stable = false;
       row.message = "frame " + std::to_string(f) + ": " + run.message;
-      break;
+      done = true;
+      return;
     }
     wall += run.seconds;
     ++row.frames;
@@ -134,27 +150,65 @@ CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverK
       row.deepest_path = std::max(row.deepest_path, deepest);
       if (deepest > 0.5) ++row.tunnelled;
     }
+  }
+
+  CharacterBenchRow finish() {
+    if (!strains.empty()) row.p99_strain = report::percentile(std::move(strains), 0.99);
+    if (row.frames > 0) {
+      row.ms_per_frame = 1e3 * wall / row.frames;
+      row.cpu_ms_per_frame = 1e3 * cpu / row.frames;
+      row.iterations_per_frame = static_cast<double>(iterations) / row.frames;
+      row.factorizations_per_frame = static_cast<double>(factorizations) / row.frames;
+      row.strain_limit_passes_per_substep =
+          static_cast<double>(limit_passes) / (static_cast<double>(row.frames) * substeps);
+    }
+    return row;
+  }
+};
+
+// Runs the settings side by side, frame by frame in turn (each settled first), so that a change
+// in the machine's speed during the runs (another process, a slowed core: single runs of the same
+// binary on the 12k skirt read 1.41x and 1.58x minutes apart, docs/notebook/self_collision.md,
+// "Seventeenth round") falls on all of them alike and their CPU per frame compares.
+std::vector<CharacterBenchRow> run_interleaved(
+    CharacterScene& scene, const MotionClip& clip, SolverKind kind,
+    const std::vector<SolverSettings>& settings, ColliderMotion motion, int frames,
+    const std::function<void(const std::string&)>& progress,
+    std::vector<std::vector<Eigen::Matrix3Xd>>* positions = nullptr) {
+  if (positions != nullptr) positions->assign(settings.size(), {});
+  std::vector<std::unique_ptr<BenchRun>> runs;
+  for (std::size_t k = 0; k < settings.size(); ++k)
+    runs.push_back(std::make_unique<BenchRun>(scene, clip, kind, settings[k], motion,
+                                              positions ? &(*positions)[k] : nullptr));
+  const auto start = std::chrono::steady_clock::now();
+  for (int f = 1; f < frames; ++f) {
+    for (auto& run : runs) run->step(f);
     if (progress && (f % 10 == 0 || f + 1 == frames)) {
       const double elapsed =
           std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
       std::ostringstream line;
-      line << "  " << row.solver << " threads=" << settings.threads << ' '
-           << collider_motion_name(motion) << ": frame " << f + 1 << '/' << frames << ", ETA "
+      line << "  " << runs.front()->row.solver;
+      if (runs.size() > 1) line << " and " << runs.size() - 1 << " more, frame by frame in turn,";
+      line << " threads=" << runs.front()->row.threads << ' ' << collider_motion_name(motion)
+           << ": frame " << f + 1 << '/' << frames << ", ETA "
            << std::lround(elapsed / f * (frames - 1 - f)) << " s";
       progress(line.str());
     }
   }
-  if (!strains.empty()) {
-    row.p99_strain = report::percentile(std::move(strains), 0.99);
-  }
-  if (row.frames > 0) {
-    row.ms_per_frame = 1e3 * wall / row.frames;
-    row.cpu_ms_per_frame = 1e3 * cpu / row.frames;
-    row.iterations_per_frame = static_cast<double>(iterations) / row.frames;
-    row.factorizations_per_frame = static_cast<double>(factorizations) / row.frames;
-    row.strain_limit_passes_per_substep =
-        static_cast<double>(limit_passes) / (static_cast<double>(row.frames) * settings.substeps);
-  }
+  std::vector<CharacterBenchRow> rows;
+  for (auto& run : runs) rows.push_back(run->finish());
+  return rows;
+}
+
+CharacterBenchRow run_one(CharacterScene& scene, const MotionClip& clip, SolverKind kind,
+                          const SolverSettings& settings, ColliderMotion motion, int frames,
+                          const std::function<void(const std::string&)>& progress,
+                          std::vector<Eigen::Matrix3Xd>* positions = nullptr) {
+  std::vector<std::vector<Eigen::Matrix3Xd>> out;
+  CharacterBenchRow row = run_interleaved(scene, clip, kind, {settings}, motion, frames, progress,
+                                          positions ? &out : nullptr)
+                              .front();
+  if (positions != nullptr) *positions = std::move(out.front());
   return row;
 }
 
@@ -223,67 +277,78 @@ std::vector<CharacterBenchRow> run_character_bench(
         std::vector<ColliderMotion> motions = options.collider_motions;
         if (motions.empty()) motions.push_back(file.collider_motion);
         for (ColliderMotion motion : motions) {
+          // Every self-collision thickness and coarse count at this setting, frame by frame in
+          // turn (run_interleaved): the "CPU vs off" column compares runs made in the same
+          // minutes.
+          std::vector<SolverSettings> side_by_side;
           for (double mm : self_mm)
             for (int coarse : coarse_counts) {
               settings.self_collision_thickness_mm = mm;
               settings.coarse_vertices = coarse;
-              std::vector<Eigen::Matrix3Xd> run_positions;
-              rows.push_back(run_one(scene, clip, kind, settings, motion, frames, progress,
-                                     options.reference ? &run_positions : nullptr));
-              CharacterBenchRow& r = rows.back();
-              if (options.reference && r.stable) {
-                const SolverCandidate ref = scene_reference(kind, settings);
-                const std::string key = make_scene_solver(scene, kind, ref.settings)->describe() +
-                                        " " + collider_motion_name(motion);
-                if (references.count(key) == 0) {
-                  std::vector<Eigen::Matrix3Xd> ref_positions;
-                  CharacterBenchRow rr = run_one(scene, clip, kind, ref.settings, motion, frames,
-                                                 progress, &ref_positions);
-                  references[key] = {std::move(rr), std::move(ref_positions)};
-                }
-                const CharacterBenchRow& rr = references[key].first;
-                const std::vector<Eigen::Matrix3Xd>& ref_positions = references[key].second;
-                r.reference = rr.solver;
-                if (rr.stable && rr.frames > 0) {
-                  const FrameErrors e = compare_frames(run_positions, ref_positions, 1);
-                  r.reference_rms_mm = 1e3 * e.rms;
-                  r.reference_max_mm = 1e3 * e.max;
-                  r.reference_cpu_ms_per_frame = rr.cpu_ms_per_frame;
-                  for (std::size_t window : {5, 15, 30}) {
-                    if (run_positions.size() <= window) continue;
-                    const std::vector<Eigen::Matrix3Xd> a(run_positions.begin(),
-                                                          run_positions.begin() + window + 1);
-                    const FrameErrors w = compare_frames(a, ref_positions, 1);
-                    if (progress)
-                      progress("  frames 1-" + std::to_string(window) + ": " +
-                               fixed(1e3 * w.rms, 2) + " / " + fixed(1e3 * w.max, 2) +
-                               " mm RMS / max from the reference");
-                  }
-                } else {
-                  r.reference += " (unstable: " + rr.message + ")";
-                }
-              }
-              if (progress)
-                progress(r.solver + " threads=" + std::to_string(threads) + " " +
-                         collider_motion_name(motion) + ": " + fixed(r.ms_per_frame, 2) +
-                         " ms/frame (CPU " + fixed(r.cpu_ms_per_frame, 2) + "), strain p99 " +
-                         fixed(100 * r.p99_strain, 2) + " % max " + fixed(100 * r.max_strain, 2) +
-                         " %, max penetration " + fixed(1e3 * r.max_penetration, 2) +
-                         " mm, tunnelled " + std::to_string(r.tunnelled) + ", worst edge " +
-                         worst_edge_text(r) + ", self-intersections max " +
-                         std::to_string(r.self_intersections) + " in " +
-                         std::to_string(r.self_intersection_frames) + " frames" +
-                         (settings.strain_limit > 0.0
-                              ? ", strain-limit passes per sub-step " +
-                                    fixed(r.strain_limit_passes_per_substep, 2) + " (capped " +
-                                    std::to_string(r.strain_limit_capped) + ")"
-                              : std::string()) +
-                         (std::isfinite(r.reference_rms_mm)
-                              ? ", " + fixed(r.reference_rms_mm, 2) + " / " +
-                                    fixed(r.reference_max_mm, 2) + " mm RMS / max from 8x sub-steps"
-                              : std::string()) +
-                         (r.stable ? "" : ", UNSTABLE: " + r.message));
+              side_by_side.push_back(settings);
             }
+          std::vector<std::vector<Eigen::Matrix3Xd>> positions;
+          std::vector<CharacterBenchRow> made =
+              run_interleaved(scene, clip, kind, side_by_side, motion, frames, progress,
+                              options.reference ? &positions : nullptr);
+          for (std::size_t k = 0; k < made.size(); ++k) {
+            settings = side_by_side[k];
+            const std::vector<Eigen::Matrix3Xd> run_positions =
+                options.reference ? std::move(positions[k]) : std::vector<Eigen::Matrix3Xd>{};
+            rows.push_back(std::move(made[k]));
+            CharacterBenchRow& r = rows.back();
+            if (options.reference && r.stable) {
+              const SolverCandidate ref = scene_reference(kind, settings);
+              const std::string key = make_scene_solver(scene, kind, ref.settings)->describe() +
+                                      " " + collider_motion_name(motion);
+              if (references.count(key) == 0) {
+                std::vector<Eigen::Matrix3Xd> ref_positions;
+                CharacterBenchRow rr = run_one(scene, clip, kind, ref.settings, motion, frames,
+                                               progress, &ref_positions);
+                references[key] = {std::move(rr), std::move(ref_positions)};
+              }
+              const CharacterBenchRow& rr = references[key].first;
+              const std::vector<Eigen::Matrix3Xd>& ref_positions = references[key].second;
+              r.reference = rr.solver;
+              if (rr.stable && rr.frames > 0) {
+                const FrameErrors e = compare_frames(run_positions, ref_positions, 1);
+                r.reference_rms_mm = 1e3 * e.rms;
+                r.reference_max_mm = 1e3 * e.max;
+                r.reference_cpu_ms_per_frame = rr.cpu_ms_per_frame;
+                for (std::size_t window : {5, 15, 30}) {
+                  if (run_positions.size() <= window) continue;
+                  const std::vector<Eigen::Matrix3Xd> a(run_positions.begin(),
+                                                        run_positions.begin() + window + 1);
+                  const FrameErrors w = compare_frames(a, ref_positions, 1);
+                  if (progress)
+                    progress("  frames 1-" + std::to_string(window) + ": " + fixed(1e3 * w.rms, 2) +
+                             " / " + fixed(1e3 * w.max, 2) + " mm RMS / max from the reference");
+                }
+              } else {
+                r.reference += " (unstable: " + rr.message + ")";
+              }
+            }
+            if (progress)
+              progress(r.solver + " threads=" + std::to_string(threads) + " " +
+                       collider_motion_name(motion) + ": " + fixed(r.ms_per_frame, 2) +
+                       " ms/frame (CPU " + fixed(r.cpu_ms_per_frame, 2) + "), strain p99 " +
+                       fixed(100 * r.p99_strain, 2) + " % max " + fixed(100 * r.max_strain, 2) +
+                       " %, max penetration " + fixed(1e3 * r.max_penetration, 2) +
+                       " mm, tunnelled " + std::to_string(r.tunnelled) + ", worst edge " +
+                       worst_edge_text(r) + ", self-intersections max " +
+                       std::to_string(r.self_intersections) + " in " +
+                       std::to_string(r.self_intersection_frames) + " frames" +
+                       (settings.strain_limit > 0.0
+                            ? ", strain-limit passes per sub-step " +
+                                  fixed(r.strain_limit_passes_per_substep, 2) + " (capped " +
+                                  std::to_string(r.strain_limit_capped) + ")"
+                            : std::string()) +
+                       (std::isfinite(r.reference_rms_mm)
+                            ? ", " + fixed(r.reference_rms_mm, 2) + " / " +
+                                  fixed(r.reference_max_mm, 2) + " mm RMS / max from 8x sub-steps"
+                            : std::string()) +
+                       (r.stable ? "" : ", UNSTABLE: " + r.message));
+          }
         }
       }
     }
