@@ -171,6 +171,38 @@ TEST(Collision, MovingCapsulePushesWithItsMotion) {
   EXPECT_NEAR(x(1, 0), 0.5, 1e-12);
 }
 
+// The body's surface nearest a vertex, for the self-contacts' room (self_collision.hpp, kBodyGive):
+// the nearer of two capsules at the pose asked, with its outward normal; the margin as the least
+// distance (where a response leaves a vertex); nothing beyond the reach. Fails if the pose
+// fraction is ignored, a farther capsule is taken, or the reach is not kept to.
+TEST(Collision, NearestSurfaceIsTheNearestCapsuleAtThePoseWithinReach) {
+  Environment env;
+  env.collision_margin = 0.004;
+  CapsuleCollider near_one;
+  near_one.a_start = Vec3(0, 0, 0);
+  near_one.b_start = Vec3(0, 1, 0);
+  near_one.a = Vec3(0.1, 0, 0);  // moves 10 cm along +x over the step
+  near_one.b = Vec3(0.1, 1, 0);
+  near_one.radius = 0.05;
+  CapsuleCollider far_one = near_one;
+  far_one.a_start = far_one.a = Vec3(0, 0, 0.2);
+  far_one.b_start = far_one.b = Vec3(0, 1, 0.2);
+  env.capsules = {far_one, near_one};
+  // 2 cm out of the near capsule's surface (+x) at the start pose, 3 cm inside at the half pose.
+  const Vec3 p(0.07, 0.5, 0);
+  const NearSurface half = nearest_surface(p, env, 0.5, 0.03);
+  EXPECT_NEAR(half.distance, 0.004, 1e-12) << "inside: the margin, where a response leaves it";
+  EXPECT_NEAR(half.normal.x(), 1.0, 1e-12);
+  const NearSurface start = nearest_surface(p, env, 0.0, 0.03);
+  EXPECT_NEAR(start.distance, 0.02, 1e-12);
+  EXPECT_NEAR(start.normal.x(), 1.0, 1e-12);
+  EXPECT_EQ(nearest_surface(p, env, 0.0, 0.015).distance, INFINITY) << "2 cm is beyond the reach";
+  EXPECT_EQ(nearest_surface(Vec3(0.07, 0.5, 0.3), env, 0.0, 0.03).distance, INFINITY);
+  const NearSurface other = nearest_surface(Vec3(0, 0.5, 0.27), env, 0.0, 0.03);
+  EXPECT_NEAR(other.distance, 0.02, 1e-12);
+  EXPECT_NEAR(other.normal.z(), 1.0, 1e-12);
+}
+
 TEST(Collision, FastCapsuleTunnelsUnlessSwept) {
   // A limb moving 3 radii in one step past a still vertex: projected at the end pose the vertex is
   // already behind it (no contact at all: tunnelled); with the limb 2.2 radii on, the vertex is

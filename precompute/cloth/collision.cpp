@@ -145,9 +145,7 @@ Environment environment_at(const Environment& env, double s) {
 
 bool resolve_vertex_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
                                const Eigen::VectorXd& inv_mass, Eigen::Index i,
-                               const Environment& env, double s, double s_start,
-                               NearSurface* near) {
-  if (near) near->distance = INFINITY;
+                               const Environment& env, double s, double s_start) {
   if (inv_mass[i] <= 0.0) return false;
   if (s_start < 0.0) s_start = s;
   s = pose_fraction(env, s);
@@ -156,21 +154,9 @@ bool resolve_vertex_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_st
   Vec3 p = x.col(i);
   const Vec3 p0 = x_start.col(i);
   bool hit = false;
-  // The response pushes a vertex out along the normal to the margin (friction moves it along the
-  // surface), so its distance afterwards is at least the margin.
-  auto note = [&](const SurfacePoint& sp) {
-    const double d = std::max(sp.distance, env.collision_margin);
-    if (near && sp.distance < near->reach && d < near->distance) {
-      near->distance = d;
-      near->normal = sp.normal;
-    }
-  };
-  // Capsules farther than this are skipped (the margin, or the reach of `near` if larger).
-  const double watch = std::max(env.collision_margin, near ? near->reach : 0.0);
   for (const auto& c : env.planes) {
     const SurfacePoint sp = plane_point(c, p);
     hit |= respond(p, p0, sp, Vec3::Zero(), env);
-    note(sp);
   }
   for (const auto& c : env.spheres) {
     const Vec3 center = lerp(c.center_start, c.center, s);
@@ -178,21 +164,19 @@ bool resolve_vertex_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_st
     if (swept) p = swept_entry(p0, p, center0, center0, center, center, c.radius);
     const SurfacePoint sp = sphere_point(center, c.radius, p);
     hit |= respond(p, p0, sp, center - center0, env);
-    note(sp);
   }
   for (const auto& c : env.capsules) {
     const Vec3 a = lerp(c.a_start, c.a, s), b = lerp(c.b_start, c.b, s);
     const Vec3 a0 = lerp(c.a_start, c.a, s_start), b0 = lerp(c.b_start, c.b, s_start);
     if (swept) {
       p = swept_entry(p0, p, a0, b0, a, b, c.radius);
-    } else if (far_from_capsule(a, b, c.radius + watch, p)) {
+    } else if (far_from_capsule(a, b, c.radius + env.collision_margin, p)) {
       continue;  // respond would find no depth; skips the square root for most pairs
     }
     const SurfacePoint sp = capsule_point(a, b, c.radius, p);
     const Vec3 axis_now = a + sp.segment_t * (b - a);
     const Vec3 axis_before = a0 + sp.segment_t * (b0 - a0);
     hit |= respond(p, p0, sp, axis_now - axis_before, env);
-    note(sp);
   }
   // A swept entry point may sit exactly on the surface, where respond finds no depth (margin 0):
   // it is still where the vertex must go.
@@ -207,6 +191,29 @@ int resolve_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
   for (Eigen::Index i = 0; i < x.cols(); ++i)
     contacts += resolve_vertex_collisions(x, x_start, inv_mass, i, env, s, s_start) ? 1 : 0;
   return contacts;
+}
+
+NearSurface nearest_surface(const Vec3& p, const Environment& env, double s, double reach) {
+  s = pose_fraction(env, s);
+  NearSurface near;
+  // A response pushes a vertex out along the normal to the margin (friction moves it along the
+  // surface), so its distance afterwards is at least the margin.
+  auto note = [&](const SurfacePoint& sp) {
+    const double d = std::max(sp.distance, env.collision_margin);
+    if (sp.distance < reach && d < near.distance) {
+      near.distance = d;
+      near.normal = sp.normal;
+    }
+  };
+  for (const auto& c : env.planes) note(plane_point(c, p));
+  for (const auto& c : env.spheres)
+    note(sphere_point(lerp(c.center_start, c.center, s), c.radius, p));
+  for (const auto& c : env.capsules) {
+    const Vec3 a = lerp(c.a_start, c.a, s), b = lerp(c.b_start, c.b, s);
+    if (far_from_capsule(a, b, c.radius + reach, p)) continue;
+    note(capsule_point(a, b, c.radius, p));
+  }
+  return near;
 }
 
 double penetration_depth(const Vec3& p, const Environment& env, double s) {

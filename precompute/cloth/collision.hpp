@@ -83,24 +83,22 @@ int resolve_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
                        const Eigen::VectorXd& inv_mass, const Environment& env, double s,
                        double s_start = -1.0);
 
-// The collider surface nearest a vertex after resolve_vertex_collisions moved it: its outward
-// normal and the vertex's distance from it (m; at least the margin after a response). For the
-// cloth's self-contacts, which must not push a vertex deep into the body
-// (solvers/self_collision.hpp, kBodyGive).
-struct NearSurface {
-  double reach = 0.0;          // in: only surfaces nearer than this count
-  double distance = INFINITY;  // out: +infinity if no surface is within reach
-  Vec3 normal = Vec3::Zero();  // out: the nearest one's outward normal
-};
-
 // resolve_collisions for vertex i alone (it reads and writes only column i of x), for callers that
 // share the vertices out among threads; the result is the same whatever the sharing. Returns true
-// on contact. With `near`, also reports the nearest surface within near->reach (of the vertex as
-// each collider's response left it).
+// on contact.
 bool resolve_vertex_collisions(Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& x_start,
                                const Eigen::VectorXd& inv_mass, Eigen::Index i,
-                               const Environment& env, double s, double s_start = -1.0,
-                               NearSurface* near = nullptr);
+                               const Environment& env, double s, double s_start = -1.0);
+
+// The collider surface nearest p at pose fraction s, if one is nearer than `reach`: its outward
+// normal and p's distance from it (m), at least the margin (where a response leaves a vertex it
+// pushed out). For the cloth's self-contacts, which must not push a vertex deep into the body
+// (solvers/self_collision.hpp, kBodyGive); asked only for the few vertices they move.
+struct NearSurface {
+  double distance = INFINITY;  // +infinity if no surface is within reach
+  Vec3 normal = Vec3::Zero();  // the nearest one's outward normal
+};
+NearSurface nearest_surface(const Vec3& p, const Environment& env, double s, double reach);
 
 // Depth of p below the deepest collider surface at pose fraction `s`: metres inside, 0 if outside
 // every collider. The margin is not counted. The one measure of penetration every report uses

@@ -10,6 +10,7 @@
 #include <string>
 
 #include "cloth/closest_point.hpp"
+#include "cloth/collision.hpp"
 #include "cloth/self_intersection.hpp"
 
 namespace clothdb {
@@ -109,7 +110,7 @@ bool push_apart(Eigen::Matrix3Xd& x, SelfCollision& sc, const double* w, double*
   double denom = 0.0;
   for (int k = 0; k < count; ++k) denom += w[who[k]] * coef[k] * coef[k];
   if (!(denom > 0.0)) return false;
-  const bool body = sc.body_room.size() == std::size_t(x.cols());
+  const bool body = sc.body != nullptr && sc.body_room.size() == std::size_t(x.cols());
   // Rounded as the contacts always were (w coef times this), so that where the body's room does
   // not cut a move the frames are those of the code before it.
   const Vec3 unit = (-c / denom) * n;
@@ -118,6 +119,13 @@ bool push_apart(Eigen::Matrix3Xd& x, SelfCollision& sc, const double* w, double*
     if (w[v] <= 0.0) continue;
     Vec3 step = (w[v] * coef[k]) * unit;
     double* room = body ? &sc.body_room[std::size_t(v)] : nullptr;
+    if (room && std::isnan(*room)) {
+      // The vertex's first move in this sub-step: it is where the collision pass left it.
+      const NearSurface near =
+          nearest_surface(x.col(v), *sc.body, sc.body_pose, kBodyReach * sc.thickness);
+      *room = near.distance + kBodyGive * sc.thickness;
+      sc.body_normal.col(v) = near.normal;
+    }
     if (room && *room < INFINITY) {
       const auto nb = sc.body_normal.col(v);
       const double along = step.dot(nb);

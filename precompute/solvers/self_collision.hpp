@@ -61,6 +61,8 @@
 
 namespace clothdb {
 
+struct Environment;
+
 // A patch of the hierarchy: its triangles are tri_order[tri_begin, tri_end); each vertex and edge
 // is owned by the first triangle in tri_order that holds it, and a patch's own vertices and edges
 // are vert_order[vert_begin, vert_end) and edge_order[edge_begin, edge_end) (so every
@@ -257,12 +259,18 @@ struct SelfCollision {
   std::vector<double> moved;
   // Untangling constraints of the step being run again (plan_untangle); empty otherwise.
   std::vector<UntangleConstraint> untangle;
-  // The body under the cloth, set by the solver after its collision pass in each sub-step (empty:
-  // not used): per vertex, the outward normal of the nearest collider surface within
-  // kBodyReach thicknesses, and how far (m) the contacts may still move the vertex against that
-  // normal (+infinity: no surface that near). The room is the vertex's distance from the surface
-  // plus kBodyGive thicknesses: the contacts may press the layer next to the body into it by that
-  // much, no deeper (docs/notebook/self_collision.md, "Eleventh round").
+  // The body under the cloth, set by the solver after its collision pass in each sub-step (null:
+  // not used): its colliders and the pose fraction they are at. Per vertex, the outward normal of
+  // the nearest collider surface within kBodyReach thicknesses, and how far (m) the contacts may
+  // still move the vertex against that normal (+infinity: no surface that near). The room is the
+  // vertex's distance from the surface plus kBodyGive thicknesses: the contacts may press the layer
+  // next to the body into it by that much, no deeper (docs/notebook/self_collision.md, "Eleventh
+  // round"). The solver sets every room to NaN, "not asked yet", in each sub-step, and a contact
+  // finds a vertex's surface (nearest_surface) when it first moves the vertex in the sub-step,
+  // where the collision pass left it: a few vertices a sub-step, instead of every vertex in the
+  // collision pass (docs/notebook/self_collision.md, "Seventeenth round").
+  const Environment* body = nullptr;
+  double body_pose = 1.0;
   Eigen::Matrix3Xd body_normal;
   std::vector<double> body_room;
   // The crossing search's arrays, kept from step to step (plan_untangle runs it once a step):

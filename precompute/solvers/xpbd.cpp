@@ -700,22 +700,9 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
       }
       // Colliders at this sub-step's pose; friction measured against the surface's own motion
       // over the sub-step. Each vertex is resolved on its own, so the vertices are shared out.
-      // With self-collision, the pass also notes each vertex's nearest body surface: the contacts
-      // below may not push a vertex deep into it (self_collision.hpp, kBodyGive).
-      {
-        const bool note_body = self_.thickness > 0.0;
-        const double reach = kBodyReach * self_.thickness, give = kBodyGive * self_.thickness;
 #pragma omp for schedule(static)
-        for (Eigen::Index i = 0; i < n; ++i) {
-          NearSurface near;
-          near.reach = reach;
-          resolve_vertex_collisions(state.x, x_prev, model_.inv_mass, i, env, s_end, s_start,
-                                    note_body ? &near : nullptr);
-          if (!note_body) continue;
-          self_.body_room[static_cast<std::size_t>(i)] = near.distance + give;
-          if (near.distance < INFINITY) self_.body_normal.col(i) = near.normal;
-        }
-      }
+      for (Eigen::Index i = 0; i < n; ++i)
+        resolve_vertex_collisions(state.x, x_prev, model_.inv_mass, i, env, s_end, s_start);
       // Self-collision after the body's collision pass: cloth pressed between the body and another
       // layer is pushed apart last, so a layer the body moved cannot end the sub-step through the
       // one over it (which would then be taken as its side at the next sub-step). It may push the
@@ -724,6 +711,11 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
       if (self_.thickness > 0.0) {
 #pragma omp single
         {
+          // The contacts may not push a vertex deep into the body (self_collision.hpp, kBodyGive):
+          // the nearest surface of each vertex they move, found when they first move it.
+          self_.body = &env;
+          self_.body_pose = s_end;
+          std::fill(self_.body_room.begin(), self_.body_room.end(), NAN);
           refresh_self_collision(self_, model_, state.x, x_prev);
           // Up to three Gauss-Seidel passes, until one projects no contact: a single pass left
           // crossings that the next sub-steps then kept (each pair's side is taken at the
@@ -791,6 +783,7 @@ StepReport XpbdSolver::step(ClothState& state, double dt, const StepInputs& inpu
     state = saved;
     self_.built_at.resize(3, 0);  // rebuild: the motion bounds do not cover the step's start
   }
+  self_.body = nullptr;  // the step's colliders, not to be read after it
 
   StepReport report;
   report.iterations = substeps * sweeps;
