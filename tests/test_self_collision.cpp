@@ -272,6 +272,29 @@ bool contains(std::vector<T> items, const T& item) {
 // Without leaving out flat patches the hierarchy lists exactly the pairs a search of all pairs
 // lists, on a sheet folded onto itself; a broken descent, box refit or vertex / edge ownership
 // loses or repeats pairs.
+// The normal cones' acos (acos_above) is an upper bound within 2 kAcosAbove of std::acos over
+// [-1, 1], the ends and out-of-range inputs (clamped) included: a cone taken narrower than it is
+// could be found flat when it is not. Fails for a bound below acos anywhere, or a loose one.
+TEST(SelfCollisionSearch, ConeAnglesAreBoundsAboveAcos) {
+  double worst_below = 0.0, worst_above = 0.0;
+  for (int k = -200000; k <= 200000; ++k) {
+    const double c = k / 200000.0;
+    const double gap = acos_above(c) - std::acos(c);
+    worst_below = std::min(worst_below, gap);
+    worst_above = std::max(worst_above, gap);
+  }
+  for (double c : {-1.0, 1.0, std::nextafter(1.0, 0.0), std::nextafter(-1.0, 0.0), 0.0, -0.0}) {
+    EXPECT_GE(acos_above(c), std::acos(c)) << c;
+    EXPECT_LE(acos_above(c), std::acos(c) + 2 * kAcosAbove) << c;
+  }
+  EXPECT_GE(worst_below, 0.0);
+  EXPECT_LE(worst_above, 2 * kAcosAbove);
+  EXPECT_GT(worst_above, 0.5 * kAcosAbove) << "the margin is there";
+  EXPECT_EQ(acos_above(1.5), acos_above(1.0));
+  EXPECT_EQ(acos_above(-2.0), acos_above(-1.0));
+  EXPECT_TRUE(std::isnan(acos_above(NAN)));
+}
+
 TEST(SelfCollisionSearch, HierarchyFindsEveryPairTheBruteForceFinds) {
   const ClothModel model = make_model(make_quad_grid(16, 16, 1.0, 1.0), Material{}, {});
   SelfCollision sc = make_self_collision(model, 0.01);

@@ -545,9 +545,7 @@ void refit_bounds(const SelfCollision& sc, const ClothMesh& mesh, const Eigen::M
                   int begin, int end, double flat_angle, double flat_cos,
                   std::vector<PatchBounds>& bounds, TriangleBox* triangle_boxes) {
   constexpr double pi = 3.14159265358979323846;
-  auto angle_between = [](const Vec3& a, const Vec3& b) {
-    return std::acos(std::clamp(a.dot(b), -1.0, 1.0));
-  };
+  auto angle_between = [](const Vec3& a, const Vec3& b) { return acos_above(a.dot(b)); };
   for (auto id = static_cast<std::size_t>(end); id-- > static_cast<std::size_t>(begin);) {
     const Patch& p = sc.patches[id];
     PatchBounds& b = bounds[id];
@@ -581,11 +579,9 @@ void refit_bounds(const SelfCollision& sc, const ClothMesh& mesh, const Eigen::M
       double lowest = 1.0;
       for (int k = 0; k < p.tri_end - p.tri_begin; ++k)
         lowest = std::min(lowest, normals[k].dot(b.axis));
-      // A cone surely at least flat_angle wide (acos is monotone and exact to an ulp or so, far
-      // inside the 1e-9 margin) is stored as pi without its acos.
-      b.angle = degenerate || !(len > 0.0) || lowest < flat_cos - 1e-9
-                    ? pi
-                    : std::acos(std::clamp(lowest, -1.0, 1.0));
+      // A cone surely at least flat_angle wide (acos_above is within 1e-7 above acos, and the
+      // margin keeps this test to cones that are) is stored as pi without its acos.
+      b.angle = degenerate || !(len > 0.0) || lowest < flat_cos - 1e-9 ? pi : acos_above(lowest);
     } else {
       const PatchBounds& l = bounds[static_cast<std::size_t>(p.left)];
       const PatchBounds& r = bounds[static_cast<std::size_t>(p.right)];
@@ -749,8 +745,8 @@ bool union_is_flat(const SelfCollision& sc, const ClothMesh& mesh, const Eigen::
   const double len = sum.norm();
   if (!(len > 0.0)) return false;
   const Vec3 axis = sum / len;
-  const double angle = std::max(std::acos(std::clamp(axis.dot(ba.axis), -1.0, 1.0)) + ba.angle,
-                                std::acos(std::clamp(axis.dot(bb.axis), -1.0, 1.0)) + bb.angle);
+  const double angle =
+      std::max(acos_above(axis.dot(ba.axis)) + ba.angle, acos_above(axis.dot(bb.axis)) + bb.angle);
   if (!(angle < flat_angle)) return false;
   std::vector<int>& vertex_stamp = scratch.vertex_stamp;
   std::vector<int>& edge_stamp = scratch.edge_stamp;
@@ -1217,6 +1213,20 @@ long merge_pairs(std::vector<std::array<int, 2>>& pairs, std::vector<float>& gap
 }
 
 }  // namespace
+
+double acos_above(double c) {
+  constexpr double pi = 3.14159265358979323846;
+  c = std::clamp(c, -1.0, 1.0);  // NaN stays NaN, and so does the result
+  const double a = std::abs(c);
+  // Abramowitz & Stegun 4.4.46: acos(a) = sqrt(1 - a) (a0 + a1 a + ... + a7 a^7) + e(a) on [0, 1],
+  // |e| <= 2e-8; acos(-a) = pi - acos(a).
+  double p = -0.0012624911;
+  for (double k : {0.0066700901, -0.0170881256, 0.0308918810, -0.0501743046, 0.0889789874,
+                   -0.2145988016, 1.5707963050})
+    p = p * a + k;
+  const double r = std::sqrt(1.0 - a) * p;
+  return (c >= 0.0 ? r : pi - r) + kAcosAbove;
+}
 
 SelfCollision make_self_collision(const ClothModel& model, double thickness) {
   if (!(thickness > 0.0) || !std::isfinite(thickness))

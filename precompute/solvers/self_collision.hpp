@@ -318,6 +318,14 @@ constexpr double kBodyReach = 3.0;
 constexpr int kContactPasses = 3;
 constexpr int kContactPassesAtBody = 10;
 
+// An upper bound on acos(c), c in [-1, 1] (clamped), at most 2 kAcosAbove above it: a polynomial
+// (Abramowitz & Stegun 4.4.46, error 2e-8) raised by kAcosAbove. The normal cones need only bounds
+// (a cone taken wider is at worst not found flat, and searched), and std::acos was 3 % of
+// self-collision's time on the 12k skirt, in the refits and the union tests
+// (docs/notebook/self_collision.md, "Seventeenth round").
+constexpr double kAcosAbove = 1e-7;
+double acos_above(double c);
+
 // A SelfCollision for `model` with thickness (m) > 0. The skin is half the mean rest edge length,
 // but at least the thickness: enough that a build lasts several sub-steps, small enough that the
 // lists hold a few pairs per vertex.
