@@ -85,7 +85,6 @@ struct BenchRun {
   long iterations = 0, factorizations = 0, limit_passes = 0;
   std::vector<double> strains;  // every edge at every frame, for the percentile
   int substeps = 0;
-  bool done = false;
 
   BenchRun(CharacterScene& s, const MotionClip& c, SolverKind kind, const SolverSettings& settings,
            ColliderMotion m, std::vector<Eigen::Matrix3Xd>* p)
@@ -104,7 +103,7 @@ struct BenchRun {
 
   // Frame f (from f - 1); only the simulation's own call is timed, not the metrics.
   void step(int f) {
-    if (done) return;
+    if (!row.stable) return;  // stopped at the frame that went unstable
     scene.env.collider_motion = motion;
     const Eigen::Matrix3Xd x0 = state.x;
     const std::clock_t c0 = std::clock();
@@ -114,7 +113,6 @@ struct BenchRun {
     if (!run.stable) {
       row.stable = false;
       row.message = "frame " + std::to_string(f) + ": " + run.message;
-      done = true;
       return;
     }
     wall += run.seconds;

@@ -140,7 +140,7 @@ class XpbdSolver final : public Solver {
     if (settings.self_collision_thickness_mm > 0.0) {
       self_ = make_self_collision(model_, settings.self_collision_thickness_mm * 1e-3);
       self_.body_normal.setZero(3, model_.vertex_count());
-      self_.body_room.assign(static_cast<std::size_t>(model_.vertex_count()), INFINITY);
+      self_.body_room.assign(static_cast<std::size_t>(model_.vertex_count()), NAN);  // not asked
     }
   }
 
